@@ -1,0 +1,1 @@
+//! Metalens imaging model.

@@ -1,0 +1,1 @@
+//! Scene captures: LLFF, COLMAP, splits.

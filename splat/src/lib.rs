@@ -1,0 +1,1 @@
+//! Differentiable Gaussian-splat rasterizer.
