@@ -1,0 +1,374 @@
+use super::layout::{AxisLayout, Padded};
+use crate::error::{AberrationError, Result};
+use crate::fft2::{RealFft2, fast_len};
+use crate::image::Image;
+use crate::psf_grid::PsfGrid;
+use rayon::prelude::*;
+use rustfft::num_complex::Complex32;
+use std::collections::HashMap;
+use std::ops::Range;
+use std::sync::Arc;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum BlurMode {
+    /// The paper's patch-wise blur: hard tile borders.
+    Tiled,
+    /// Seamless bilinear interpolation between neighbouring PSFs.
+    #[default]
+    Blend,
+}
+
+impl std::str::FromStr for BlurMode {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "tiled" => Ok(Self::Tiled),
+            "blend" => Ok(Self::Blend),
+            other => Err(format!("unknown blur mode '{other}' (tiled or blend)")),
+        }
+    }
+}
+
+impl std::fmt::Display for BlurMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Tiled => "tiled",
+            Self::Blend => "blend",
+        })
+    }
+}
+
+/// One grid PSF acting on one rectangle of the (padded) image, computed by FFT.
+///
+/// The input segment starts at image coordinates `(in_y, in_x)`; FFT output index `m`
+/// lands on image row `m + in_y − c`. Only output indices in `out_m × out_n` are kept:
+/// for tiles the overlap-save valid part, for blend terms the part inside the image.
+struct Term {
+    g: usize,
+    in_y: isize,
+    in_x: isize,
+    in_h: usize,
+    in_w: usize,
+    weights: Option<(Vec<f32>, Vec<f32>)>,
+    out_m: Range<usize>,
+    out_n: Range<usize>,
+    fft: Arc<RealFft2>,
+    spectra: [Vec<Complex32>; 3],
+}
+
+/// A blur prepared for one image size: FFT plans and PSF spectra are computed once, so
+/// repeated `apply`/`adjoint` calls (one per training step) only run the transforms.
+pub struct BlurPlan {
+    width: usize,
+    height: usize,
+    mode: BlurMode,
+    ksize: usize,
+    /// Terms grouped by grid row: the unit of parallel work.
+    groups: Vec<Vec<Term>>,
+}
+
+impl BlurPlan {
+    /// `psf` must already be at the image's scale (see [`PsfGrid::for_image`]).
+    pub fn new(psf: &PsfGrid, width: usize, height: usize, mode: BlurMode) -> Result<Self> {
+        if width == 0 || height == 0 {
+            return Err(AberrationError::BadParameter(format!(
+                "cannot blur an empty {width}x{height} image"
+            )));
+        }
+        let (g, k) = (psf.grid(), psf.size());
+        let c = (k / 2) as isize;
+        let ax = AxisLayout { n: width, g };
+        let ay = AxisLayout { n: height, g };
+        let mut ffts: HashMap<(usize, usize), Arc<RealFft2>> = HashMap::new();
+        let mut fft_for = |rows: usize, cols: usize| {
+            ffts.entry((rows, cols))
+                .or_insert_with(|| Arc::new(RealFft2::new(rows, cols)))
+                .clone()
+        };
+        // Input reach of an output pixel p is [p + c − (K−1), p + c].
+        let (m_lo, m_hi) = (c - (k as isize - 1), c);
+        let mut groups = Vec::with_capacity(g);
+        for i in 0..g {
+            let mut terms = Vec::new();
+            for j in 0..g {
+                let gi = i * g + j;
+                let term = match mode {
+                    BlurMode::Tiled => {
+                        let (ry, rx) = (ay.tile(i), ax.tile(j));
+                        if ry.is_empty() || rx.is_empty() {
+                            continue;
+                        }
+                        let (in_h, in_w) = (ry.len() + k - 1, rx.len() + k - 1);
+                        let fft = fft_for(fast_len(in_h), fast_len(in_w));
+                        Term {
+                            g: gi,
+                            in_y: ry.start as isize + m_lo,
+                            in_x: rx.start as isize + m_lo,
+                            in_h,
+                            in_w,
+                            weights: None,
+                            out_m: k - 1..in_h,
+                            out_n: k - 1..in_w,
+                            fft,
+                            spectra: Default::default(),
+                        }
+                    }
+                    BlurMode::Blend => {
+                        let sy = ay.hat_support(i, m_lo, height as isize + m_hi);
+                        let sx = ax.hat_support(j, m_lo, width as isize + m_hi);
+                        if sy.is_empty() || sx.is_empty() {
+                            continue;
+                        }
+                        let (in_h, in_w) = (sy.len(), sx.len());
+                        let out = |start: isize, len: usize, n: usize| {
+                            let lo = (c - start).max(0) as usize;
+                            let hi = ((n as isize + c - start) as usize).min(len + k - 1);
+                            lo..hi.max(lo)
+                        };
+                        let (out_m, out_n) = (out(sy.start, in_h, height), out(sx.start, in_w, width));
+                        if out_m.is_empty() || out_n.is_empty() {
+                            continue;
+                        }
+                        let wy = sy.clone().map(|p| ay.hat(i, p) as f32).collect();
+                        let wx = sx.clone().map(|p| ax.hat(j, p) as f32).collect();
+                        let fft = fft_for(fast_len(in_h + k - 1), fast_len(in_w + k - 1));
+                        Term {
+                            g: gi,
+                            in_y: sy.start,
+                            in_x: sx.start,
+                            in_h,
+                            in_w,
+                            weights: Some((wy, wx)),
+                            out_m,
+                            out_n,
+                            fft,
+                            spectra: Default::default(),
+                        }
+                    }
+                };
+                terms.push(term);
+            }
+            groups.push(terms);
+        }
+        // PSF spectra: the expensive part of planning, done once and in parallel.
+        groups.par_iter_mut().flatten().for_each(|t| {
+            t.spectra = std::array::from_fn(|ch| t.fft.kernel_spectrum(psf.kernel(t.g, ch), k, false));
+        });
+        Ok(Self {
+            width,
+            height,
+            mode,
+            ksize: k,
+            groups,
+        })
+    }
+
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    pub fn mode(&self) -> BlurMode {
+        self.mode
+    }
+
+    /// Bytes held by the cached PSF spectra.
+    pub fn spectra_bytes(&self) -> usize {
+        self.groups
+            .iter()
+            .flatten()
+            .map(|t| t.spectra.iter().map(|s| s.len() * 8).sum::<usize>())
+            .sum()
+    }
+
+    fn check(&self, img: &Image) -> Result<()> {
+        if img.width != self.width || img.height != self.height {
+            return Err(AberrationError::SizeMismatch {
+                width: img.width,
+                height: img.height,
+                plan_width: self.width,
+                plan_height: self.height,
+            });
+        }
+        Ok(())
+    }
+
+    fn pad(&self) -> usize {
+        self.ksize
+    }
+
+    /// `y = A x`.
+    pub fn apply(&self, x: &Image) -> Result<Image> {
+        self.check(x)?;
+        let (w, h) = (self.width, self.height);
+        let c = (self.ksize / 2) as isize;
+        let padded: Vec<Padded> = (0..3)
+            .into_par_iter()
+            .map(|ch| Padded::new(x.channel(ch), w, h, self.pad()))
+            .collect();
+        let jobs: Vec<(usize, usize)> = (0..3)
+            .flat_map(|ch| (0..self.groups.len()).map(move |gi| (ch, gi)))
+            .collect();
+        // Each job sums its terms into a band of rows; bands are added in a fixed order, so
+        // the result is bit-identical for any number of threads.
+        let bands: Vec<(usize, usize, Vec<f32>)> = jobs
+            .par_iter()
+            .map(|&(ch, gi)| {
+                let terms = &self.groups[gi];
+                let rows = band_rows(terms.iter().map(|t| out_rows(t, c)));
+                let mut band = vec![0.0f32; rows.len() * w];
+                for t in terms {
+                    forward_term(t, ch, &padded[ch], c, rows.start, &mut band, w);
+                }
+                (ch, rows.start, band)
+            })
+            .collect();
+        let mut y = Image::new(w, h);
+        for (ch, y0, band) in bands {
+            let dst = &mut y.channel_mut(ch)[y0 * w..y0 * w + band.len()];
+            dst.iter_mut().zip(&band).for_each(|(d, s)| *d += s);
+        }
+        Ok(y)
+    }
+
+    /// `x = Aᵀ y`, the exact adjoint of [`BlurPlan::apply`].
+    pub fn adjoint(&self, y: &Image) -> Result<Image> {
+        self.check(y)?;
+        let (w, h) = (self.width, self.height);
+        let c = (self.ksize / 2) as isize;
+        let pad = self.pad();
+        let pw = w + 2 * pad;
+        let jobs: Vec<(usize, usize)> = (0..3)
+            .flat_map(|ch| (0..self.groups.len()).map(move |gi| (ch, gi)))
+            .collect();
+        let bands: Vec<(usize, usize, Vec<f32>)> = jobs
+            .par_iter()
+            .map(|&(ch, gi)| {
+                let terms = &self.groups[gi];
+                // Bands here are rows of the padded image.
+                let rows = band_rows(terms.iter().map(|t| {
+                    let a = (t.in_y + pad as isize) as usize;
+                    a..a + t.in_h
+                }));
+                let mut band = vec![0.0f32; rows.len() * pw];
+                for t in terms {
+                    adjoint_term(t, ch, y.channel(ch), w, c, pad, rows.start, &mut band);
+                }
+                (ch, rows.start, band)
+            })
+            .collect();
+        let mut grads: Vec<Padded> = (0..3).map(|_| Padded::zeros(w, h, pad)).collect();
+        for (ch, y0, band) in bands {
+            let dst = &mut grads[ch].data[y0 * pw..y0 * pw + band.len()];
+            dst.iter_mut().zip(&band).for_each(|(d, s)| *d += s);
+        }
+        let mut x = Image::new(w, h);
+        for (ch, g) in grads.iter().enumerate() {
+            x.channel_mut(ch).copy_from_slice(&g.fold());
+        }
+        Ok(x)
+    }
+}
+
+fn out_rows(t: &Term, c: isize) -> Range<usize> {
+    let a = (t.out_m.start as isize + t.in_y - c) as usize;
+    a..a + t.out_m.len()
+}
+
+fn band_rows(ranges: impl Iterator<Item = Range<usize>>) -> Range<usize> {
+    ranges
+        .reduce(|a, b| a.start.min(b.start)..a.end.max(b.end))
+        .unwrap_or(0..0)
+}
+
+fn forward_term(t: &Term, ch: usize, xp: &Padded, c: isize, y0: usize, band: &mut [f32], w: usize) {
+    let fft = &t.fft;
+    let mut s = fft.scratch();
+    let mut spec = vec![Complex32::ZERO; fft.spectrum_len()];
+    let stride = xp.stride();
+    let pad = xp.pad as isize;
+    fft.forward(
+        0..t.in_h,
+        |r, row| {
+            row.fill(0.0);
+            let base = (t.in_y + r as isize + pad) as usize * stride + (t.in_x + pad) as usize;
+            let src = &xp.data[base..base + t.in_w];
+            match &t.weights {
+                None => row[..t.in_w].copy_from_slice(src),
+                Some((wy, wx)) => {
+                    let a = wy[r];
+                    for ((d, v), b) in row.iter_mut().zip(src).zip(wx) {
+                        *d = v * a * b;
+                    }
+                }
+            }
+        },
+        &mut spec,
+        &mut s,
+    );
+    spec.iter_mut().zip(&t.spectra[ch]).for_each(|(a, b)| *a *= b);
+    let x0 = (t.out_n.start as isize + t.in_x - c) as usize;
+    fft.inverse(
+        &mut spec,
+        t.out_m.clone(),
+        |m, row| {
+            let y = (m as isize + t.in_y - c) as usize - y0;
+            let dst = &mut band[y * w + x0..y * w + x0 + t.out_n.len()];
+            dst.iter_mut().zip(&row[t.out_n.clone()]).for_each(|(d, v)| *d += v);
+        },
+        &mut s,
+    );
+}
+
+#[allow(clippy::too_many_arguments)]
+fn adjoint_term(
+    t: &Term,
+    ch: usize,
+    g: &[f32],
+    w: usize,
+    c: isize,
+    pad: usize,
+    y0: usize,
+    band: &mut [f32],
+) {
+    let fft = &t.fft;
+    let mut s = fft.scratch();
+    let mut spec = vec![Complex32::ZERO; fft.spectrum_len()];
+    let x0 = (t.out_n.start as isize + t.in_x - c) as usize;
+    fft.forward(
+        t.out_m.clone(),
+        |m, row| {
+            row.fill(0.0);
+            let y = (m as isize + t.in_y - c) as usize;
+            row[t.out_n.clone()].copy_from_slice(&g[y * w + x0..y * w + x0 + t.out_n.len()]);
+        },
+        &mut spec,
+        &mut s,
+    );
+    spec.iter_mut()
+        .zip(&t.spectra[ch])
+        .for_each(|(a, b)| *a *= b.conj());
+    let pw = w + 2 * pad;
+    let col0 = (t.in_x + pad as isize) as usize;
+    fft.inverse(
+        &mut spec,
+        0..t.in_h,
+        |r, row| {
+            let py = (t.in_y + pad as isize) as usize + r - y0;
+            let dst = &mut band[py * pw + col0..py * pw + col0 + t.in_w];
+            match &t.weights {
+                None => dst.iter_mut().zip(row).for_each(|(d, v)| *d += v),
+                Some((wy, wx)) => {
+                    let a = wy[r];
+                    for ((d, v), b) in dst.iter_mut().zip(row).zip(wx) {
+                        *d += v * a * b;
+                    }
+                }
+            }
+        },
+        &mut s,
+    );
+}

@@ -1,0 +1,78 @@
+//! Resolution mapping: using a PSF grid defined for one sensor on an image of another size.
+//!
+//! The rule: a grid of G×G PSFs of K px is defined for a square sensor of `G·K` px (the
+//! paper's 9 × 135 = 1215). An image of W×H px is taken to span that sensor along its
+//! longer side, so one sensor pixel is `s = max(W, H) / (G·K)` image pixels. Every PSF is area-resampled by `s` about its centre
+//! pixel to `K'` = the smallest odd size covering `K·s` pixels, so no energy is lost and each
+//! channel keeps unit sum. The G×G grid is then laid over the whole image (stretched along
+//! the shorter side), exactly as the paper tiles its images.
+
+use crate::psf_grid::PsfGrid;
+
+/// Output size for resampling `k` pixels by `scale`: odd, and covering all of the input.
+pub fn resampled_size(k: usize, scale: f64) -> usize {
+    let mut n = (k as f64 * scale - 1e-9).ceil().max(1.0) as usize;
+    if n % 2 == 0 {
+        n += 1;
+    }
+    n
+}
+
+/// Separable area-overlap weights `w[i * k + j]`: how much of input pixel `j` falls into
+/// output pixel `i`, when output pixels are `1/scale` input pixels wide and both centre
+/// pixels (`k/2`, `n/2`) share one centre.
+pub fn area_weights(k: usize, n: usize, scale: f64) -> Vec<f64> {
+    let (ci, co) = ((k / 2) as f64, (n / 2) as f64);
+    let mut w = vec![0.0; n * k];
+    for i in 0..n {
+        let lo = (i as f64 - co - 0.5) / scale;
+        let hi = (i as f64 - co + 0.5) / scale;
+        for j in 0..k {
+            let a = j as f64 - ci - 0.5;
+            let b = a + 1.0;
+            w[i * k + j] = (hi.min(b) - lo.max(a)).max(0.0);
+        }
+    }
+    w
+}
+
+impl PsfGrid {
+    /// Every PSF area-resampled by `scale` output pixels per input pixel.
+    pub fn resampled(&self, scale: f64) -> PsfGrid {
+        let k = self.size();
+        if (scale - 1.0).abs() < 1e-12 {
+            return self.clone();
+        }
+        let n = resampled_size(k, scale);
+        let w = area_weights(k, n, scale);
+        let mut data = Vec::with_capacity(self.grid() * self.grid() * 3 * n * n);
+        let mut tmp = vec![0.0f64; n * k];
+        for g in 0..self.grid() * self.grid() {
+            for c in 0..3 {
+                let src = self.kernel(g, c);
+                // Rows first (n x k), then columns (n x n).
+                for i in 0..n {
+                    for x in 0..k {
+                        tmp[i * k + x] = (0..k)
+                            .map(|y| w[i * k + y] * src[y * k + x] as f64)
+                            .sum();
+                    }
+                }
+                for i in 0..n {
+                    for j in 0..n {
+                        let v: f64 = (0..k).map(|x| w[j * k + x] * tmp[i * k + x]).sum();
+                        data.push(v as f32);
+                    }
+                }
+            }
+        }
+        PsfGrid::from_planar(self.grid(), n, data).expect("area resampling keeps PSFs valid")
+    }
+
+    /// The grid mapped onto a `width × height` image by the module's rule; `sensor_px`
+    /// overrides the native sensor size `G·K`.
+    pub fn for_image(&self, width: usize, height: usize, sensor_px: Option<usize>) -> PsfGrid {
+        let sensor = sensor_px.unwrap_or(self.native_sensor_px()).max(1);
+        self.resampled(width.max(height) as f64 / sensor as f64)
+    }
+}
