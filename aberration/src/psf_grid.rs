@@ -90,8 +90,11 @@ impl PsfGrid {
                     "PSF {g} channel {c} sums to {sum}; a PSF must have positive total energy"
                 )));
             }
-            let inv = (1.0 / sum) as f32;
-            kernel.iter_mut().for_each(|v| *v *= inv);
+            // Already-normalised kernels are left bit-exact, so a file round trip is too.
+            if (sum - 1.0).abs() > 1e-6 {
+                let inv = (1.0 / sum) as f32;
+                kernel.iter_mut().for_each(|v| *v *= inv);
+            }
         }
         Ok(())
     }

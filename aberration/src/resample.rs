@@ -8,6 +8,7 @@
 //! the shorter side), exactly as the paper tiles its images.
 
 use crate::psf_grid::PsfGrid;
+use rayon::prelude::*;
 
 /// Output size for resampling `k` pixels by `scale`: odd, and covering all of the input.
 pub fn resampled_size(k: usize, scale: f64) -> usize {
@@ -45,27 +46,39 @@ impl PsfGrid {
         }
         let n = resampled_size(k, scale);
         let w = area_weights(k, n, scale);
-        let mut data = Vec::with_capacity(self.grid() * self.grid() * 3 * n * n);
-        let mut tmp = vec![0.0f64; n * k];
-        for g in 0..self.grid() * self.grid() {
-            for c in 0..3 {
-                let src = self.kernel(g, c);
+        // Each output pixel overlaps only a few input pixels: keep those ranges.
+        let spans: Vec<std::ops::Range<usize>> = (0..n)
+            .map(|i| {
+                let row = &w[i * k..(i + 1) * k];
+                let a = row.iter().position(|v| *v > 0.0).unwrap_or(0);
+                let b = row.iter().rposition(|v| *v > 0.0).map_or(a, |b| b + 1);
+                a..b
+            })
+            .collect();
+        let data: Vec<f32> = (0..self.grid() * self.grid() * 3)
+            .into_par_iter()
+            .flat_map_iter(|idx| {
+                let src = self.kernel(idx / 3, idx % 3);
                 // Rows first (n x k), then columns (n x n).
-                for i in 0..n {
-                    for x in 0..k {
-                        tmp[i * k + x] = (0..k)
-                            .map(|y| w[i * k + y] * src[y * k + x] as f64)
-                            .sum();
+                let mut tmp = vec![0.0f64; n * k];
+                for (i, span) in spans.iter().enumerate() {
+                    for y in span.clone() {
+                        let wy = w[i * k + y];
+                        for x in 0..k {
+                            tmp[i * k + x] += wy * src[y * k + x] as f64;
+                        }
                     }
                 }
+                let mut out = vec![0.0f32; n * n];
                 for i in 0..n {
-                    for j in 0..n {
-                        let v: f64 = (0..k).map(|x| w[j * k + x] * tmp[i * k + x]).sum();
-                        data.push(v as f32);
+                    for (j, span) in spans.iter().enumerate() {
+                        let v: f64 = span.clone().map(|x| w[j * k + x] * tmp[i * k + x]).sum();
+                        out[i * n + j] = v as f32;
                     }
                 }
-            }
-        }
+                out
+            })
+            .collect();
         PsfGrid::from_planar(self.grid(), n, data).expect("area resampling keeps PSFs valid")
     }
 
