@@ -20,7 +20,9 @@ pub enum AberrationError {
     ImageWrite { path: PathBuf, problem: String },
     #[error("invalid parameter: {0}")]
     BadParameter(String),
-    #[error("image of {width}x{height} does not match the plan made for {plan_width}x{plan_height}")]
+    #[error(
+        "image of {width}x{height} does not match the plan made for {plan_width}x{plan_height}"
+    )]
     SizeMismatch {
         width: usize,
         height: usize,

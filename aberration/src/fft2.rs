@@ -15,10 +15,10 @@ use std::sync::Arc;
 pub fn fast_len(n: usize) -> usize {
     let mut m = n.max(2);
     loop {
-        if m % 2 == 0 {
+        if m.is_multiple_of(2) {
             let mut r = m;
             for p in [2, 3, 5, 7] {
-                while r % p == 0 {
+                while r.is_multiple_of(p) {
                     r /= p;
                 }
             }
@@ -134,7 +134,7 @@ impl RealFft2 {
             // The product of two real signals' spectra is Hermitian; roundoff leaves a tiny
             // imaginary part on the self-conjugate bins that realfft rejects.
             row[0].im = 0.0;
-            if self.cols % 2 == 0 {
+            if self.cols.is_multiple_of(2) {
                 row[nc - 1].im = 0.0;
             }
             self.c2r

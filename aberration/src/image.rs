@@ -145,7 +145,11 @@ pub fn save_rgb8_png(img: &image::RgbImage, path: &Path) -> Result<()> {
 /// Peak signal-to-noise ratio in dB for signals in [0,1]; identical images give +inf is
 /// avoided by flooring the MSE at 1e-20 (200 dB).
 pub fn psnr(a: &Image, b: &Image) -> f64 {
-    assert_eq!(a.data.len(), b.data.len(), "psnr of images of different sizes");
+    assert_eq!(
+        a.data.len(),
+        b.data.len(),
+        "psnr of images of different sizes"
+    );
     let mse = a
         .data
         .iter()

@@ -9,6 +9,7 @@
 
 pub mod atomic;
 pub mod blur;
+pub mod capture;
 pub mod error;
 pub mod fft2;
 pub mod image;
@@ -21,6 +22,7 @@ pub mod testchart;
 pub mod wiener;
 
 pub use blur::{BlurMode, BlurPlan};
+pub use capture::ImagingModel;
 pub use error::{AberrationError, Result};
 pub use image::{Image, psnr};
 pub use noise::NoiseModel;

@@ -46,7 +46,11 @@ impl NoiseModel {
                 let mut rng = ChaCha8Rng::seed_from_u64(seed);
                 rng.set_stream(row as u64);
                 for v in values.iter_mut() {
-                    let x = if v.is_finite() { (*v as f64).max(0.0) } else { 0.0 };
+                    let x = if v.is_finite() {
+                        (*v as f64).max(0.0)
+                    } else {
+                        0.0
+                    };
                     let mut y = x;
                     if a > 0.0 && x > 0.0 {
                         let lambda = x / a;

@@ -27,7 +27,11 @@ pub fn psf_grid_picture(psf: &PsfGrid) -> RgbImage {
     let (g, k) = (psf.grid(), psf.size());
     let gap = 2;
     let panel = g * (k + gap) + gap;
-    let mut img = RgbImage::from_pixel((3 * panel + 2 * 8) as u32, panel as u32, Rgb([255, 255, 255]));
+    let mut img = RgbImage::from_pixel(
+        (3 * panel + 2 * 8) as u32,
+        panel as u32,
+        Rgb([255, 255, 255]),
+    );
     for c in 0..3 {
         let peak = (0..g * g)
             .flat_map(|gi| psf.kernel(gi, c).iter())

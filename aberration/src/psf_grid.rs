@@ -180,9 +180,7 @@ impl PsfGrid {
                 .map(|v| v as f32)
                 .collect(),
             other => {
-                return Err(bad(format!(
-                    "dtype {other}; expected float32 (or float64)"
-                )));
+                return Err(bad(format!("dtype {other}; expected float32 (or float64)")));
             }
         };
         Self::from_interleaved(grid, size, &values).map_err(|e| bad(e.to_string()))

@@ -13,7 +13,7 @@ use rayon::prelude::*;
 /// Output size for resampling `k` pixels by `scale`: odd, and covering all of the input.
 pub fn resampled_size(k: usize, scale: f64) -> usize {
     let mut n = (k as f64 * scale - 1e-9).ceil().max(1.0) as usize;
-    if n % 2 == 0 {
+    if n.is_multiple_of(2) {
         n += 1;
     }
     n

@@ -48,7 +48,11 @@ impl Regularizer {
             Self::Fixed(k) => k,
             Self::Adaptive(k) => k * (1.0 - tile_mean.clamp(0.0, 1.0)),
         };
-        if k.is_finite() { k.max(K_FLOOR) } else { K_FLOOR }
+        if k.is_finite() {
+            k.max(K_FLOOR)
+        } else {
+            K_FLOOR
+        }
     }
 }
 
@@ -85,7 +89,9 @@ pub fn wiener_bank(blurred: &Image, psf: &PsfGrid) -> Result<WienerBank> {
 pub fn deconvolve_many(blurred: &Image, psf: &PsfGrid, regs: &[Regularizer]) -> Result<Vec<Image>> {
     let (w, h) = (blurred.width, blurred.height);
     if w == 0 || h == 0 {
-        return Err(AberrationError::BadParameter("cannot deconvolve an empty image".into()));
+        return Err(AberrationError::BadParameter(
+            "cannot deconvolve an empty image".into(),
+        ));
     }
     if regs.iter().any(|r| {
         let k = match r {
@@ -110,10 +116,16 @@ pub fn deconvolve_many(blurred: &Image, psf: &PsfGrid, regs: &[Regularizer]) -> 
             if ry.is_empty() || rx.is_empty() {
                 continue;
             }
-            let (rows, cols) = (fast_len(ry.len() + 2 * margin), fast_len(rx.len() + 2 * margin));
+            let (rows, cols) = (
+                fast_len(ry.len() + 2 * margin),
+                fast_len(rx.len() + 2 * margin),
+            );
             // The window is the FFT buffer, centred on the tile.
             let (before_y, before_x) = ((rows - ry.len()) / 2, (cols - rx.len()) / 2);
-            pad = pad.max(before_y.max(before_x)).max(rows - ry.len() - before_y).max(cols - rx.len() - before_x);
+            pad = pad
+                .max(before_y.max(before_x))
+                .max(rows - ry.len() - before_y)
+                .max(cols - rx.len() - before_x);
             let fft = ffts
                 .entry((rows, cols))
                 .or_insert_with(|| Arc::new(RealFft2::new(rows, cols)))
@@ -172,7 +184,11 @@ pub fn deconvolve_many(blurred: &Image, psf: &PsfGrid, regs: &[Regularizer]) -> 
                         |r, row| {
                             let dst = &mut tile[(r - before_y) * tw..(r - before_y + 1) * tw];
                             for (d, v) in dst.iter_mut().zip(&row[before_x..before_x + tw]) {
-                                *d = if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 };
+                                *d = if v.is_finite() {
+                                    v.clamp(0.0, 1.0)
+                                } else {
+                                    0.0
+                                };
                             }
                         },
                         &mut s,

@@ -18,7 +18,9 @@ fn random_image(w: usize, h: usize, seed: u64) -> Image {
 /// A grid of random, asymmetric positive PSFs (unit sum after loading).
 fn random_psf(g: usize, k: usize, seed: u64) -> PsfGrid {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let data = (0..g * g * 3 * k * k).map(|_| rng.random::<f32>() + 0.01).collect();
+    let data = (0..g * g * 3 * k * k)
+        .map(|_| rng.random::<f32>() + 0.01)
+        .collect();
     PsfGrid::from_planar(g, k, data).unwrap()
 }
 
@@ -119,7 +121,10 @@ fn delta_psf_is_identity_and_constants_are_preserved() {
         let x = random_image(31, 22, 30);
         let plan = BlurPlan::new(&PsfGrid::delta(3, 9), 31, 22, mode).unwrap();
         let y = plan.apply(&x).unwrap();
-        let err = max_abs_diff(&y.data, &x.data.iter().map(|v| *v as f64).collect::<Vec<_>>());
+        let err = max_abs_diff(
+            &y.data,
+            &x.data.iter().map(|v| *v as f64).collect::<Vec<_>>(),
+        );
         assert!(err < 1e-6, "{mode}: delta PSF changed the image by {err:e}");
         // Unit-sum PSFs with reflective borders keep white white and black black. Blend
         // spreads each input pixel with its interpolated PSF (energy-conserving), so it keeps
@@ -136,7 +141,10 @@ fn delta_psf_is_identity_and_constants_are_preserved() {
         for level in [0.0f32, 1.0] {
             let y = plan.apply(&Image::filled(31, 22, [level; 3])).unwrap();
             let err = y.data.iter().map(|v| (v - level).abs()).fold(0.0, f32::max);
-            assert!(err < 1e-5, "{mode}: constant {level} image drifted by {err:e}");
+            assert!(
+                err < 1e-5,
+                "{mode}: constant {level} image drifted by {err:e}"
+            );
         }
     }
 }
@@ -163,7 +171,10 @@ fn wrong_size_and_empty_images_are_errors() {
     let psf = random_psf(3, 5, 50);
     let plan = BlurPlan::new(&psf, 10, 8, BlurMode::Blend).unwrap();
     let err = plan.apply(&Image::new(8, 10)).unwrap_err().to_string();
-    assert!(err.contains("8x10") && err.contains("10x8"), "unhelpful error: {err}");
+    assert!(
+        err.contains("8x10") && err.contains("10x8"),
+        "unhelpful error: {err}"
+    );
     assert!(BlurPlan::new(&psf, 0, 8, BlurMode::Tiled).is_err());
 }
 
@@ -191,7 +202,10 @@ fn result_is_bit_identical_for_any_thread_count() {
     let psf = random_psf(3, 9, 61);
     for mode in [BlurMode::Blend, BlurMode::Tiled] {
         let run = |threads: usize| {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
             pool.install(|| {
                 let plan = BlurPlan::new(&psf, 64, 48, mode).unwrap();
                 (plan.apply(&x).unwrap(), plan.adjoint(&x).unwrap())
@@ -199,7 +213,17 @@ fn result_is_bit_identical_for_any_thread_count() {
         };
         let (a1, b1) = run(1);
         let (a3, b3) = run(3);
-        assert!(a1.data.iter().zip(&a3.data).all(|(p, q)| p.to_bits() == q.to_bits()));
-        assert!(b1.data.iter().zip(&b3.data).all(|(p, q)| p.to_bits() == q.to_bits()));
+        assert!(
+            a1.data
+                .iter()
+                .zip(&a3.data)
+                .all(|(p, q)| p.to_bits() == q.to_bits())
+        );
+        assert!(
+            b1.data
+                .iter()
+                .zip(&b3.data)
+                .all(|(p, q)| p.to_bits() == q.to_bits())
+        );
     }
 }

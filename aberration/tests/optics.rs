@@ -15,9 +15,13 @@ fn ideal_lens_focuses_to_an_airy_pattern() {
     let transfer = prop.transfer(lambda, lens.focal_um);
     let win = prop.focal_window(&lens, lambda, 0.0, &transfer, 0.0, 20);
     let side = win.side();
-    let row: Vec<f64> = (0..side).map(|x| win.intensity[win.half * side + x]).collect();
+    let row: Vec<f64> = (0..side)
+        .map(|x| win.intensity[win.half * side + x])
+        .collect();
     // The peak sits on the axis.
-    let peak_at = (0..side).max_by(|a, b| row[*a].total_cmp(&row[*b])).unwrap();
+    let peak_at = (0..side)
+        .max_by(|a, b| row[*a].total_cmp(&row[*b]))
+        .unwrap();
     assert_eq!(peak_at, win.half, "focus is off axis");
     // First dark ring: first local minimum walking out from the centre.
     let first_min = (win.half + 1..side - 1)
@@ -33,7 +37,11 @@ fn ideal_lens_focuses_to_an_airy_pattern() {
     // The ring is dark: far below the peak.
     assert!(row[first_min] < 0.02 * row[win.half]);
     // Energy: all incident power reaches the focal plane (nothing evanescent at NA 0.24).
-    assert!((win.total_power - 1.0).abs() < 1e-6, "focal power {}", win.total_power);
+    assert!(
+        (win.total_power - 1.0).abs() < 1e-6,
+        "focal power {}",
+        win.total_power
+    );
     // The core holds the Airy share of energy: 83.8% inside the first dark ring.
     let inside: f64 = (0..side)
         .flat_map(|y| (0..side).map(move |x| (y, x)))
@@ -43,7 +51,10 @@ fn ideal_lens_focuses_to_an_airy_pattern() {
         })
         .map(|(y, x)| win.intensity[y * side + x])
         .sum();
-    assert!((inside - 0.838).abs() < 0.03, "energy inside the first ring {inside}");
+    assert!(
+        (inside - 0.838).abs() < 0.03,
+        "energy inside the first ring {inside}"
+    );
 }
 
 #[test]
@@ -80,7 +91,11 @@ fn grid_psfs_are_unit_sum_and_mirror_symmetric() {
     assert_eq!((grid.grid(), grid.size()), (3, 31));
     // 3x3 grid: distinct radii 0, edge, corner.
     assert_eq!(report.angles_deg.len(), 3);
-    assert!((report.angles_deg[2] - 10.0).abs() < 1e-9, "corner at {}", report.angles_deg[2]);
+    assert!(
+        (report.angles_deg[2] - 10.0).abs() < 1e-9,
+        "corner at {}",
+        report.angles_deg[2]
+    );
     let k = grid.size();
     for gi in 0..9 {
         for c in 0..3 {
@@ -98,14 +113,25 @@ fn grid_psfs_are_unit_sum_and_mirror_symmetric() {
                 for x in 0..k {
                     let lr = (a[y * k + x] - b[y * k + (k - 1 - x)]).abs();
                     let tb = (t[y * k + x] - u[(k - 1 - y) * k + x]).abs();
-                    assert!(lr <= 1e-5 * peak && tb <= 1e-5 * peak, "asymmetry {lr} {tb} at {i},{y},{x}");
+                    assert!(
+                        lr <= 1e-5 * peak && tb <= 1e-5 * peak,
+                        "asymmetry {lr} {tb} at {i},{y},{x}"
+                    );
                 }
             }
         }
     }
     // Off-axis PSFs differ from the on-axis one: the blur really varies over the field.
-    let diff: f32 = grid.kernel(0, 1).iter().zip(grid.kernel(4, 1)).map(|(a, b)| (a - b).abs()).sum();
-    assert!(diff > 0.05, "corner and centre PSFs are nearly equal ({diff})");
+    let diff: f32 = grid
+        .kernel(0, 1)
+        .iter()
+        .zip(grid.kernel(4, 1))
+        .map(|(a, b)| (a - b).abs())
+        .sum();
+    assert!(
+        diff > 0.05,
+        "corner and centre PSFs are nearly equal ({diff})"
+    );
 }
 
 #[test]
@@ -121,9 +147,18 @@ fn on_axis_neural_lens_matches_independent_reference() {
         let psf = sample_psf(&win, 0.0, cfg.psf_size, cfg.sensor_pitch_um, 0.0, 4);
         let crop: f64 = psf.iter().sum();
         let peak = psf.iter().cloned().fold(0.0, f64::max) / crop;
-        eprintln!("{lambda} nm: crop power {crop:.4} (ref {}), peak {peak:.5} (ref {})", crop_ref[ch], peak_ref[ch]);
-        assert!((crop - crop_ref[ch]).abs() < 0.015, "{lambda} nm: crop power {crop}");
-        assert!((peak / peak_ref[ch] - 1.0).abs() < 0.15, "{lambda} nm: peak {peak}");
+        eprintln!(
+            "{lambda} nm: crop power {crop:.4} (ref {}), peak {peak:.5} (ref {})",
+            crop_ref[ch], peak_ref[ch]
+        );
+        assert!(
+            (crop - crop_ref[ch]).abs() < 0.015,
+            "{lambda} nm: crop power {crop}"
+        );
+        assert!(
+            (peak / peak_ref[ch] - 1.0).abs() < 0.15,
+            "{lambda} nm: peak {peak}"
+        );
     }
 }
 

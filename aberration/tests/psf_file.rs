@@ -5,7 +5,11 @@ use aberration::{AberrationError, PsfGrid};
 use npyz::WriterBuilder;
 use std::path::Path;
 
-fn write_npy<T: npyz::Serialize + npyz::AutoSerialize + Copy>(path: &Path, shape: &[u64], data: &[T]) {
+fn write_npy<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
+    path: &Path,
+    shape: &[u64],
+    data: &[T],
+) {
     let mut file = std::fs::File::create(path).unwrap();
     let mut w = npyz::WriteOptions::new()
         .default_dtype()
@@ -19,7 +23,9 @@ fn write_npy<T: npyz::Serialize + npyz::AutoSerialize + Copy>(path: &Path, shape
 
 fn sample_grid() -> PsfGrid {
     let (g, k) = (3, 5);
-    let data = (0..g * g * 3 * k * k).map(|i| 1.0 + (i % 7) as f32).collect();
+    let data = (0..g * g * 3 * k * k)
+        .map(|i| 1.0 + (i % 7) as f32)
+        .collect();
     PsfGrid::from_planar(g, k, data).unwrap()
 }
 
@@ -35,7 +41,10 @@ fn round_trip_is_exact_and_uses_the_paper_layout() {
     let npy = npyz::NpyFile::new(std::fs::File::open(&path).unwrap()).unwrap();
     assert_eq!(npy.shape(), &[9, 5, 5, 3]);
     let raw: Vec<f32> = npy.into_vec().unwrap();
-    assert_eq!(raw[((4 * 5 + 2) * 5 + 3) * 3 + 1], grid.kernel(4, 1)[2 * 5 + 3]);
+    assert_eq!(
+        raw[((4 * 5 + 2) * 5 + 3) * 3 + 1],
+        grid.kernel(4, 1)[2 * 5 + 3]
+    );
     // Nothing but the output is left in the directory.
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
 }
@@ -78,12 +87,20 @@ fn bad_files_are_rejected_with_the_file_and_the_problem() {
         zero[(2 * 9 + y) * 3 + 1] = 0.0; // PSF 2, green channel
     }
     let msg = load_err("zero.npy", &[4, 3, 3, 3], &zero);
-    assert!(msg.contains("PSF 2 channel 1") && msg.contains("sums to 0"), "{msg}");
+    assert!(
+        msg.contains("PSF 2 channel 1") && msg.contains("sums to 0"),
+        "{msg}"
+    );
 
     let dir = tempfile::tempdir().unwrap();
     let ints = dir.path().join("ints.npy");
     let mut file = std::fs::File::create(&ints).unwrap();
-    let mut w = npyz::WriteOptions::new().default_dtype().shape(&[1, 2, 2, 3]).writer(&mut file).begin_nd().unwrap();
+    let mut w = npyz::WriteOptions::new()
+        .default_dtype()
+        .shape(&[1, 2, 2, 3])
+        .writer(&mut file)
+        .begin_nd()
+        .unwrap();
     w.extend([1i32; 12]).unwrap();
     w.finish().unwrap();
     let msg = PsfGrid::load_npy(&ints).unwrap_err().to_string();
@@ -98,7 +115,12 @@ fn bad_files_are_rejected_with_the_file_and_the_problem() {
 
     let garbage = dir.path().join("garbage.npy");
     std::fs::write(&garbage, b"not a numpy file at all").unwrap();
-    assert!(PsfGrid::load_npy(&garbage).unwrap_err().to_string().contains("garbage.npy"));
+    assert!(
+        PsfGrid::load_npy(&garbage)
+            .unwrap_err()
+            .to_string()
+            .contains("garbage.npy")
+    );
 
     let missing = dir.path().join("missing.npy");
     let msg = PsfGrid::load_npy(&missing).unwrap_err().to_string();
@@ -148,7 +170,10 @@ fn resolution_mapping_preserves_energy_centre_and_width() {
     assert!(mx.abs() < 1e-4, "centre moved by {mx}");
     // Area resampling adds the variance of a box of one output pixel (1/12).
     let expect = (sigma * scale).powi(2) + 1.0 / 12.0;
-    assert!((var / expect - 1.0).abs() < 0.02, "variance {var}, expected {expect}");
+    assert!(
+        (var / expect - 1.0).abs() < 0.02,
+        "variance {var}, expected {expect}"
+    );
     // Identity mapping returns the grid unchanged; upsampling keeps unit sum too.
     assert_eq!(grid.for_image(1215, 1215, None), grid);
     let up = grid.resampled(1.7);

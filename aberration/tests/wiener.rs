@@ -38,11 +38,17 @@ fn tiny_k_recovers_a_band_limited_image() {
     let x = band_limited(w, h);
     let k = gaussian_kernel(9, 0.6);
     let psf = PsfGrid::uniform(3, 9, [&k, &k, &k]).unwrap();
-    let y = BlurPlan::new(&psf, w, h, BlurMode::Tiled).unwrap().apply(&x).unwrap();
+    let y = BlurPlan::new(&psf, w, h, BlurMode::Tiled)
+        .unwrap()
+        .apply(&x)
+        .unwrap();
     let blurred_db = psnr(&y, &x);
     let restored = deconvolve(&y, &psf, Regularizer::Fixed(1e-7)).unwrap();
     let restored_db = psnr(&restored, &x);
-    assert!(restored_db >= 40.0, "Wiener recovered only {restored_db:.1} dB (blurred {blurred_db:.1} dB)");
+    assert!(
+        restored_db >= 40.0,
+        "Wiener recovered only {restored_db:.1} dB (blurred {blurred_db:.1} dB)"
+    );
 }
 
 #[test]
@@ -67,10 +73,26 @@ fn adaptive_k_follows_tile_intensity() {
     });
     let k = gaussian_kernel(7, 1.0);
     let psf = PsfGrid::uniform(1, 7, [&k, &k, &k]).unwrap();
-    let y = BlurPlan::new(&psf, w, h, BlurMode::Tiled).unwrap().apply(&x).unwrap();
+    let y = BlurPlan::new(&psf, w, h, BlurMode::Tiled)
+        .unwrap()
+        .apply(&x)
+        .unwrap();
     let mean = y.channel(0).iter().map(|v| *v as f64).sum::<f64>() / (w * h) as f64;
-    let out = deconvolve_many(&y, &psf, &[Regularizer::Adaptive(1e-3), Regularizer::Fixed(1e-3 * (1.0 - mean as f32))]).unwrap();
-    let diff = out[0].data.iter().zip(&out[1].data).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+    let out = deconvolve_many(
+        &y,
+        &psf,
+        &[
+            Regularizer::Adaptive(1e-3),
+            Regularizer::Fixed(1e-3 * (1.0 - mean as f32)),
+        ],
+    )
+    .unwrap();
+    let diff = out[0]
+        .data
+        .iter()
+        .zip(&out[1].data)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f32::max);
     assert!(diff < 1e-5, "adaptive K does not equal k(1 - c_I): {diff}");
 }
 
@@ -94,18 +116,33 @@ fn hard_cases_never_produce_nan_or_inf() {
             let bank = wiener_bank(img, psf).unwrap();
             assert_eq!(bank.images.len(), BANK_SIZE);
             for (m, out) in bank.images.iter().enumerate() {
-                assert!(out.is_finite(), "bank filter {m} produced non-finite values");
-                assert!(out.data.iter().all(|v| (0.0..=1.0).contains(v)), "filter {m} not clamped");
+                assert!(
+                    out.is_finite(),
+                    "bank filter {m} produced non-finite values"
+                );
+                assert!(
+                    out.data.iter().all(|v| (0.0..=1.0).contains(v)),
+                    "filter {m} not clamped"
+                );
             }
             for kk in [0.0, K_FLOOR / 10.0] {
-                assert!(deconvolve(img, psf, Regularizer::Fixed(kk)).unwrap().is_finite());
+                assert!(
+                    deconvolve(img, psf, Regularizer::Fixed(kk))
+                        .unwrap()
+                        .is_finite()
+                );
             }
         }
     }
     // An image smaller than its PSF.
     let g = gaussian_kernel(15, 2.0);
     let big = PsfGrid::uniform(1, 15, [&g, &g, &g]).unwrap();
-    assert!(wiener_bank(&band_limited(4, 3), &big).unwrap().median().is_finite());
+    assert!(
+        wiener_bank(&band_limited(4, 3), &big)
+            .unwrap()
+            .median()
+            .is_finite()
+    );
     // White stays white under a delta PSF even with K at its floor.
     let white = Image::filled(10, 10, [1.0; 3]);
     let out = deconvolve(&white, &delta, Regularizer::Adaptive(1e-3)).unwrap();

@@ -1,1 +1,27 @@
-//! Scene captures: LLFF, COLMAP, splits.
+//! Scene captures for metasplat: LLFF and COLMAP readers, train/test splits, initial point
+//! clouds, and an LLFF writer.
+//!
+//! Start at [`open`], which detects the capture layout and returns a [`Capture`]: cameras in
+//! the OpenCV convention documented in [`camera`], lazily loaded images, per-image near/far
+//! bounds, the initial point cloud and the split. [`Capture::summary`] is what
+//! `metasplat scene info` prints.
+
+mod atomic;
+pub mod camera;
+pub mod capture;
+pub mod colmap;
+pub mod error;
+pub mod images;
+pub mod llff;
+pub mod points;
+pub mod split;
+pub mod summary;
+
+pub use camera::{Bounds, Camera, CameraModel, Distortion, Projection, Rigid};
+pub use capture::{Capture, CaptureFormat, OpenOptions, PointSource, Resolution, open};
+pub use error::{Result, SceneError};
+pub use images::{BitDepth, RgbImage};
+pub use llff::{LlffPose, LlffWriter, write_llff};
+pub use points::{Normalization, PointCloud, random_in_frusta};
+pub use split::{LLFFHOLD, Split, split};
+pub use summary::SceneSummary;

@@ -23,7 +23,11 @@ impl AxisLayout {
         // First pixel p with tile_of(p) >= i, i.e. the least p with (2p+1)·g >= 2·i·n.
         let first = |i: usize| ((2 * i * self.n).div_ceil(self.g) / 2).min(self.n);
         let a = first(i);
-        let b = if i + 1 == self.g { self.n } else { first(i + 1) };
+        let b = if i + 1 == self.g {
+            self.n
+        } else {
+            first(i + 1)
+        };
         a..b.max(a)
     }
 

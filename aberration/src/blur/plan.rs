@@ -125,7 +125,8 @@ impl BlurPlan {
                             let hi = ((n as isize + c - start) as usize).min(len + k - 1);
                             lo..hi.max(lo)
                         };
-                        let (out_m, out_n) = (out(sy.start, in_h, height), out(sx.start, in_w, width));
+                        let (out_m, out_n) =
+                            (out(sy.start, in_h, height), out(sx.start, in_w, width));
                         if out_m.is_empty() || out_n.is_empty() {
                             continue;
                         }
@@ -152,7 +153,8 @@ impl BlurPlan {
         }
         // PSF spectra: the expensive part of planning, done once and in parallel.
         groups.par_iter_mut().flatten().for_each(|t| {
-            t.spectra = std::array::from_fn(|ch| t.fft.kernel_spectrum(psf.kernel(t.g, ch), k, false));
+            t.spectra =
+                std::array::from_fn(|ch| t.fft.kernel_spectrum(psf.kernel(t.g, ch), k, false));
         });
         Ok(Self {
             width,
@@ -309,7 +311,9 @@ fn forward_term(t: &Term, ch: usize, xp: &Padded, c: isize, y0: usize, band: &mu
         &mut spec,
         &mut s,
     );
-    spec.iter_mut().zip(&t.spectra[ch]).for_each(|(a, b)| *a *= b);
+    spec.iter_mut()
+        .zip(&t.spectra[ch])
+        .for_each(|(a, b)| *a *= b);
     let x0 = (t.out_n.start as isize + t.in_x - c) as usize;
     fft.inverse(
         &mut spec,
@@ -317,7 +321,9 @@ fn forward_term(t: &Term, ch: usize, xp: &Padded, c: isize, y0: usize, band: &mu
         |m, row| {
             let y = (m as isize + t.in_y - c) as usize - y0;
             let dst = &mut band[y * w + x0..y * w + x0 + t.out_n.len()];
-            dst.iter_mut().zip(&row[t.out_n.clone()]).for_each(|(d, v)| *d += v);
+            dst.iter_mut()
+                .zip(&row[t.out_n.clone()])
+                .for_each(|(d, v)| *d += v);
         },
         &mut s,
     );

@@ -106,14 +106,17 @@ impl Propagator {
     /// The lens field for a plane wave tilted by `theta` about the y axis (towards +x),
     /// unit incident power over the aperture. Rows outside the aperture are zero and are
     /// reported so the forward transform can skip them.
-    fn lens_field(&self, lens: &Lens, lambda_nm: f64, theta: f64) -> (Vec<Complex64>, std::ops::Range<usize>) {
+    fn lens_field(
+        &self,
+        lens: &Lens,
+        lambda_nm: f64,
+        theta: f64,
+    ) -> (Vec<Complex64>, std::ops::Range<usize>) {
         let n = self.n;
         let r_ap = lens.aperture_um / 2.0;
         let k = TAU / (lambda_nm * 1e-3);
         let kx_tilt = k * theta.sin();
-        let inside: Vec<usize> = (0..n)
-            .filter(|&i| self.coord(i).abs() <= r_ap)
-            .collect();
+        let inside: Vec<usize> = (0..n).filter(|&i| self.coord(i).abs() <= r_ap).collect();
         let rows = match (inside.first(), inside.last()) {
             (Some(&a), Some(&b)) => a..b + 1,
             _ => 0..0,
@@ -143,7 +146,12 @@ impl Propagator {
         (field, rows)
     }
 
-    fn rows_fft(&self, data: &mut [Complex64], rows: std::ops::Range<usize>, fft: &Arc<dyn Fft<f64>>) {
+    fn rows_fft(
+        &self,
+        data: &mut [Complex64],
+        rows: std::ops::Range<usize>,
+        fft: &Arc<dyn Fft<f64>>,
+    ) {
         let n = self.n;
         let slice = &mut data[rows.start * n..rows.end * n];
         slice.par_chunks_mut(n * ROWS_PER_TASK).for_each(|chunk| {
@@ -171,9 +179,7 @@ impl Propagator {
         drop(field);
         self.rows_fft(&mut spec, 0..n, &self.fwd);
         // Layout now [kx][ky]; the transfer function is symmetric so it applies as is.
-        spec.par_iter_mut()
-            .zip(transfer)
-            .for_each(|(a, b)| *a *= b);
+        spec.par_iter_mut().zip(transfer).for_each(|(a, b)| *a *= b);
         let total_power: f64 = spec.par_iter().map(|v| v.norm_sqr()).sum::<f64>()
             * (self.dx_um * self.dx_um)
             / (n * n) as f64;
@@ -183,8 +189,12 @@ impl Propagator {
         let cy = n / 2;
         let cx = (centre_x_um / self.dx_um).round() as isize + (n / 2) as isize;
         let wrap = |i: isize| i.rem_euclid(n as isize) as usize;
-        let ys: Vec<usize> = (0..side).map(|i| wrap(cy as isize + i as isize - half as isize)).collect();
-        let xs: Vec<usize> = (0..side).map(|i| wrap(cx + i as isize - half as isize)).collect();
+        let ys: Vec<usize> = (0..side)
+            .map(|i| wrap(cy as isize + i as isize - half as isize))
+            .collect();
+        let xs: Vec<usize> = (0..side)
+            .map(|i| wrap(cx + i as isize - half as isize))
+            .collect();
         let mut rows_y = vec![Complex64::ZERO; side * n];
         rows_y.par_chunks_mut(n).zip(&ys).for_each(|(row, &y)| {
             for (kx, v) in row.iter_mut().enumerate() {
@@ -216,16 +226,18 @@ impl Propagator {
 fn transpose(src: &[Complex64], n: usize) -> Vec<Complex64> {
     const B: usize = 32;
     let mut dst = vec![Complex64::ZERO; n * n];
-    dst.par_chunks_mut(n * B).enumerate().for_each(|(bi, block)| {
-        let r0 = bi * B;
-        let rows = block.len() / n;
-        for c0 in (0..n).step_by(B) {
-            for r in 0..rows {
-                for c in c0..(c0 + B).min(n) {
-                    block[r * n + c] = src[c * n + r0 + r];
+    dst.par_chunks_mut(n * B)
+        .enumerate()
+        .for_each(|(bi, block)| {
+            let r0 = bi * B;
+            let rows = block.len() / n;
+            for c0 in (0..n).step_by(B) {
+                for r in 0..rows {
+                    for c in c0..(c0 + B).min(n) {
+                        block[r * n + c] = src[c * n + r0 + r];
+                    }
                 }
             }
-        }
-    });
+        });
     dst
 }

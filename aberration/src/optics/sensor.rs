@@ -17,7 +17,9 @@ pub fn sample_psf(
     let c = (k / 2) as f64;
     let (sin, cos) = azimuth.sin_cos();
     let ss = ss.max(1);
-    let sub: Vec<f64> = (0..ss).map(|s| (s as f64 + 0.5) / ss as f64 - 0.5).collect();
+    let sub: Vec<f64> = (0..ss)
+        .map(|s| (s as f64 + 0.5) / ss as f64 - 0.5)
+        .collect();
     let area = pitch_um * pitch_um / (ss * ss) as f64;
     let mut out = vec![0.0; k * k];
     for p in 0..k {

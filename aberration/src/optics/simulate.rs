@@ -78,9 +78,12 @@ impl SimConfig {
             return bad("PSF size, grid and sensor pitch must be positive".into());
         }
         if !(0.0..90.0).contains(&self.max_field_deg) {
-            return bad(format!("max field angle {} must be in [0, 90)", self.max_field_deg));
+            return bad(format!(
+                "max field angle {} must be in [0, 90)",
+                self.max_field_deg
+            ));
         }
-        if self.wavelengths_nm.iter().any(|w| !(*w > 0.0)) {
+        if self.wavelengths_nm.iter().any(|w| w.is_nan() || *w <= 0.0) {
             return bad("wavelengths must be positive".into());
         }
         Ok(())
@@ -124,11 +127,16 @@ pub struct SimReport {
 }
 
 /// Simulates the PSF grid. `progress(done, total)` is called after each propagation.
-pub fn simulate_grid(cfg: &SimConfig, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<(PsfGrid, SimReport)> {
+pub fn simulate_grid(
+    cfg: &SimConfig,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<(PsfGrid, SimReport)> {
     cfg.validate()?;
     let start = std::time::Instant::now();
     let g = cfg.grid;
-    let points: Vec<FieldPoint> = (0..g * g).map(|gi| cfg.field_point(gi / g, gi % g)).collect();
+    let points: Vec<FieldPoint> = (0..g * g)
+        .map(|gi| cfg.field_point(gi / g, gi % g))
+        .collect();
     let mut radial: BTreeMap<usize, f64> = BTreeMap::new();
     for p in &points {
         radial.insert(p.key, p.theta);
@@ -137,13 +145,15 @@ pub fn simulate_grid(cfg: &SimConfig, progress: &(dyn Fn(usize, usize) + Sync)) 
     let prop = Propagator::new(cfg.fft_size, cfg.lens.pitch_um);
     let half = cfg.window_half();
     let total = radial.len() * 3;
-    let mut windows: Vec<[Option<FocalWindow>; 3]> = radial.iter().map(|_| [None, None, None]).collect();
+    let mut windows: Vec<[Option<FocalWindow>; 3]> =
+        radial.iter().map(|_| [None, None, None]).collect();
     let mut done = 0;
     for (ch, &lambda) in cfg.wavelengths_nm.iter().enumerate() {
         let transfer = prop.transfer(lambda, cfg.lens.focal_um);
         for (ri, &(_, theta)) in radial.iter().enumerate() {
             let spot = cfg.lens.focal_um * theta.tan();
-            windows[ri][ch] = Some(prop.focal_window(&cfg.lens, lambda, theta, &transfer, spot, half));
+            windows[ri][ch] =
+                Some(prop.focal_window(&cfg.lens, lambda, theta, &transfer, spot, half));
             done += 1;
             progress(done, total);
         }
@@ -152,7 +162,11 @@ pub fn simulate_grid(cfg: &SimConfig, progress: &(dyn Fn(usize, usize) + Sync)) 
         .into_iter()
         .map(|w| w.map(|o| o.expect("every window was simulated")))
         .collect();
-    let index_of: BTreeMap<usize, usize> = radial.iter().enumerate().map(|(i, (k, _))| (*k, i)).collect();
+    let index_of: BTreeMap<usize, usize> = radial
+        .iter()
+        .enumerate()
+        .map(|(i, (k, _))| (*k, i))
+        .collect();
     let k = cfg.psf_size;
     let kernels: Vec<Vec<f64>> = (0..g * g * 3)
         .into_par_iter()
@@ -172,18 +186,21 @@ pub fn simulate_grid(cfg: &SimConfig, progress: &(dyn Fn(usize, usize) + Sync)) 
         seconds: 0.0,
     };
     for (ri, ws) in windows.iter().enumerate() {
-        for ch in 0..3 {
-            let spot = cfg.lens.focal_um * radial[ri].1.tan();
-            let psf = sample_psf(&ws[ch], spot, k, cfg.sensor_pitch_um, 0.0, cfg.supersample);
+        let spot = cfg.lens.focal_um * radial[ri].1.tan();
+        for (ch, w) in ws.iter().enumerate() {
+            let psf = sample_psf(w, spot, k, cfg.sensor_pitch_um, 0.0, cfg.supersample);
             let sum: f64 = psf.iter().sum();
             report.crop_power[ri][ch] = sum;
-            report.focal_power[ri][ch] = ws[ch].total_power;
-            report.peak[ri][ch] = psf.iter().cloned().fold(0.0, f64::max) / sum.max(f64::MIN_POSITIVE);
+            report.focal_power[ri][ch] = w.total_power;
+            report.peak[ri][ch] =
+                psf.iter().cloned().fold(0.0, f64::max) / sum.max(f64::MIN_POSITIVE);
         }
     }
     let data: Vec<f32> = kernels.into_iter().flatten().map(|v| v as f32).collect();
     let grid = PsfGrid::from_planar(g, k, data).map_err(|e| {
-        AberrationError::BadParameter(format!("the simulated PSFs are unusable ({e}): is the crop too small?"))
+        AberrationError::BadParameter(format!(
+            "the simulated PSFs are unusable ({e}): is the crop too small?"
+        ))
     })?;
     report.seconds = start.elapsed().as_secs_f64();
     Ok((grid, report))

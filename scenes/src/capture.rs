@@ -1,0 +1,474 @@
+//! A loaded capture and [`open`], which recognises LLFF and COLMAP layouts.
+//!
+//! Layouts, relative to the scene folder:
+//! - LLFF: `poses_bounds.npy` plus `images/` or `images_N/`; when `sparse/0/` holds the COLMAP
+//!   model the poses came from, its `points3D` seeds the point cloud and the distortion of its
+//!   (single, full-resolution) camera is attached to every camera for reporting.
+//! - COLMAP: `sparse/0/` (or `sparse/`) with `cameras`, `images` and optionally `points3D`, as
+//!   `.bin` or `.txt` (binary preferred), plus `images/` or `images_N/`. Near/far bounds come
+//!   from the depths of each image's observed points, as LLFF's `imgs2poses` computes them.
+
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+
+use crate::camera::{Bounds, Camera};
+use crate::colmap::{self, ColmapModel, ModelFormat};
+use crate::error::{Result, SceneError};
+use crate::images::{self, RgbImage};
+use crate::llff::{self, POSES_BOUNDS};
+use crate::points::{self, Normalization, PointCloud};
+use crate::split::{self, Split};
+use crate::summary::SceneSummary;
+
+/// Which image folder to read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Resolution {
+    /// `images/` for 1, `images_N/` otherwise.
+    Downsample(u32),
+    /// The folder (`images/` or any `images_N/`) with the largest width not above this; when
+    /// every folder is wider, the narrowest.
+    TargetWidth(u32),
+}
+
+impl Default for Resolution {
+    fn default() -> Self {
+        Resolution::Downsample(1)
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct OpenOptions {
+    pub resolution: Resolution,
+    /// Every `llffhold`-th image is held out for testing; 0 holds none out.
+    pub llffhold: usize,
+    /// Size of the random cloud used when the capture has no `points3D`.
+    pub random_points: usize,
+    /// Seed of that random cloud.
+    pub seed: u64,
+}
+
+impl Default for OpenOptions {
+    fn default() -> Self {
+        OpenOptions {
+            resolution: Resolution::default(),
+            llffhold: split::LLFFHOLD,
+            random_points: points::DEFAULT_RANDOM_POINTS,
+            seed: 0,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CaptureFormat {
+    Llff,
+    Colmap(ModelFormat),
+}
+
+/// Where the initial point cloud came from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum PointSource {
+    Sparse(PathBuf),
+    Random { count: usize, seed: u64 },
+}
+
+/// A capture with everything but the pixels loaded; images load on demand.
+#[derive(Clone, Debug)]
+pub struct Capture {
+    pub root: PathBuf,
+    pub format: CaptureFormat,
+    pub image_dir: PathBuf,
+    /// One per camera, same order.
+    pub image_paths: Vec<PathBuf>,
+    /// Sorted by image file name.
+    pub cameras: Vec<Camera>,
+    pub bounds: Vec<Bounds>,
+    pub points: PointCloud,
+    pub point_source: PointSource,
+    pub split: Split,
+    /// Full-resolution width over loaded width (8 for `images_8/`).
+    pub downsample: f64,
+    /// The COLMAP cameras file the cameras' distortion came from, if any.
+    pub distortion_source: Option<PathBuf>,
+}
+
+impl Capture {
+    pub fn len(&self) -> usize {
+        self.cameras.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.cameras.is_empty()
+    }
+
+    /// Decodes image `index`, checking it still has its camera's size.
+    pub fn load_image(&self, index: usize) -> Result<RgbImage> {
+        let (Some(path), Some(camera)) = (self.image_paths.get(index), self.cameras.get(index))
+        else {
+            return Err(SceneError::invalid(
+                &self.image_dir,
+                format!("image index {index} out of range 0..{}", self.len()),
+            ));
+        };
+        let image = images::load_rgb(path)?;
+        if (image.width, image.height) != (camera.width, camera.height) {
+            return Err(SceneError::invalid(
+                path,
+                format!(
+                    "decoded {}x{}, expected {}x{}",
+                    image.width, image.height, camera.width, camera.height
+                ),
+            ));
+        }
+        Ok(image)
+    }
+
+    /// Decodes several images in parallel, in the order given.
+    pub fn load_images(&self, indices: &[usize]) -> Result<Vec<RgbImage>> {
+        indices.par_iter().map(|&i| self.load_image(i)).collect()
+    }
+
+    pub fn normalization(&self) -> Normalization {
+        Normalization::from_cameras(&self.cameras)
+    }
+
+    pub fn summary(&self) -> SceneSummary {
+        SceneSummary::of(self)
+    }
+}
+
+/// Opens the capture in `dir`, LLFF if it has `poses_bounds.npy`, else COLMAP.
+pub fn open(dir: &Path, options: &OpenOptions) -> Result<Capture> {
+    if !dir.is_dir() {
+        return Err(SceneError::NotFound {
+            path: dir.to_path_buf(),
+            what: "scene folder".into(),
+        });
+    }
+    if dir.join(POSES_BOUNDS).exists() {
+        return open_llff(dir, options);
+    }
+    match colmap::sparse_dir(dir) {
+        Some(sparse) if colmap::find_file(&sparse, "images").is_some() => {
+            open_colmap(dir, &sparse, options)
+        }
+        _ => Err(SceneError::invalid(
+            dir,
+            "not a capture: no poses_bounds.npy and no sparse/0/{cameras,images}.{bin,txt}",
+        )),
+    }
+}
+
+fn image_folders(root: &Path) -> Vec<PathBuf> {
+    let mut folders: Vec<PathBuf> = std::fs::read_dir(root)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.is_dir())
+        .filter(|p| {
+            let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
+            name == "images"
+                || name
+                    .strip_prefix("images_")
+                    .is_some_and(|n| n.parse::<u32>().is_ok())
+        })
+        .collect();
+    folders.sort();
+    folders
+}
+
+fn choose_image_dir(root: &Path, resolution: Resolution) -> Result<PathBuf> {
+    let available = || {
+        let names: Vec<String> = image_folders(root)
+            .iter()
+            .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .collect();
+        if names.is_empty() {
+            "no images/ or images_N/ folders".to_string()
+        } else {
+            format!("available: {}", names.join(", "))
+        }
+    };
+    match resolution {
+        Resolution::Downsample(n) => {
+            let dir = root.join(llff::image_folder_name(n));
+            if dir.is_dir() {
+                Ok(dir)
+            } else {
+                Err(SceneError::NotFound {
+                    path: dir,
+                    what: format!("image folder for downsample {n} ({})", available()),
+                })
+            }
+        }
+        Resolution::TargetWidth(target) => {
+            let mut sized = Vec::new();
+            for dir in image_folders(root) {
+                let first = images::list_images(&dir)?.remove(0);
+                sized.push((images::image_size(&first)?.0, dir));
+            }
+            let below = sized
+                .iter()
+                .filter(|(w, _)| *w <= target)
+                .max_by_key(|(w, _)| *w);
+            let chosen = below.or_else(|| sized.iter().min_by_key(|(w, _)| *w));
+            chosen
+                .map(|(_, d)| d.clone())
+                .ok_or_else(|| SceneError::NotFound {
+                    path: root.join("images"),
+                    what: format!("image folder ({})", available()),
+                })
+        }
+    }
+}
+
+fn stem(path: &Path) -> String {
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+fn open_llff(root: &Path, options: &OpenOptions) -> Result<Capture> {
+    let poses_path = root.join(POSES_BOUNDS);
+    let poses = llff::read_poses_bounds(&poses_path)?;
+    let image_dir = choose_image_dir(root, options.resolution)?;
+    let image_paths = images::list_images(&image_dir)?;
+    if image_paths.len() != poses.len() {
+        return Err(SceneError::CountMismatch {
+            poses_file: poses_path,
+            poses: poses.len(),
+            image_dir,
+            images: image_paths.len(),
+        });
+    }
+    let (width, height) = images::common_size(&image_paths)?;
+    let mut cameras = Vec::with_capacity(poses.len());
+    for (row, (pose, path)) in poses.iter().zip(&image_paths).enumerate() {
+        let image_aspect = width as f64 / height as f64;
+        let pose_aspect = pose.width / pose.height;
+        // Downsampling rounds sizes, so allow a pixel's worth of aspect drift, no more.
+        if (image_aspect / pose_aspect - 1.0).abs() > 1.0 / height.min(width) as f64 + 1e-9 {
+            return Err(SceneError::invalid(
+                path,
+                format!(
+                    "image is {width}x{height} but row {row} of {} records {}x{} (aspect differs)",
+                    poses_path.display(),
+                    pose.width,
+                    pose.height
+                ),
+            ));
+        }
+        cameras.push(pose.to_camera(&stem(path), width, height));
+    }
+    let bounds: Vec<Bounds> = poses.iter().map(|p| p.bounds).collect();
+
+    let sparse = colmap::sparse_dir(root);
+    let mut distortion_source = None;
+    if let Some((cameras_path, _)) = sparse
+        .as_deref()
+        .and_then(|d| colmap::find_file(d, "cameras"))
+    {
+        let model_cameras = colmap::read_cameras(&cameras_path)?;
+        // Only a single full-resolution camera unambiguously describes every LLFF image.
+        if let [c] = model_cameras.as_slice()
+            && poses
+                .iter()
+                .all(|p| p.width == c.width as f64 && p.height == c.height as f64)
+            && let Some(d) = c.intrinsics().distortion
+        {
+            for camera in &mut cameras {
+                camera.distortion = Some(d);
+            }
+            distortion_source = Some(cameras_path);
+        }
+    }
+    let (points, point_source) =
+        initial_points(sparse.as_deref(), None, &cameras, &bounds, options)?;
+    Ok(Capture {
+        root: root.to_path_buf(),
+        format: CaptureFormat::Llff,
+        image_dir,
+        split: split::split(cameras.len(), options.llffhold),
+        downsample: poses[0].width / width as f64,
+        image_paths,
+        cameras,
+        bounds,
+        points,
+        point_source,
+        distortion_source,
+    })
+}
+
+/// `points3D` from the sparse folder when present (already-read points passed in are used
+/// as is), else a seeded random cloud in the frusta.
+fn initial_points(
+    sparse: Option<&Path>,
+    model: Option<&ColmapModel>,
+    cameras: &[Camera],
+    bounds: &[Bounds],
+    options: &OpenOptions,
+) -> Result<(PointCloud, PointSource)> {
+    if let Some((path, _)) = sparse.and_then(|d| colmap::find_file(d, "points3D")) {
+        let read;
+        let points = match model {
+            Some(m) => &m.points,
+            None => {
+                read = colmap::read_points3d(&path)?;
+                &read
+            }
+        };
+        if !points.is_empty() {
+            let cloud = PointCloud {
+                positions: points.iter().map(|p| p.xyz).collect(),
+                colors: points
+                    .iter()
+                    .map(|p| p.rgb.map(|c| c as f32 / 255.0))
+                    .collect(),
+            };
+            return Ok((cloud, PointSource::Sparse(path)));
+        }
+    }
+    let cloud = points::random_in_frusta(cameras, bounds, options.random_points, options.seed);
+    Ok((
+        cloud,
+        PointSource::Random {
+            count: options.random_points,
+            seed: options.seed,
+        },
+    ))
+}
+
+fn open_colmap(root: &Path, sparse: &Path, options: &OpenOptions) -> Result<Capture> {
+    let model = colmap::read_model(sparse)?;
+    let (images_path, format) =
+        colmap::find_file(sparse, "images").ok_or_else(|| SceneError::NotFound {
+            path: sparse.join("images.bin"),
+            what: "COLMAP images file (.bin or .txt)".into(),
+        })?;
+    if model.images.is_empty() {
+        return Err(SceneError::invalid(
+            &images_path,
+            "model has no registered images",
+        ));
+    }
+    let image_dir = choose_image_dir(root, options.resolution)?;
+    let mut entries: Vec<_> = model.images.iter().collect();
+    entries.sort_by(|a, b| a.name.as_bytes().cmp(b.name.as_bytes()));
+
+    let mut cameras = Vec::with_capacity(entries.len());
+    let mut image_paths = Vec::with_capacity(entries.len());
+    let mut bounds = Vec::with_capacity(entries.len());
+    for image in &entries {
+        let model_camera = model
+            .cameras
+            .iter()
+            .find(|c| c.id == image.camera_id)
+            .ok_or_else(|| {
+                SceneError::invalid(
+                    &images_path,
+                    format!(
+                        "image {} refers to missing camera {}",
+                        image.name, image.camera_id
+                    ),
+                )
+            })?;
+        let path = image_dir.join(&image.name);
+        if !path.is_file() {
+            return Err(SceneError::NotFound {
+                path,
+                what: format!("image listed in {}", images_path.display()),
+            });
+        }
+        let (w, h) = images::image_size(&path)?;
+        let full = image.camera(model_camera);
+        let aspect_drift = (w as f64 * full.height as f64) / (h as f64 * full.width as f64) - 1.0;
+        if aspect_drift.abs() > 1.0 / h.min(w) as f64 + 1e-9 {
+            return Err(SceneError::invalid(
+                &path,
+                format!(
+                    "image is {w}x{h} but its COLMAP camera {} is {}x{} (aspect differs)",
+                    model_camera.id, full.width, full.height
+                ),
+            ));
+        }
+        let camera = full.resized(w, h);
+        bounds.push(depth_bounds(&model, image.id, &camera).ok_or_else(|| {
+            SceneError::invalid(
+                sparse,
+                format!(
+                    "no 3D points in front of image {}; cannot derive its near/far bounds",
+                    image.name
+                ),
+            )
+        })?);
+        cameras.push(camera);
+        image_paths.push(path);
+    }
+    let downsample = entries
+        .first()
+        .and_then(|im| model.cameras.iter().find(|c| c.id == im.camera_id))
+        .map(|c| c.width as f64 / cameras[0].width as f64)
+        .unwrap_or(1.0);
+    let distortion_source = cameras
+        .iter()
+        .any(|c| c.distortion.is_some())
+        .then(|| colmap::find_file(sparse, "cameras").map(|(p, _)| p))
+        .flatten();
+    let (points, point_source) =
+        initial_points(Some(sparse), Some(&model), &cameras, &bounds, options)?;
+    Ok(Capture {
+        root: root.to_path_buf(),
+        format: CaptureFormat::Colmap(format),
+        image_dir,
+        split: split::split(cameras.len(), options.llffhold),
+        downsample,
+        image_paths,
+        cameras,
+        bounds,
+        points,
+        point_source,
+        distortion_source,
+    })
+}
+
+/// LLFF's `imgs2poses` bounds: the 0.1 and 99.9 percentiles of the depths of the points the
+/// image observes (its track entries), falling back to every point projecting into the image
+/// when the model has no tracks.
+fn depth_bounds(model: &ColmapModel, image_id: u32, camera: &Camera) -> Option<Bounds> {
+    let observed = |p: &&colmap::ColmapPoint| p.track.iter().any(|t| t.image_id == image_id);
+    let mut depths: Vec<f64> = model
+        .points
+        .iter()
+        .filter(observed)
+        .filter_map(|p| camera.project(p.xyz).map(|pr| pr.depth))
+        .collect();
+    if depths.is_empty() {
+        depths = model
+            .points
+            .iter()
+            .filter_map(|p| camera.project(p.xyz))
+            .filter(|pr| camera.contains(pr))
+            .map(|pr| pr.depth)
+            .collect();
+    }
+    if depths.is_empty() {
+        return None;
+    }
+    depths.sort_by(f64::total_cmp);
+    let near = percentile(&depths, 0.1);
+    let far = percentile(&depths, 99.9);
+    // A single point would give near == far; keep the range non-empty.
+    Some(Bounds {
+        near,
+        far: if far > near { far } else { near * 1.0001 },
+    })
+}
+
+/// numpy's default (linear) percentile of sorted values.
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    let pos = q / 100.0 * (sorted.len() - 1) as f64;
+    let lo = pos.floor() as usize;
+    let hi = pos.ceil() as usize;
+    sorted[lo] + (sorted[hi] - sorted[lo]) * (pos - lo as f64)
+}

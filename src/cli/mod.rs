@@ -1,0 +1,47 @@
+//! Command-line interface: argument parsing and one module per command.
+
+mod aberrate;
+mod deconvolve;
+mod demo;
+mod progress;
+mod psf;
+mod scene;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(
+    name = "metasplat",
+    version,
+    about = "Clean Gaussian-splat scenes from metalens-aberrated photos"
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Simulate or inspect metalens PSF grids.
+    #[command(subcommand)]
+    Psf(psf::PsfCommand),
+    /// Blur an image through a PSF grid and add sensor noise.
+    Aberrate(aberrate::AberrateArgs),
+    /// Wiener-deconvolve an aberrated image (single K or the 13-filter MAFG bank).
+    Deconvolve(deconvolve::DeconvolveArgs),
+    /// Inspect scene captures (LLFF, COLMAP).
+    #[command(subcommand)]
+    Scene(scene::SceneCommand),
+    /// Built-in demo: simulate the default PSF grid and aberrate a test chart.
+    Demo(demo::DemoArgs),
+}
+
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Psf(c) => psf::run(c),
+        Command::Aberrate(a) => aberrate::run(a),
+        Command::Deconvolve(a) => deconvolve::run(a),
+        Command::Scene(c) => scene::run(c),
+        Command::Demo(a) => demo::run(a),
+    }
+}

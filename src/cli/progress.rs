@@ -1,0 +1,33 @@
+//! Progress display for long steps.
+
+use indicatif::{ProgressBar, ProgressStyle};
+use std::time::Instant;
+
+/// A bar for `total` units of work.
+pub fn bar(total: u64, what: &str) -> ProgressBar {
+    let pb = ProgressBar::new(total);
+    pb.set_style(
+        ProgressStyle::with_template(
+            "{msg:>12} [{bar:40}] {pos}/{len} {elapsed_precise} ETA {eta}",
+        )
+        .expect("static template")
+        .progress_chars("=> "),
+    );
+    pb.set_message(what.to_string());
+    pb
+}
+
+/// Runs `f` behind a spinner and returns its result with the seconds it took.
+pub fn step<T>(what: &str, f: impl FnOnce() -> T) -> (T, f64) {
+    let pb = ProgressBar::new_spinner();
+    pb.set_style(
+        ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("static template"),
+    );
+    pb.set_message(what.to_string());
+    pb.enable_steady_tick(std::time::Duration::from_millis(120));
+    let start = Instant::now();
+    let out = f();
+    let secs = start.elapsed().as_secs_f64();
+    pb.finish_and_clear();
+    (out, secs)
+}

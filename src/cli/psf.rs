@@ -1,0 +1,183 @@
+//! `metasplat psf simulate|show`.
+
+use super::progress;
+use aberration::optics::{Dispersion, PhaseProfile, SimConfig, SimReport, simulate_grid};
+use aberration::picture::psf_grid_picture;
+use aberration::{PsfGrid, image::save_rgb8_png};
+use anyhow::{Context, Result};
+use clap::{Args, Subcommand, ValueEnum};
+use std::path::PathBuf;
+
+#[derive(Subcommand)]
+pub enum PsfCommand {
+    /// Simulate the G×G PSF grid from the metalens phase profile and write it as .npy.
+    Simulate(SimulateArgs),
+    /// Draw a PSF grid file as a picture (log scale, one panel per channel).
+    Show(ShowArgs),
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum Profile {
+    /// The optimised lens of Tseng et al. 2021 (the paper's).
+    Neural,
+    /// An ideal hyperbolic lens at --design-nm.
+    Hyperbolic,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum DispersionArg {
+    /// Tseng's meta-atom proxy.
+    MetaAtom,
+    /// Wrapped phase scaled by design/lambda.
+    Scaled,
+    /// No dispersion: the designed phase at every wavelength.
+    None,
+}
+
+#[derive(Args, Clone)]
+pub struct LensArgs {
+    /// Grid side G.
+    #[arg(long, default_value_t = 9)]
+    pub grid: usize,
+    /// PSF side K in pixels.
+    #[arg(long, default_value_t = 135)]
+    pub size: usize,
+    #[arg(long, value_enum, default_value_t = Profile::Neural)]
+    pub profile: Profile,
+    #[arg(long, value_enum, default_value_t = DispersionArg::MetaAtom)]
+    pub dispersion: DispersionArg,
+    /// Design wavelength (nm) of the hyperbolic profile and of --dispersion scaled.
+    #[arg(long, default_value_t = 452.0)]
+    pub design_nm: f64,
+    #[arg(long, default_value_t = 500.0)]
+    pub aperture_um: f64,
+    #[arg(long, default_value_t = 1000.0)]
+    pub focal_um: f64,
+    /// Meta-atom pitch (µm), also the propagation sampling.
+    #[arg(long, default_value_t = 0.35)]
+    pub pitch_um: f64,
+    /// Side of the angular-spectrum grid in samples.
+    #[arg(long, default_value_t = 3000)]
+    pub fft_size: usize,
+    /// Sensor pixel at the focal plane (µm): 5.86 µm behind a ×8.1 relay.
+    #[arg(long, default_value_t = 5.86 / 8.1)]
+    pub sensor_pitch_um: f64,
+    /// Field angle at the grid corners (degrees).
+    #[arg(long, default_value_t = 20.0)]
+    pub max_field_deg: f64,
+    #[arg(long, default_value_t = 4)]
+    pub supersample: usize,
+}
+
+impl LensArgs {
+    pub fn config(&self) -> SimConfig {
+        let mut cfg = SimConfig {
+            grid: self.grid,
+            psf_size: self.size,
+            fft_size: self.fft_size,
+            sensor_pitch_um: self.sensor_pitch_um,
+            max_field_deg: self.max_field_deg,
+            supersample: self.supersample,
+            ..SimConfig::default()
+        };
+        cfg.lens.aperture_um = self.aperture_um;
+        cfg.lens.focal_um = self.focal_um;
+        cfg.lens.pitch_um = self.pitch_um;
+        cfg.lens.profile = match self.profile {
+            Profile::Neural => PhaseProfile::neural(),
+            Profile::Hyperbolic => PhaseProfile::Hyperbolic {
+                design_nm: self.design_nm,
+            },
+        };
+        cfg.lens.dispersion = match self.dispersion {
+            DispersionArg::MetaAtom => Dispersion::MetaAtom,
+            DispersionArg::Scaled => Dispersion::ScaledWrapped {
+                design_nm: self.design_nm,
+            },
+            DispersionArg::None => Dispersion::None,
+        };
+        cfg
+    }
+}
+
+#[derive(Args)]
+pub struct SimulateArgs {
+    /// Output .npy (shape (G·G, K, K, 3), float32).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Also draw the grid to this PNG.
+    #[arg(long)]
+    pub picture: Option<PathBuf>,
+    #[command(flatten)]
+    pub lens: LensArgs,
+}
+
+#[derive(Args)]
+pub struct ShowArgs {
+    /// PSF grid .npy.
+    pub psf: PathBuf,
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+pub fn run(cmd: PsfCommand) -> Result<()> {
+    match cmd {
+        PsfCommand::Simulate(a) => {
+            let (grid, report) = simulate(&a.lens.config())?;
+            grid.save_npy(&a.out)?;
+            println!("wrote {}", a.out.display());
+            if let Some(p) = a.picture {
+                save_rgb8_png(&psf_grid_picture(&grid), &p)?;
+                println!("wrote {}", p.display());
+            }
+            print_report(&report);
+            Ok(())
+        }
+        PsfCommand::Show(a) => {
+            let grid = PsfGrid::load_npy(&a.psf)?;
+            save_rgb8_png(&psf_grid_picture(&grid), &a.out)?;
+            println!(
+                "{}: {}x{} grid of {} px RGB PSFs; wrote {}",
+                a.psf.display(),
+                grid.grid(),
+                grid.grid(),
+                grid.size(),
+                a.out.display()
+            );
+            Ok(())
+        }
+    }
+}
+
+/// Simulates with a progress bar over the propagations.
+pub fn simulate(cfg: &SimConfig) -> Result<(PsfGrid, SimReport)> {
+    cfg.validate()?;
+    let pb = progress::bar(0, "propagating");
+    let out = simulate_grid(cfg, &|done, total| {
+        pb.set_length(total as u64);
+        pb.set_position(done as u64);
+    })
+    .context("PSF simulation failed")?;
+    pb.finish_and_clear();
+    Ok(out)
+}
+
+pub fn print_report(r: &SimReport) {
+    println!(
+        "simulated {} field angles x 3 wavelengths in {:.1} s",
+        r.angles_deg.len(),
+        r.seconds
+    );
+    println!(
+        "{:>8}  {:>24}  {:>27}",
+        "angle", "power in crop (R G B)", "unit-sum peak (R G B)"
+    );
+    for (i, a) in r.angles_deg.iter().enumerate() {
+        let c = r.crop_power[i];
+        let p = r.peak[i];
+        println!(
+            "{:>7.2}°  {:>7.3} {:>7.3} {:>7.3}   {:>8.5} {:>8.5} {:>8.5}",
+            a, c[0], c[1], c[2], p[0], p[1], p[2]
+        );
+    }
+}

@@ -1,0 +1,257 @@
+//! End-to-end tests of the `metasplat` binary on small inputs.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn metasplat(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_metasplat"))
+        .args(args)
+        .output()
+        .expect("the binary runs")
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = metasplat(args);
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "metasplat {args:?} failed:\n{text}");
+    text
+}
+
+fn fails(args: &[&str]) -> String {
+    let out = metasplat(args);
+    let text = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(
+        !out.status.success(),
+        "metasplat {args:?} should have failed"
+    );
+    assert!(
+        !text.contains("panicked"),
+        "metasplat {args:?} panicked:\n{text}"
+    );
+    text
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A small lens (same f-number as the paper's) so simulation takes well under a second.
+const SMALL_LENS: &[&str] = &[
+    "--grid",
+    "3",
+    "--size",
+    "21",
+    "--aperture-um",
+    "100",
+    "--focal-um",
+    "200",
+    "--fft-size",
+    "700",
+    "--max-field-deg",
+    "10",
+];
+
+#[test]
+fn simulate_show_aberrate_and_deconvolve() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let psf = d.join("psf.npy");
+    let mut args = vec!["psf", "simulate", "--out", s(&psf)];
+    args.extend_from_slice(SMALL_LENS);
+    let text = ok(&args);
+    assert!(text.contains("field angles"), "{text}");
+    let grid = aberration::PsfGrid::load_npy(&psf).unwrap();
+    assert_eq!((grid.grid(), grid.size()), (3, 21));
+
+    let pic = d.join("psf.png");
+    ok(&["psf", "show", s(&psf), "--out", s(&pic)]);
+    let img = image::open(&pic).unwrap();
+    assert!(
+        img.width() > 3 * 3 * 21,
+        "picture too small: {}",
+        img.width()
+    );
+
+    // An input photo with alpha, 16-bit, as users may bring.
+    let input = d.join("in.png");
+    let photo = image::ImageBuffer::from_fn(80, 50, |x, y| {
+        image::Rgba([(x * 800) as u16, (y * 1300) as u16, 30000u16, 65535u16])
+    });
+    image::DynamicImage::ImageRgba16(photo)
+        .save(&input)
+        .unwrap();
+
+    let clean = aberration::Image::load(&input).unwrap();
+    for mode in ["tiled", "blend"] {
+        let out = d.join(format!("ab_{mode}.png"));
+        let text = ok(&[
+            "aberrate",
+            "--psf",
+            s(&psf),
+            "--in",
+            s(&input),
+            "--out",
+            s(&out),
+            "--mode",
+            mode,
+            "--seed",
+            "3",
+        ]);
+        assert!(text.contains("PSNR"), "{text}");
+        let blurred = aberration::Image::load(&out).unwrap();
+        assert_eq!((blurred.width, blurred.height), (80, 50));
+        assert!(
+            aberration::psnr(&blurred, &clean) < 60.0,
+            "the blur changed nothing"
+        );
+        // Same seed, same bytes.
+        let again = d.join(format!("ab_{mode}_again.png"));
+        ok(&[
+            "aberrate",
+            "--psf",
+            s(&psf),
+            "--in",
+            s(&input),
+            "--out",
+            s(&again),
+            "--mode",
+            mode,
+            "--seed",
+            "3",
+        ]);
+        assert_eq!(std::fs::read(&out).unwrap(), std::fs::read(&again).unwrap());
+    }
+
+    let blurred = d.join("ab_tiled.png");
+    let single = d.join("wiener.png");
+    ok(&[
+        "deconvolve",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&blurred),
+        "--out",
+        s(&single),
+        "--k",
+        "1e-3",
+    ]);
+    assert!(single.exists());
+    let bank = d.join("bank");
+    let median = d.join("median.png");
+    ok(&[
+        "deconvolve",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&blurred),
+        "--out",
+        s(&median),
+        "--bank",
+        s(&bank),
+    ]);
+    assert_eq!(std::fs::read_dir(&bank).unwrap().count(), 13);
+    assert!(median.exists());
+}
+
+#[test]
+fn bad_inputs_name_the_file_and_leave_no_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("out.png");
+    let input = d.join("in.png");
+    image::RgbImage::from_pixel(8, 8, image::Rgb([10, 20, 30]))
+        .save(&input)
+        .unwrap();
+
+    let missing = d.join("nope.npy");
+    let err = fails(&[
+        "aberrate",
+        "--psf",
+        s(&missing),
+        "--in",
+        s(&input),
+        "--out",
+        s(&out),
+    ]);
+    assert!(err.contains("nope.npy"), "{err}");
+
+    let bogus = d.join("bogus.npy");
+    std::fs::write(&bogus, b"\x93NUMPY garbage").unwrap();
+    let err = fails(&[
+        "aberrate",
+        "--psf",
+        s(&bogus),
+        "--in",
+        s(&input),
+        "--out",
+        s(&out),
+    ]);
+    assert!(err.contains("bogus.npy"), "{err}");
+
+    let psf = d.join("psf.npy");
+    aberration::PsfGrid::delta(3, 5).save_npy(&psf).unwrap();
+    let noimg = d.join("missing.png");
+    let err = fails(&[
+        "aberrate",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&noimg),
+        "--out",
+        s(&out),
+    ]);
+    assert!(err.contains("missing.png"), "{err}");
+
+    let unwritable = d.join("no_dir").join("out.png");
+    let err = fails(&[
+        "aberrate",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&input),
+        "--out",
+        s(&unwritable),
+    ]);
+    assert!(err.contains("out.png"), "{err}");
+
+    assert!(!out.exists(), "a failed run left an output file");
+    let names: Vec<_> = std::fs::read_dir(d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(names.len(), 3, "unexpected files left behind: {names:?}");
+}
+
+#[test]
+fn quick_demo_writes_its_pictures_and_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let text = ok(&["demo", "--quick", "--out", s(&out)]);
+    for f in [
+        "psf.npy",
+        "psf.png",
+        "chart_clean.png",
+        "chart_tiled.png",
+        "chart_blend.png",
+        "chart_wiener_median.png",
+        "comparison.png",
+    ] {
+        assert!(out.join(f).exists(), "demo did not write {f}");
+    }
+    assert!(
+        text.contains("aberrated, tiled") && text.contains("Wiener"),
+        "{text}"
+    );
+}
+
+#[test]
+fn scene_info_reads_fern() {
+    let fern = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/llff/fern");
+    if !fern.exists() {
+        eprintln!("SKIP: {} not found", fern.display());
+        return;
+    }
+    let text = ok(&["scene", "info", s(&fern)]);
+    assert!(text.contains("20") && text.contains("504x378"), "{text}");
+}
