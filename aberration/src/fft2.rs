@@ -75,7 +75,7 @@ impl RealFft2 {
     pub fn scratch(&self) -> Fft2Scratch {
         Fft2Scratch {
             row_in: vec![0.0; self.cols],
-            row_spec: vec![Complex32::ZERO; self.freq_cols() * self.rows],
+            row_spec: vec![Complex32::ZERO; self.freq_cols()],
             r2c: vec![Complex32::ZERO; self.r2c.get_scratch_len()],
             c2r: vec![Complex32::ZERO; self.c2r.get_scratch_len()],
             col: vec![

@@ -1,6 +1,6 @@
 use super::layout::{AxisLayout, Padded};
 use crate::error::{AberrationError, Result};
-use crate::fft2::{RealFft2, fast_len};
+use crate::fft2::{Fft2Scratch, RealFft2, fast_len};
 use crate::image::Image;
 use crate::psf_grid::PsfGrid;
 use rayon::prelude::*;
@@ -222,8 +222,9 @@ impl BlurPlan {
                 let terms = &self.groups[gi];
                 let rows = band_rows(terms.iter().map(|t| out_rows(t, c)));
                 let mut band = vec![0.0f32; rows.len() * w];
+                let mut work = Work::default();
                 for t in terms {
-                    forward_term(t, ch, &padded[ch], c, rows.start, &mut band, w);
+                    forward_term(t, ch, &padded[ch], c, rows.start, &mut band, w, &mut work);
                 }
                 (ch, rows.start, band)
             })
@@ -256,8 +257,9 @@ impl BlurPlan {
                     a..a + t.in_h
                 }));
                 let mut band = vec![0.0f32; rows.len() * pw];
+                let mut work = Work::default();
                 for t in terms {
-                    adjoint_term(t, ch, y.channel(ch), w, c, pad, rows.start, &mut band);
+                    adjoint_term(t, ch, y.channel(ch), w, c, pad, rows.start, &mut band, &mut work);
                 }
                 (ch, rows.start, band)
             })
@@ -286,10 +288,42 @@ fn band_rows(ranges: impl Iterator<Item = Range<usize>>) -> Range<usize> {
         .unwrap_or(0..0)
 }
 
-fn forward_term(t: &Term, ch: usize, xp: &Padded, c: isize, y0: usize, band: &mut [f32], w: usize) {
+/// Working memory reused across the terms of one job: a fresh 1 MB spectrum per term
+/// costs page faults comparable to the transforms themselves.
+#[derive(Default)]
+struct Work {
+    scratch: Option<((usize, usize), Fft2Scratch)>,
+    spec: Vec<Complex32>,
+}
+
+impl Work {
+    fn get(&mut self, fft: &RealFft2) -> (&mut Fft2Scratch, &mut [Complex32]) {
+        let key = (fft.rows, fft.cols);
+        if self.scratch.as_ref().is_none_or(|(k, _)| *k != key) {
+            self.scratch = Some((key, fft.scratch()));
+        }
+        let n = fft.spectrum_len();
+        if self.spec.len() < n {
+            self.spec.resize(n, Complex32::ZERO);
+        }
+        let s = &mut self.scratch.as_mut().expect("just set").1;
+        (s, &mut self.spec[..n])
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn forward_term(
+    t: &Term,
+    ch: usize,
+    xp: &Padded,
+    c: isize,
+    y0: usize,
+    band: &mut [f32],
+    w: usize,
+    work: &mut Work,
+) {
     let fft = &t.fft;
-    let mut s = fft.scratch();
-    let mut spec = vec![Complex32::ZERO; fft.spectrum_len()];
+    let (s, spec) = work.get(fft);
     let stride = xp.stride();
     let pad = xp.pad as isize;
     fft.forward(
@@ -308,15 +342,15 @@ fn forward_term(t: &Term, ch: usize, xp: &Padded, c: isize, y0: usize, band: &mu
                 }
             }
         },
-        &mut spec,
-        &mut s,
+        spec,
+        s,
     );
     spec.iter_mut()
         .zip(&t.spectra[ch])
         .for_each(|(a, b)| *a *= b);
     let x0 = (t.out_n.start as isize + t.in_x - c) as usize;
     fft.inverse(
-        &mut spec,
+        spec,
         t.out_m.clone(),
         |m, row| {
             let y = (m as isize + t.in_y - c) as usize - y0;
@@ -325,7 +359,7 @@ fn forward_term(t: &Term, ch: usize, xp: &Padded, c: isize, y0: usize, band: &mu
                 .zip(&row[t.out_n.clone()])
                 .for_each(|(d, v)| *d += v);
         },
-        &mut s,
+        s,
     );
 }
 
@@ -339,10 +373,10 @@ fn adjoint_term(
     pad: usize,
     y0: usize,
     band: &mut [f32],
+    work: &mut Work,
 ) {
     let fft = &t.fft;
-    let mut s = fft.scratch();
-    let mut spec = vec![Complex32::ZERO; fft.spectrum_len()];
+    let (s, spec) = work.get(fft);
     let x0 = (t.out_n.start as isize + t.in_x - c) as usize;
     fft.forward(
         t.out_m.clone(),
@@ -351,8 +385,8 @@ fn adjoint_term(
             let y = (m as isize + t.in_y - c) as usize;
             row[t.out_n.clone()].copy_from_slice(&g[y * w + x0..y * w + x0 + t.out_n.len()]);
         },
-        &mut spec,
-        &mut s,
+        spec,
+        s,
     );
     spec.iter_mut()
         .zip(&t.spectra[ch])
@@ -360,7 +394,7 @@ fn adjoint_term(
     let pw = w + 2 * pad;
     let col0 = (t.in_x + pad as isize) as usize;
     fft.inverse(
-        &mut spec,
+        spec,
         0..t.in_h,
         |r, row| {
             let py = (t.in_y + pad as isize) as usize + r - y0;
@@ -375,6 +409,6 @@ fn adjoint_term(
                 }
             }
         },
-        &mut s,
+        s,
     );
 }
