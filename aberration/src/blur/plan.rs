@@ -259,7 +259,17 @@ impl BlurPlan {
                 let mut band = vec![0.0f32; rows.len() * pw];
                 let mut work = Work::default();
                 for t in terms {
-                    adjoint_term(t, ch, y.channel(ch), w, c, pad, rows.start, &mut band, &mut work);
+                    adjoint_term(
+                        t,
+                        ch,
+                        y.channel(ch),
+                        w,
+                        c,
+                        pad,
+                        rows.start,
+                        &mut band,
+                        &mut work,
+                    );
                 }
                 (ch, rows.start, band)
             })
