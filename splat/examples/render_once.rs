@@ -1,0 +1,68 @@
+//! Renders a synthetic scene (optionally with the backward pass) and prints wall and CPU times
+//! and work counts. Used for peak-memory measurement (`/usr/bin/time -v`) next to the
+//! criterion benchmarks, and for load-insensitive CPU-time comparisons on a shared machine:
+//! `cargo run --release -p splat --example render_once -- 100000 backward [repeats]`.
+
+use std::time::Instant;
+
+use splat::synthetic::{benchmark_camera, random_box_scene};
+use splat::{RenderSettings, render, render_backward};
+
+/// On-CPU nanoseconds of all threads of this process (Linux `schedstat`); 0 elsewhere.
+fn cpu_ns() -> u64 {
+    let Ok(dir) = std::fs::read_dir("/proc/self/task") else {
+        return 0;
+    };
+    dir.flatten()
+        .filter_map(|e| std::fs::read_to_string(e.path().join("schedstat")).ok())
+        .filter_map(|s| s.split_whitespace().next()?.parse::<u64>().ok())
+        .sum()
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let n: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(100_000);
+    let backward = args.get(2).is_some_and(|s| s == "backward");
+    let repeats: u32 = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(1).max(1);
+    let g = random_box_scene(0, n, 3);
+    let cam = benchmark_camera();
+    let s = RenderSettings {
+        sh_degree: 3,
+        ..Default::default()
+    };
+    let v = vec![glam::Vec3::splat(1e-3); cam.num_pixels()];
+    let (mut fwd_wall, mut fwd_cpu, mut bwd_wall, mut bwd_cpu) = (0.0, 0.0, 0.0, 0.0);
+    let mut checksum = 0.0;
+    let mut out = None;
+    for _ in 0..repeats {
+        let (t, c) = (Instant::now(), cpu_ns());
+        let o = render(&g, &cam, &s).expect("render");
+        fwd_wall += t.elapsed().as_secs_f64();
+        fwd_cpu += (cpu_ns() - c) as f64 * 1e-9;
+        if backward {
+            let (t, c) = (Instant::now(), cpu_ns());
+            let gr = render_backward(&g, &cam, &s, &o, &v, None, None).expect("backward");
+            bwd_wall += t.elapsed().as_secs_f64();
+            bwd_cpu += (cpu_ns() - c) as f64 * 1e-9;
+            checksum = gr.params.logit_opacities.iter().sum::<f32>();
+        }
+        out = Some(o);
+    }
+    let out = out.unwrap();
+    let r = repeats as f64 * 1e-3;
+    println!(
+        "n={n} visible={} tile_pairs={} blended_pairs={} forward: wall {:.1} ms cpu {:.1} ms",
+        out.visible.iter().filter(|v| **v).count(),
+        out.num_intersections(),
+        out.num_blended(),
+        fwd_wall / r,
+        fwd_cpu / r
+    );
+    if backward {
+        println!(
+            "backward: wall {:.1} ms cpu {:.1} ms (checksum {checksum})",
+            bwd_wall / r,
+            bwd_cpu / r
+        );
+    }
+}

@@ -1,0 +1,158 @@
+//! The Gaussian scene, stored structure-of-arrays.
+//!
+//! Parameters are stored in the unconstrained form the optimiser works on (INRIA / gsplat
+//! layout): log-scales, unnormalised rotation quaternions `(w, x, y, z)`, logit opacities and
+//! SH coefficients. SH storage is coefficient-major with RGB innermost: Gaussian `i` owns
+//! `sh_rest[i * rest_count .. (i + 1) * rest_count]`, entry `k` being the RGB weight of basis
+//! function `k + 1` (basis order as in [`crate::sh`]).
+
+use glam::Vec3;
+
+use crate::error::SplatError;
+
+/// Highest SH degree the crate supports (16 coefficients per channel).
+pub const MAX_SH_DEGREE: u32 = 3;
+
+/// Number of non-DC SH coefficients per channel for `degree`.
+pub const fn sh_rest_count(degree: u32) -> usize {
+    ((degree + 1) * (degree + 1) - 1) as usize
+}
+
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Gaussians {
+    pub means: Vec<Vec3>,
+    pub log_scales: Vec<Vec3>,
+    /// `(w, x, y, z)`, any non-zero length; normalised on use.
+    pub rotations: Vec<[f32; 4]>,
+    pub logit_opacities: Vec<f32>,
+    pub sh_dc: Vec<Vec3>,
+    /// `len() * sh_rest_count(sh_degree)` entries, see the module docs.
+    pub sh_rest: Vec<Vec3>,
+    /// Degree of the stored SH coefficients; the rendered degree is a render setting `<=` this.
+    pub sh_degree: u32,
+}
+
+impl Gaussians {
+    pub fn new(sh_degree: u32) -> Self {
+        Self {
+            sh_degree: sh_degree.min(MAX_SH_DEGREE),
+            ..Default::default()
+        }
+    }
+
+    /// `n` Gaussians with every parameter zero (used for gradients and optimiser moments).
+    pub fn zeros(n: usize, sh_degree: u32) -> Self {
+        Self {
+            means: vec![Vec3::ZERO; n],
+            log_scales: vec![Vec3::ZERO; n],
+            rotations: vec![[0.0; 4]; n],
+            logit_opacities: vec![0.0; n],
+            sh_dc: vec![Vec3::ZERO; n],
+            sh_rest: vec![Vec3::ZERO; n * sh_rest_count(sh_degree)],
+            sh_degree,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.means.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.means.is_empty()
+    }
+
+    pub fn rest_count(&self) -> usize {
+        sh_rest_count(self.sh_degree)
+    }
+
+    pub fn sh_rest_of(&self, i: usize) -> &[Vec3] {
+        let r = self.rest_count();
+        &self.sh_rest[i * r..(i + 1) * r]
+    }
+
+    /// Appends one Gaussian; `sh_rest` must hold `rest_count()` entries.
+    #[allow(clippy::too_many_arguments)]
+    pub fn push(
+        &mut self,
+        mean: Vec3,
+        log_scale: Vec3,
+        rotation: [f32; 4],
+        logit_opacity: f32,
+        sh_dc: Vec3,
+        sh_rest: &[Vec3],
+    ) {
+        assert_eq!(sh_rest.len(), self.rest_count(), "sh_rest length");
+        self.means.push(mean);
+        self.log_scales.push(log_scale);
+        self.rotations.push(rotation);
+        self.logit_opacities.push(logit_opacity);
+        self.sh_dc.push(sh_dc);
+        self.sh_rest.extend_from_slice(sh_rest);
+    }
+
+    /// Appends Gaussian `i` of `src` (same SH degree).
+    pub fn push_from(&mut self, src: &Gaussians, i: usize) {
+        self.push(
+            src.means[i],
+            src.log_scales[i],
+            src.rotations[i],
+            src.logit_opacities[i],
+            src.sh_dc[i],
+            src.sh_rest_of(i),
+        );
+    }
+
+    /// New model holding `indices` of `self`, in that order (indices may repeat).
+    pub fn gather(&self, indices: &[usize]) -> Gaussians {
+        let mut out = Gaussians::new(self.sh_degree);
+        for &i in indices {
+            out.push_from(self, i);
+        }
+        out
+    }
+
+    /// Checks that all arrays agree in length (fields are public, so this can be violated).
+    pub fn validate(&self) -> Result<(), SplatError> {
+        let n = self.len();
+        let check = |what: &'static str, got: usize, expected: usize| {
+            if got == expected {
+                Ok(())
+            } else {
+                Err(SplatError::SizeMismatch {
+                    what,
+                    expected,
+                    got,
+                })
+            }
+        };
+        if self.sh_degree > MAX_SH_DEGREE {
+            return Err(SplatError::InvalidModel(format!(
+                "sh_degree {} exceeds {MAX_SH_DEGREE}",
+                self.sh_degree
+            )));
+        }
+        check("log_scales", self.log_scales.len(), n)?;
+        check("rotations", self.rotations.len(), n)?;
+        check("logit_opacities", self.logit_opacities.len(), n)?;
+        check("sh_dc", self.sh_dc.len(), n)?;
+        check("sh_rest", self.sh_rest.len(), n * self.rest_count())?;
+        Ok(())
+    }
+}
+
+/// Logistic function, written so neither branch overflows for large |x|.
+#[inline]
+pub fn sigmoid(x: f32) -> f32 {
+    if x >= 0.0 {
+        1.0 / (1.0 + (-x).exp())
+    } else {
+        let e = x.exp();
+        e / (1.0 + e)
+    }
+}
+
+/// Inverse of [`sigmoid`], clamped so `p` of 0 or 1 stays finite.
+pub fn logit(p: f32) -> f32 {
+    let p = p.clamp(1e-7, 1.0 - 1e-7);
+    (p / (1.0 - p)).ln()
+}

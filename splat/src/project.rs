@@ -1,0 +1,412 @@
+//! Per-Gaussian projection to screen space (EWA splatting, gsplat conventions) and its
+//! hand-written backward pass.
+//!
+//! Forward, for a Gaussian with mean `p`, log-scale `l`, quaternion `q`, logit opacity `o`:
+//! 1. `Σ = R(q̂) diag(e^l)² R(q̂)ᵀ`, `p_c = W p + t` (camera pose `W, t`).
+//! 2. Cull if `z < near` or `z > far`.
+//! 3. EWA Jacobian at `(tx, ty, z)`, with `tx = z · clamp(x/z, −(cx/fx + 0.3 tan_fovx),
+//!    (width−cx)/fx + 0.3 tan_fovx)` (and likewise for y), `tan_fovx = width / (2 fx)`; for a
+//!    centred principal point the limit is gsplat's `1.3 · tan(fov/2)`. The clamp keeps
+//!    Gaussians far outside the frustum from producing huge footprints.
+//! 4. `cov = J W Σ Wᵀ Jᵀ + 0.3 I` (the 0.3 px² low-pass); `conic = cov⁻¹`.
+//!    With `antialiased` the opacity is multiplied by Mip-Splatting's compensation
+//!    `sqrt(det(cov − 0.3 I) / det(cov))`.
+//! 5. Radius: the opacity-dependent extent `k = min(3.33, sqrt(2 ln(255 · opacity)))` — the
+//!    level set where `opacity · e^(−σ)` reaches 1/255 — gives the per-axis half-size of the
+//!    pixel bounding box, `ceil(k · sqrt(cov_xx))` and `ceil(k · sqrt(cov_yy))`. Cull if the
+//!    opacity is below 1/255 or the box misses the image. A culled Gaussian has radius `[0, 0]`.
+//! 6. Colour from SH (see [`crate::sh`]).
+
+use glam::{Mat3, Vec2, Vec3};
+
+use crate::camera::Camera;
+use crate::model::{Gaussians, sigmoid};
+use crate::sh;
+
+/// Low-pass added to the screen-space covariance diagonal (pixels²).
+pub const COV2D_BLUR: f32 = 0.3;
+/// Smallest alpha that contributes to a pixel.
+pub const ALPHA_THRESHOLD: f32 = 1.0 / 255.0;
+/// Cap on the extent in standard deviations (≥ `sqrt(2 ln 255)`, so never the binding limit
+/// for opacities ≤ 1).
+pub const MAX_EXTENT_SIGMAS: f32 = 3.33;
+
+/// What the rasterizer needs for one visible Gaussian.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Projected {
+    pub mean2d: Vec2,
+    /// Inverse screen covariance `(a, b, c)` = `[[a, b], [b, c]]`.
+    pub conic: [f32; 3],
+    pub depth: f32,
+    /// Sigmoid opacity, times the antialiasing compensation when enabled.
+    pub opacity: f32,
+    pub color: Vec3,
+    /// Half-size of the pixel bounding box per axis; `[0, 0]` means culled.
+    pub radius: [i32; 2],
+}
+
+/// Rotation matrix of a quaternion `(w, x, y, z)` of any length, and the normalised quaternion.
+/// Scaling by the largest component first keeps huge quaternions from overflowing; the zero
+/// quaternion maps to the identity.
+#[inline]
+pub fn quat_to_rotmat(q: [f32; 4]) -> (Mat3, [f32; 4], f32) {
+    let m = q.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    if !(m.is_finite() && m > 0.0) {
+        return (Mat3::IDENTITY, [1.0, 0.0, 0.0, 0.0], 0.0);
+    }
+    let s = [q[0] / m, q[1] / m, q[2] / m, q[3] / m];
+    let len_s = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2] + s[3] * s[3]).sqrt();
+    let [w, x, y, z] = [s[0] / len_s, s[1] / len_s, s[2] / len_s, s[3] / len_s];
+    let r = Mat3::from_cols(
+        Vec3::new(
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y + w * z),
+            2.0 * (x * z - w * y),
+        ),
+        Vec3::new(
+            2.0 * (x * y - w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z + w * x),
+        ),
+        Vec3::new(
+            2.0 * (x * z + w * y),
+            2.0 * (y * z - w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ),
+    );
+    (r, [w, x, y, z], m * len_s)
+}
+
+/// Gradient of `quat_to_rotmat` with respect to the raw quaternion, given `v_r` = dL/dR.
+fn quat_to_rotmat_backward(qn: [f32; 4], len: f32, v_r: Mat3) -> [f32; 4] {
+    if len.is_nan() || len <= 0.0 {
+        return [0.0; 4];
+    }
+    let [w, x, y, z] = qn;
+    // g(i, j) = dL/dR[row i][col j]; glam is column-major.
+    let g = |i: usize, j: usize| v_r.col(j)[i];
+    let vw = 2.0 * (x * (g(2, 1) - g(1, 2)) + y * (g(0, 2) - g(2, 0)) + z * (g(1, 0) - g(0, 1)));
+    let vx = 2.0 * (y * (g(0, 1) + g(1, 0)) + z * (g(0, 2) + g(2, 0)) + w * (g(2, 1) - g(1, 2)))
+        - 4.0 * x * (g(1, 1) + g(2, 2));
+    let vy = 2.0 * (x * (g(0, 1) + g(1, 0)) + w * (g(0, 2) - g(2, 0)) + z * (g(1, 2) + g(2, 1)))
+        - 4.0 * y * (g(0, 0) + g(2, 2));
+    let vz = 2.0 * (w * (g(1, 0) - g(0, 1)) + x * (g(0, 2) + g(2, 0)) + y * (g(1, 2) + g(2, 1)))
+        - 4.0 * z * (g(0, 0) + g(1, 1));
+    // Through the normalisation: remove the radial part, divide by the length.
+    let v = [vw, vx, vy, vz];
+    let dot = v.iter().zip(qn.iter()).map(|(a, b)| a * b).sum::<f32>();
+    let mut out = [0.0; 4];
+    for k in 0..4 {
+        out[k] = (v[k] - qn[k] * dot) / len;
+    }
+    out
+}
+
+/// Frustum limits of `x/z` and `y/z` used by the Jacobian clamp: `(neg_x, pos_x, neg_y, pos_y)`.
+#[inline]
+fn clamp_limits(cam: &Camera) -> [f32; 4] {
+    let tan_fovx = 0.5 * cam.width as f32 / cam.fx;
+    let tan_fovy = 0.5 * cam.height as f32 / cam.fy;
+    [
+        cam.cx / cam.fx + 0.3 * tan_fovx,
+        (cam.width as f32 - cam.cx) / cam.fx + 0.3 * tan_fovx,
+        cam.cy / cam.fy + 0.3 * tan_fovy,
+        (cam.height as f32 - cam.cy) / cam.fy + 0.3 * tan_fovy,
+    ]
+}
+
+/// Quantities shared by the forward and the backward pass (recomputed in the backward rather
+/// than stored, which is cheap next to rasterization and saves memory).
+struct Geometry {
+    rot: Mat3,
+    qn: [f32; 4],
+    qlen: f32,
+    scale: Vec3,
+    /// `R diag(s)`.
+    m: Mat3,
+    cov_cam: Mat3,
+    p_cam: Vec3,
+    j0: Vec3,
+    j1: Vec3,
+    /// Jacobian evaluation point `(tx, ty)` (the clamped `x`, `y`).
+    txy: [f32; 2],
+    clamped: [bool; 2],
+    /// Screen covariance before the low-pass.
+    cov: [f32; 3],
+}
+
+#[inline]
+fn geometry(g: &Gaussians, i: usize, cam: &Camera, lim: &[f32; 4]) -> Option<Geometry> {
+    let p_cam = cam.rotation * g.means[i] + cam.translation;
+    let z = p_cam.z;
+    if !(p_cam.is_finite() && (cam.near..=cam.far).contains(&z)) {
+        return None;
+    }
+    let (rot, qn, qlen) = quat_to_rotmat(g.rotations[i]);
+    let scale = g.log_scales[i].exp();
+    let m = rot * Mat3::from_diagonal(scale);
+    let cov_world = m * m.transpose();
+    let cov_cam = cam.rotation * cov_world * cam.rotation.transpose();
+    let (rx, ry) = (p_cam.x / z, p_cam.y / z);
+    let cx = rx.clamp(-lim[0], lim[1]);
+    let cy = ry.clamp(-lim[2], lim[3]);
+    let (tx, ty) = (z * cx, z * cy);
+    let rz = 1.0 / z;
+    let rz2 = rz * rz;
+    let j0 = Vec3::new(cam.fx * rz, 0.0, -cam.fx * tx * rz2);
+    let j1 = Vec3::new(0.0, cam.fy * rz, -cam.fy * ty * rz2);
+    let s0 = cov_cam * j0;
+    let s1 = cov_cam * j1;
+    let cov = [j0.dot(s0), j0.dot(s1), j1.dot(s1)];
+    if !cov.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    Some(Geometry {
+        rot,
+        qn,
+        qlen,
+        scale,
+        m,
+        cov_cam,
+        p_cam,
+        j0,
+        j1,
+        txy: [tx, ty],
+        clamped: [cx != rx, cy != ry],
+        cov,
+    })
+}
+
+/// Projects Gaussian `i`; returns `None` when it is culled.
+#[inline]
+pub fn project_one(
+    g: &Gaussians,
+    i: usize,
+    cam: &Camera,
+    sh_degree: u32,
+    antialiased: bool,
+    cam_pos: Vec3,
+) -> Option<Projected> {
+    let lim = clamp_limits(cam);
+    let geo = geometry(g, i, cam, &lim)?;
+    let [a, b, c] = geo.cov;
+    let (ab, cb) = (a + COV2D_BLUR, c + COV2D_BLUR);
+    let det_b = ab * cb - b * b;
+    if !(det_b.is_finite() && det_b > 0.0) {
+        return None;
+    }
+    let mut opacity = sigmoid(g.logit_opacities[i]);
+    if antialiased {
+        let det = a * c - b * b;
+        opacity *= (det / det_b).max(0.0).sqrt();
+    }
+    if opacity.is_nan() || opacity < ALPHA_THRESHOLD {
+        return None;
+    }
+    let extent = MAX_EXTENT_SIGMAS.min((2.0 * (opacity / ALPHA_THRESHOLD).ln()).sqrt());
+    let rad_x = (extent * ab.sqrt()).ceil();
+    let rad_y = (extent * cb.sqrt()).ceil();
+    let z = geo.p_cam.z;
+    let mean2d = Vec2::new(
+        cam.fx * geo.p_cam.x / z + cam.cx,
+        cam.fy * geo.p_cam.y / z + cam.cy,
+    );
+    if !(mean2d.x + rad_x > 0.0
+        && mean2d.x - rad_x < cam.width as f32
+        && mean2d.y + rad_y > 0.0
+        && mean2d.y - rad_y < cam.height as f32)
+    {
+        return None;
+    }
+    let inv = 1.0 / det_b;
+    let conic = [cb * inv, -b * inv, ab * inv];
+    if !conic.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let color = if sh_degree == 0 {
+        (g.sh_dc[i] * sh::SH_C0 + Vec3::splat(0.5)).max(Vec3::ZERO)
+    } else {
+        let dir = (g.means[i] - cam_pos).normalize_or_zero();
+        sh::eval(sh_degree, g.sh_dc[i], g.sh_rest_of(i), dir).max(Vec3::ZERO)
+    };
+    if !color.is_finite() {
+        return None;
+    }
+    // Clamped only so the radius stays representable as i32 (far beyond any image).
+    let big = (1u32 << 30) as f32;
+    Some(Projected {
+        mean2d,
+        conic,
+        depth: z,
+        opacity,
+        color,
+        radius: [rad_x.min(big) as i32, rad_y.min(big) as i32],
+    })
+}
+
+/// Screen-space gradients of one Gaussian, summed over all pixels.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ScreenGrad {
+    pub mean2d: Vec2,
+    pub conic: [f32; 3],
+    pub color: Vec3,
+    pub opacity: f32,
+    /// Gradient with respect to the camera-space depth `z` used for the depth output.
+    pub depth: f32,
+}
+
+/// Parameter gradients of one Gaussian (SH rest gradients are written to a slice).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ParamGrad {
+    pub mean: Vec3,
+    pub log_scale: Vec3,
+    pub rotation: [f32; 4],
+    pub logit_opacity: f32,
+    pub sh_dc: Vec3,
+}
+
+/// Backward of [`project_one`] for a visible Gaussian. Writes SH rest gradients into `v_rest`
+/// (which must be zeroed, `rest_count` long).
+#[allow(clippy::too_many_arguments)]
+pub fn project_backward_one(
+    g: &Gaussians,
+    i: usize,
+    cam: &Camera,
+    sh_degree: u32,
+    antialiased: bool,
+    cam_pos: Vec3,
+    v: &ScreenGrad,
+    v_rest: &mut [Vec3],
+) -> ParamGrad {
+    let mut out = ParamGrad::default();
+    let lim = clamp_limits(cam);
+    let Some(geo) = geometry(g, i, cam, &lim) else {
+        return out;
+    };
+    let [a, b, c] = geo.cov;
+    let (ab, cb) = (a + COV2D_BLUR, c + COV2D_BLUR);
+    let det_b = ab * cb - b * b;
+    let inv = 1.0 / det_b;
+    let (qa, qb, qc) = (cb * inv, -b * inv, ab * inv);
+
+    // Conic -> blurred covariance: dCov = -Q V Q with V = [[va, vb/2], [vb/2, vc]].
+    let (va, vb, vc) = (v.conic[0], 0.5 * v.conic[1], v.conic[2]);
+    let (qv00, qv01, qv10, qv11) = (
+        qa * va + qb * vb,
+        qa * vb + qb * vc,
+        qb * va + qc * vb,
+        qb * vb + qc * vc,
+    );
+    let h00 = -(qv00 * qa + qv01 * qb);
+    let h01 = -(qv00 * qb + qv01 * qc);
+    let h11 = -(qv10 * qb + qv11 * qc);
+    // Gradient w.r.t. (a, b, c) where b is the single off-diagonal value.
+    let mut g_cov = [h00, 2.0 * h01, h11];
+
+    // Opacity (and antialiasing compensation).
+    let sig = sigmoid(g.logit_opacities[i]);
+    let mut v_sig = v.opacity;
+    if antialiased {
+        let det = a * c - b * b;
+        let r = det / det_b;
+        if r > 0.0 {
+            let comp = r.sqrt();
+            v_sig = v.opacity * comp;
+            let v_r = v.opacity * sig * 0.5 / comp;
+            // r = det/det_b: dr = ddet/det_b - det ddet_b/det_b².
+            let k = det / (det_b * det_b);
+            g_cov[0] += v_r * (c / det_b - k * cb);
+            g_cov[1] += v_r * (-2.0 * b / det_b + k * 2.0 * b);
+            g_cov[2] += v_r * (a / det_b - k * ab);
+        } else {
+            v_sig = 0.0;
+        }
+    }
+    out.logit_opacity = v_sig * sig * (1.0 - sig);
+
+    // cov = [j0·Σc j0, j0·Σc j1, j1·Σc j1].
+    let (ga, gb, gc) = (g_cov[0], g_cov[1], g_cov[2]);
+    let (j0, j1) = (geo.j0, geo.j1);
+    let s0 = geo.cov_cam * j0;
+    let s1 = geo.cov_cam * j1;
+    let v_j0 = 2.0 * ga * s0 + gb * s1;
+    let v_j1 = gb * s0 + 2.0 * gc * s1;
+    let outer = |u: Vec3, w: Vec3| Mat3::from_cols(u * w.x, u * w.y, u * w.z);
+    let v_cov_cam = outer(j0, j0) * ga + outer(j0, j1) * gb + outer(j1, j1) * gc;
+    let v_cov_world = cam.rotation.transpose() * v_cov_cam * cam.rotation;
+    let v_m = (v_cov_world + v_cov_world.transpose()) * geo.m;
+    let v_rot = Mat3::from_cols(
+        v_m.x_axis * geo.scale.x,
+        v_m.y_axis * geo.scale.y,
+        v_m.z_axis * geo.scale.z,
+    );
+    let v_scale = Vec3::new(
+        geo.rot.x_axis.dot(v_m.x_axis),
+        geo.rot.y_axis.dot(v_m.y_axis),
+        geo.rot.z_axis.dot(v_m.z_axis),
+    );
+    out.log_scale = v_scale * geo.scale;
+    out.rotation = quat_to_rotmat_backward(geo.qn, geo.qlen, v_rot);
+
+    // Camera-space mean: through the mean projection and the Jacobian.
+    let (x, y, z) = (geo.p_cam.x, geo.p_cam.y, geo.p_cam.z);
+    let (fx, fy) = (cam.fx, cam.fy);
+    let rz = 1.0 / z;
+    let rz2 = rz * rz;
+    let rz3 = rz2 * rz;
+    let mut v_pc = Vec3::new(
+        v.mean2d.x * fx * rz,
+        v.mean2d.y * fy * rz,
+        -(v.mean2d.x * fx * x + v.mean2d.y * fy * y) * rz2 + v.depth,
+    );
+    let [tx, ty] = geo.txy;
+    v_pc.z += -fx * rz2 * v_j0.x - fy * rz2 * v_j1.y;
+    if geo.clamped[0] {
+        v_pc.z += fx * tx * rz3 * v_j0.z;
+    } else {
+        v_pc.x += -fx * rz2 * v_j0.z;
+        v_pc.z += 2.0 * fx * tx * rz3 * v_j0.z;
+    }
+    if geo.clamped[1] {
+        v_pc.z += fy * ty * rz3 * v_j1.z;
+    } else {
+        v_pc.y += -fy * rz2 * v_j1.z;
+        v_pc.z += 2.0 * fy * ty * rz3 * v_j1.z;
+    }
+    out.mean = cam.rotation.transpose() * v_pc;
+
+    // Colour: the clamp at zero passes gradient only where it did not clamp.
+    let raw = g.means[i] - cam_pos;
+    let len = raw.length();
+    let dir = if len > 0.0 { raw / len } else { Vec3::ZERO };
+    let pre = if sh_degree == 0 {
+        g.sh_dc[i] * sh::SH_C0 + Vec3::splat(0.5)
+    } else {
+        sh::eval(sh_degree, g.sh_dc[i], g.sh_rest_of(i), dir)
+    };
+    let v_color = Vec3::select(pre.cmpgt(Vec3::ZERO), v.color, Vec3::ZERO);
+    let v_dir = sh::eval_backward(
+        sh_degree,
+        g.sh_rest_of(i),
+        dir,
+        v_color,
+        &mut out.sh_dc,
+        v_rest,
+    );
+    if len > 0.0 && sh_degree > 0 {
+        out.mean += (v_dir - dir * dir.dot(v_dir)) / len;
+    }
+
+    // Degenerate inputs (e.g. overflowing scales) must not leak NaN/Inf into the optimiser.
+    let finite = out.mean.is_finite()
+        && out.log_scale.is_finite()
+        && out.rotation.iter().all(|v| v.is_finite())
+        && out.logit_opacity.is_finite()
+        && out.sh_dc.is_finite()
+        && v_rest.iter().all(|v| v.is_finite());
+    if !finite {
+        v_rest.fill(Vec3::ZERO);
+        return ParamGrad::default();
+    }
+    out
+}

@@ -1,0 +1,358 @@
+//! Per-tile alpha blending (forward) and its backward pass.
+//!
+//! For pixel centre `q = (i + 0.5, j + 0.5)` and a Gaussian with screen mean `m`, conic
+//! `(a, b, c)` and opacity `o`: `d = m − q`, `σ = ½(a dx² + c dy²) + b dx dy`,
+//! `α = min(0.99, o e^(−σ))`. Gaussians are blended front to back; one with `α < 1/255` (or
+//! `σ < 0`) is skipped; when the transmittance after a Gaussian would drop to `≤ 1e-4` the
+//! pixel stops *before* blending it (gsplat's rule). Colour is
+//! `Σ cᵢ αᵢ Tᵢ + T_final · background`, alpha is `1 − T_final`, depth is
+//! `Σ zᵢ αᵢ Tᵢ / (1 − T_final)` (expected depth; 0 where nothing was blended).
+
+use glam::{Vec2, Vec3};
+
+use crate::project::{ALPHA_THRESHOLD, Projected};
+use crate::tiles::{TILE_SIZE, TileBins};
+
+pub const MAX_ALPHA: f32 = 0.99;
+pub const TRANSMITTANCE_MIN: f32 = 1e-4;
+
+/// Raster-ready form of a projected Gaussian, precomputed once per Gaussian so the per-tile
+/// gather is a plain copy (its loads are random; keeping them free of math lets them overlap).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Splat {
+    mean: Vec2,
+    conic: [f32; 3],
+    opacity: f32,
+    color: Vec3,
+    depth: f32,
+    /// `σ` beyond which `α < 1/255` for certain (`ln(255 o)` plus a rounding margin); lets
+    /// most far pairs skip the `exp` without changing any decision.
+    sigma_cut: f32,
+    /// `1 / conic.a`, for the per-row span solve.
+    inv_a: f32,
+    /// Inclusive pixel range `[x0, x1] × [y0, y1]` whose centres lie within the radius box.
+    px: [i32; 4],
+}
+
+impl Splat {
+    pub fn new(p: &Projected) -> Self {
+        if p.radius == [0, 0] {
+            return Self::default();
+        }
+        let (rx, ry) = (p.radius[0] as f32, p.radius[1] as f32);
+        let to_i = |v: f32| v.clamp(-1e9, 1e9) as i32;
+        Splat {
+            mean: p.mean2d,
+            conic: p.conic,
+            opacity: p.opacity,
+            color: p.color,
+            depth: p.depth,
+            sigma_cut: (p.opacity / ALPHA_THRESHOLD).ln() * (1.0 + 1e-4) + 1e-4,
+            inv_a: 1.0 / p.conic[0],
+            px: [
+                to_i((p.mean2d.x - rx - 0.5).ceil()),
+                to_i((p.mean2d.x + rx - 0.5).floor()),
+                to_i((p.mean2d.y - ry - 0.5).ceil()),
+                to_i((p.mean2d.y + ry - 0.5).floor()),
+            ],
+        }
+    }
+}
+
+fn gather(bins: &TileBins, splats: &[Splat], t: usize) -> Vec<Splat> {
+    bins.ids[bins.range(t)]
+        .iter()
+        .map(|&g| splats[g as usize])
+        .collect()
+}
+
+/// Pixel rectangle of tile `t`, clipped to the image: `(x0, y0, w, h)`.
+pub fn tile_pixels(bins: &TileBins, t: usize, width: u32, height: u32) -> (u32, u32, u32, u32) {
+    let tx = t as u32 % bins.tiles_x;
+    let ty = t as u32 / bins.tiles_x;
+    let (x0, y0) = (tx * TILE_SIZE, ty * TILE_SIZE);
+    (
+        x0,
+        y0,
+        TILE_SIZE.min(width - x0),
+        TILE_SIZE.min(height - y0),
+    )
+}
+
+/// The splat's pixel box intersected with the tile, in tile-local coordinates; `None` if empty.
+#[inline]
+fn local_box(s: &Splat, x0: u32, y0: u32, w: u32, h: u32) -> Option<[usize; 4]> {
+    let lx0 = (s.px[0] - x0 as i32).max(0);
+    let lx1 = (s.px[1] - x0 as i32).min(w as i32 - 1);
+    let ly0 = (s.px[2] - y0 as i32).max(0);
+    let ly1 = (s.px[3] - y0 as i32).min(h as i32 - 1);
+    (lx0 <= lx1 && ly0 <= ly1).then_some([lx0 as usize, lx1 as usize, ly0 as usize, ly1 as usize])
+}
+
+/// Inclusive tile-local x-range of row `ly` that can hold pixels with `σ ≤ sigma_cut`: the
+/// root interval of the row's quadratic in `dx`, widened for rounding and clipped to `bx`.
+/// Only a superset matters, since every pixel in it still gets the exact test.
+#[inline]
+fn row_span(s: &Splat, qy: f32, x0: u32, bx: [usize; 2]) -> Option<(usize, usize)> {
+    let dy = s.mean.y - qy;
+    let [a, b, c] = s.conic;
+    let bb = b * dy;
+    let disc = bb * bb - 2.0 * a * (0.5 * c * dy * dy - s.sigma_cut);
+    if disc < -1e-6 * (bb * bb + a * s.sigma_cut) {
+        return None;
+    }
+    let r = disc.max(0.0).sqrt();
+    let pad = 1e-3 + 1e-4 * (r + bb.abs()) * s.inv_a;
+    let lo = s.mean.x + (bb - r) * s.inv_a - pad - 0.5 - x0 as f32;
+    let hi = s.mean.x + (bb + r) * s.inv_a + pad - 0.5 - x0 as f32;
+    if !(lo.is_finite() && hi.is_finite()) {
+        return Some((bx[0], bx[1]));
+    }
+    // Clamping first keeps the values small enough for the integer rounding below (the
+    // baseline x86-64 target has no rounding instruction, so `ceil`/`floor` are libm calls).
+    let lo = lo.clamp(bx[0] as f32 - 1.0, bx[1] as f32 + 1.0);
+    let hi = hi.clamp(bx[0] as f32 - 1.0, bx[1] as f32 + 1.0);
+    let lo = ceil_i32(lo).max(bx[0] as i32);
+    let hi = floor_i32(hi).min(bx[1] as i32);
+    (lo <= hi).then_some((lo as usize, hi as usize))
+}
+
+/// `ceil` for finite values well inside the i32 range.
+#[inline]
+fn ceil_i32(v: f32) -> i32 {
+    let t = v as i32;
+    if (t as f32) < v { t + 1 } else { t }
+}
+
+/// `floor` for finite values well inside the i32 range.
+#[inline]
+fn floor_i32(v: f32) -> i32 {
+    let t = v as i32;
+    if (t as f32) > v { t - 1 } else { t }
+}
+
+#[inline]
+fn sigma_of(s: &Splat, q: Vec2) -> (f32, Vec2) {
+    let d = s.mean - q;
+    let [a, b, c] = s.conic;
+    (0.5 * (a * d.x * d.x + c * d.y * d.y) + b * d.x * d.y, d)
+}
+
+/// Forward result of one tile, pixels in tile-local row-major order.
+pub struct TileForward {
+    pub color: Vec<Vec3>,
+    pub alpha: Vec<f32>,
+    pub depth: Vec<f32>,
+    pub final_t: Vec<f32>,
+    /// Number of list entries up to and including the last one blended into the pixel.
+    pub n_contrib: Vec<u32>,
+    /// Number of (pixel, Gaussian) pairs blended in this tile.
+    pub blended: u64,
+}
+
+/// Blends one tile. Splats are visited front to back and each updates only the pixels of its
+/// radius box; every pixel still sees its Gaussians in list order with exactly the
+/// per-pixel arithmetic of the rule above, so the result equals a pixel-by-pixel loop.
+pub fn forward_tile(
+    bins: &TileBins,
+    splats: &[Splat],
+    t: usize,
+    width: u32,
+    height: u32,
+    background: Vec3,
+) -> TileForward {
+    let splats = gather(bins, splats, t);
+    let (x0, y0, w, h) = tile_pixels(bins, t, width, height);
+    let n = (w * h) as usize;
+    let mut tr = vec![1.0f32; n];
+    let mut color = vec![Vec3::ZERO; n];
+    let mut depth = vec![0.0f32; n];
+    let mut last = vec![0u32; n];
+    let mut done = vec![false; n];
+    let mut n_done = 0;
+    let mut blended = 0u64;
+    for (k, s) in splats.iter().enumerate() {
+        if n_done == n {
+            break;
+        }
+        let Some([lx0, lx1, ly0, ly1]) = local_box(s, x0, y0, w, h) else {
+            continue;
+        };
+        for ly in ly0..=ly1 {
+            let qy = (y0 as usize + ly) as f32 + 0.5;
+            let Some((sx0, sx1)) = row_span(s, qy, x0, [lx0, lx1]) else {
+                continue;
+            };
+            for lx in sx0..=sx1 {
+                let li = ly * w as usize + lx;
+                if done[li] {
+                    continue;
+                }
+                let q = Vec2::new((x0 as usize + lx) as f32 + 0.5, qy);
+                let (sigma, _) = sigma_of(s, q);
+                if !(0.0..=s.sigma_cut).contains(&sigma) {
+                    continue;
+                }
+                let alpha = MAX_ALPHA.min(s.opacity * (-sigma).exp());
+                if alpha < ALPHA_THRESHOLD {
+                    continue;
+                }
+                let next_t = tr[li] * (1.0 - alpha);
+                if next_t <= TRANSMITTANCE_MIN {
+                    done[li] = true;
+                    n_done += 1;
+                    continue;
+                }
+                let wgt = alpha * tr[li];
+                color[li] += s.color * wgt;
+                depth[li] += s.depth * wgt;
+                tr[li] = next_t;
+                last[li] = k as u32 + 1;
+                blended += 1;
+            }
+        }
+    }
+    let alpha: Vec<f32> = tr.iter().map(|t| 1.0 - t).collect();
+    TileForward {
+        color: color
+            .iter()
+            .zip(&tr)
+            .map(|(c, t)| *c + background * *t)
+            .collect(),
+        depth: depth
+            .iter()
+            .zip(&alpha)
+            .map(|(d, a)| if *a > 0.0 { d / a } else { 0.0 })
+            .collect(),
+        alpha,
+        final_t: tr,
+        n_contrib: last,
+        blended,
+    }
+}
+
+/// Screen-space gradient of one (tile, Gaussian) pair, summed over the tile's pixels.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct IsectGrad {
+    pub mean2d: Vec2,
+    /// Sum over pixels of `|∂L/∂mean2d|` per component (densification's "absgrad").
+    pub mean2d_abs: Vec2,
+    pub conic: [f32; 3],
+    pub color: Vec3,
+    pub opacity: f32,
+    /// Gradient with respect to the Gaussian's camera-space depth (from the depth output).
+    pub depth: f32,
+}
+
+/// Inputs of the backward tile kernel for the whole image (row-major, `width * height`).
+pub struct PixelGrads<'a> {
+    pub v_color: &'a [Vec3],
+    pub v_alpha: Option<&'a [f32]>,
+    pub v_depth: Option<&'a [f32]>,
+    /// The forward's expected depth per pixel.
+    pub depth: &'a [f32],
+    pub final_t: &'a [f32],
+    pub n_contrib: &'a [u32],
+}
+
+/// Backward of [`forward_tile`]: splats are visited back to front, each pixel of a splat's box
+/// undoes its blending step (recovering `T` by division, as gsplat) and contributes to the
+/// splat's gradient; pixels are summed in row-major order, so results are deterministic.
+#[allow(clippy::too_many_arguments)]
+pub fn backward_tile(
+    bins: &TileBins,
+    splats: &[Splat],
+    t: usize,
+    width: u32,
+    height: u32,
+    background: Vec3,
+    pix: &PixelGrads,
+    out: &mut [IsectGrad],
+) {
+    let splats = gather(bins, splats, t);
+    let (x0, y0, w, h) = tile_pixels(bins, t, width, height);
+    let n = (w * h) as usize;
+    let mut tr = vec![0.0f32; n];
+    let mut last = vec![0usize; n];
+    let mut v_c = vec![Vec3::ZERO; n];
+    // Expected depth d = D / A (D = Σ zᵢαᵢTᵢ, A = 1 − T_final) acts like a colour channel
+    // with weight u = v_depth / A and no background, plus an alpha term with weight −u·d.
+    let mut v_dsum = vec![0.0f32; n];
+    // ∂/∂αₖ of the background, alpha and depth-normalisation terms share the factor
+    // T_final / (1 − αₖ); this is T_final times (v_alpha − background · v_color − u·d).
+    let mut v_final = vec![0.0f32; n];
+    let mut behind = vec![Vec3::ZERO; n];
+    let mut behind_z = vec![0.0f32; n];
+    let mut max_last = 0;
+    for ly in 0..h as usize {
+        for lx in 0..w as usize {
+            let li = ly * w as usize + lx;
+            let idx = (y0 as usize + ly) * width as usize + x0 as usize + lx;
+            tr[li] = pix.final_t[idx];
+            last[li] = pix.n_contrib[idx] as usize;
+            max_last = max_last.max(last[li]);
+            v_c[li] = pix.v_color[idx];
+            let v_a = pix.v_alpha.map_or(0.0, |a| a[idx]);
+            let a_out = 1.0 - tr[li];
+            let u = match pix.v_depth {
+                Some(v) if a_out > 0.0 => v[idx] / a_out,
+                _ => 0.0,
+            };
+            v_dsum[li] = u;
+            v_final[li] = tr[li] * (v_a - background.dot(v_c[li]) - u * pix.depth[idx]);
+        }
+    }
+    for k in (0..max_last).rev() {
+        let s = &splats[k];
+        let Some([lx0, lx1, ly0, ly1]) = local_box(s, x0, y0, w, h) else {
+            continue;
+        };
+        let mut g = IsectGrad::default();
+        for ly in ly0..=ly1 {
+            let qy = (y0 as usize + ly) as f32 + 0.5;
+            let Some((sx0, sx1)) = row_span(s, qy, x0, [lx0, lx1]) else {
+                continue;
+            };
+            for lx in sx0..=sx1 {
+                let li = ly * w as usize + lx;
+                if k >= last[li] {
+                    continue;
+                }
+                let q = Vec2::new((x0 as usize + lx) as f32 + 0.5, qy);
+                let (sigma, d) = sigma_of(s, q);
+                if !(0.0..=s.sigma_cut).contains(&sigma) {
+                    continue;
+                }
+                let vis = (-sigma).exp();
+                let raw = s.opacity * vis;
+                let alpha = MAX_ALPHA.min(raw);
+                if alpha < ALPHA_THRESHOLD {
+                    continue;
+                }
+                let ra = 1.0 / (1.0 - alpha);
+                tr[li] *= ra;
+                let fac = alpha * tr[li];
+                g.color += v_c[li] * fac;
+                g.depth += v_dsum[li] * fac;
+                let v_alpha = (s.color * tr[li] - behind[li] * ra).dot(v_c[li])
+                    + (s.depth * tr[li] - behind_z[li] * ra) * v_dsum[li]
+                    + ra * v_final[li];
+                behind[li] += s.color * fac;
+                behind_z[li] += s.depth * fac;
+                if raw <= MAX_ALPHA {
+                    let v_sigma = -raw * v_alpha;
+                    let [a, b, c] = s.conic;
+                    g.conic[0] += 0.5 * v_sigma * d.x * d.x;
+                    g.conic[1] += v_sigma * d.x * d.y;
+                    g.conic[2] += 0.5 * v_sigma * d.y * d.y;
+                    let vm =
+                        Vec2::new(v_sigma * (a * d.x + b * d.y), v_sigma * (b * d.x + c * d.y));
+                    g.mean2d += vm;
+                    g.mean2d_abs += vm.abs();
+                    g.opacity += vis * v_alpha;
+                }
+            }
+        }
+        out[k] = g;
+    }
+}

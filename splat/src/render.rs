@@ -1,0 +1,326 @@
+//! Public rendering API: [`render`] (forward) and [`render_backward`].
+//!
+//! Parallelism is over Gaussians (projection, parameter gradients) and over tiles (blending);
+//! every output value is produced by exactly one task and cross-tile sums are reduced per
+//! Gaussian in tile order, so results are bit-identical for any rayon thread count.
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use crate::camera::Camera;
+use crate::error::SplatError;
+use crate::model::Gaussians;
+use crate::project::{self, Projected, ScreenGrad};
+use crate::raster::{self, IsectGrad, PixelGrads, Splat};
+use crate::tiles::{self, TileBins};
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderSettings {
+    /// SH degree used for colour (≤ the model's stored degree); higher bands are not evaluated.
+    pub sh_degree: u32,
+    pub background: Vec3,
+    /// Mip-Splatting opacity compensation for the 0.3 px low-pass (gsplat `rasterize_mode="antialiased"`).
+    pub antialiased: bool,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        Self {
+            sh_degree: 0,
+            background: Vec3::ZERO,
+            antialiased: false,
+        }
+    }
+}
+
+/// Forward outputs; images are row-major `width * height`.
+#[derive(Clone, Debug)]
+pub struct RenderOutput {
+    pub width: u32,
+    pub height: u32,
+    pub color: Vec<Vec3>,
+    pub alpha: Vec<f32>,
+    /// Expected (alpha-normalised) camera-space depth, 0 where alpha is 0.
+    pub depth: Vec<f32>,
+    /// Per-Gaussian pixel half-extent `[x, y]` of its screen bounding box; `[0, 0]` if culled.
+    pub radii: Vec<[i32; 2]>,
+    /// Per-Gaussian: survived culling (touches the image, in front, opacity ≥ 1/255).
+    pub visible: Vec<bool>,
+    state: ForwardState,
+}
+
+#[derive(Clone, Debug)]
+struct ForwardState {
+    camera: Camera,
+    settings: RenderSettings,
+    num_gaussians: usize,
+    splats: Vec<Splat>,
+    bins: TileBins,
+    /// Copy of the depth output (the public field may be edited by callers).
+    depth: Vec<f32>,
+    final_t: Vec<f32>,
+    n_contrib: Vec<u32>,
+    blended: u64,
+}
+
+impl RenderOutput {
+    /// Number of (tile, Gaussian) pairs blended over; the work measure used by the benchmarks.
+    pub fn num_intersections(&self) -> usize {
+        self.state.bins.ids.len()
+    }
+
+    /// Number of (pixel, Gaussian) pairs actually blended: the irreducible work of the pass.
+    pub fn num_blended(&self) -> u64 {
+        self.state.blended
+    }
+}
+
+fn check_inputs(g: &Gaussians, cam: &Camera, s: &RenderSettings) -> Result<(), SplatError> {
+    cam.validate()?;
+    g.validate()?;
+    if s.sh_degree > g.sh_degree {
+        return Err(SplatError::InvalidInput(format!(
+            "render sh_degree {} exceeds the model's stored degree {}",
+            s.sh_degree, g.sh_degree
+        )));
+    }
+    if !s.background.is_finite() {
+        return Err(SplatError::InvalidInput("background is not finite".into()));
+    }
+    Ok(())
+}
+
+/// Renders `g` from `cam`. Gaussians with non-finite parameters are treated as culled.
+pub fn render(
+    g: &Gaussians,
+    cam: &Camera,
+    settings: &RenderSettings,
+) -> Result<RenderOutput, SplatError> {
+    check_inputs(g, cam, settings)?;
+    let cam_pos = cam.position();
+    let projected: Vec<Projected> = (0..g.len())
+        .into_par_iter()
+        .map(|i| {
+            project::project_one(g, i, cam, settings.sh_degree, settings.antialiased, cam_pos)
+                .unwrap_or_default()
+        })
+        .collect();
+    let (w, h) = (cam.width, cam.height);
+    let bins = tiles::bin(&projected, w, h);
+    let splats: Vec<Splat> = projected.par_iter().map(Splat::new).collect();
+    let tile_out: Vec<raster::TileForward> = (0..bins.num_tiles())
+        .into_par_iter()
+        .map(|t| raster::forward_tile(&bins, &splats, t, w, h, settings.background))
+        .collect();
+
+    let n_pix = cam.num_pixels();
+    let mut color = vec![Vec3::ZERO; n_pix];
+    let mut alpha = vec![0.0; n_pix];
+    let mut depth = vec![0.0; n_pix];
+    let mut final_t = vec![1.0; n_pix];
+    let mut n_contrib = vec![0; n_pix];
+    for (t, out) in tile_out.iter().enumerate() {
+        let (x0, y0, tw, th) = raster::tile_pixels(&bins, t, w, h);
+        for ly in 0..th {
+            let src = (ly * tw) as usize..((ly + 1) * tw) as usize;
+            let dst = ((y0 + ly) * w + x0) as usize;
+            let dst = dst..dst + tw as usize;
+            color[dst.clone()].copy_from_slice(&out.color[src.clone()]);
+            alpha[dst.clone()].copy_from_slice(&out.alpha[src.clone()]);
+            depth[dst.clone()].copy_from_slice(&out.depth[src.clone()]);
+            final_t[dst.clone()].copy_from_slice(&out.final_t[src.clone()]);
+            n_contrib[dst].copy_from_slice(&out.n_contrib[src]);
+        }
+    }
+    let radii = projected.iter().map(|p| p.radius).collect();
+    let visible = projected
+        .iter()
+        .map(|p| p.radius[0] > 0 || p.radius[1] > 0)
+        .collect();
+    let depth_copy = depth.clone();
+    Ok(RenderOutput {
+        width: w,
+        height: h,
+        color,
+        alpha,
+        depth,
+        radii,
+        visible,
+        state: ForwardState {
+            camera: cam.clone(),
+            settings: settings.clone(),
+            num_gaussians: g.len(),
+            splats,
+            bins,
+            depth: depth_copy,
+            final_t,
+            n_contrib,
+            blended: tile_out.iter().map(|t| t.blended).sum(),
+        },
+    })
+}
+
+/// Gradients of a scalar loss with respect to every parameter, in the model's layout, plus the
+/// densification statistics.
+#[derive(Clone, Debug)]
+pub struct Gradients {
+    /// Same layout as the model (`sh_rest` beyond the rendered degree stays zero).
+    pub params: Gaussians,
+    /// `∂L/∂mean2d` in pixels, per Gaussian.
+    pub means2d: Vec<[f32; 2]>,
+    /// Per-pixel `|∂L/∂mean2d|` summed over pixels, per component (gsplat `absgrad`).
+    pub means2d_abs: Vec<[f32; 2]>,
+}
+
+/// Backward pass for the loss gradients `v_color` (and optionally `v_alpha`, `v_depth`) of the
+/// images of `fwd`, which must come from [`render`] with the same model, camera and settings.
+pub fn render_backward(
+    g: &Gaussians,
+    cam: &Camera,
+    settings: &RenderSettings,
+    fwd: &RenderOutput,
+    v_color: &[Vec3],
+    v_alpha: Option<&[f32]>,
+    v_depth: Option<&[f32]>,
+) -> Result<Gradients, SplatError> {
+    check_inputs(g, cam, settings)?;
+    let st = &fwd.state;
+    if st.camera != *cam || st.settings != *settings || st.num_gaussians != g.len() {
+        return Err(SplatError::InvalidInput(
+            "render_backward called with a camera, settings or model other than the forward's"
+                .into(),
+        ));
+    }
+    let n_pix = cam.num_pixels();
+    let size = |what, got: usize| {
+        if got == n_pix {
+            Ok(())
+        } else {
+            Err(SplatError::SizeMismatch {
+                what,
+                expected: n_pix,
+                got,
+            })
+        }
+    };
+    size("v_color", v_color.len())?;
+    if let Some(a) = v_alpha {
+        size("v_alpha", a.len())?;
+    }
+    if let Some(d) = v_depth {
+        size("v_depth", d.len())?;
+    }
+    let finite = |v: Option<&[f32]>| v.is_none_or(|a| a.iter().all(|x| x.is_finite()));
+    if !v_color.iter().all(|v| v.is_finite()) || !finite(v_alpha) || !finite(v_depth) {
+        return Err(SplatError::InvalidInput(
+            "pixel gradients are not finite".into(),
+        ));
+    }
+
+    let bins = &st.bins;
+    let (w, h) = (cam.width, cam.height);
+    let pix = PixelGrads {
+        v_color,
+        v_alpha,
+        v_depth,
+        depth: &st.depth,
+        final_t: &st.final_t,
+        n_contrib: &st.n_contrib,
+    };
+    let mut isect = vec![IsectGrad::default(); bins.ids.len()];
+    tiles::split_per_tile(bins, &mut isect)
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(t, out)| {
+            raster::backward_tile(bins, &st.splats, t, w, h, settings.background, &pix, out)
+        });
+
+    // Per-Gaussian list of its intersection slots, in tile order (a stable counting sort).
+    let n = g.len();
+    let mut starts = vec![0usize; n + 1];
+    for &id in &bins.ids {
+        starts[id as usize + 1] += 1;
+    }
+    for i in 0..n {
+        starts[i + 1] += starts[i];
+    }
+    let mut cursor = starts.clone();
+    let mut slots = vec![0usize; bins.ids.len()];
+    for (pos, &id) in bins.ids.iter().enumerate() {
+        slots[cursor[id as usize]] = pos;
+        cursor[id as usize] += 1;
+    }
+
+    let cam_pos = cam.position();
+    let rc = g.rest_count();
+    let mut grads = Gaussians::zeros(n, g.sh_degree);
+    let mut means2d = vec![[0.0f32; 2]; n];
+    let mut means2d_abs = vec![[0.0f32; 2]; n];
+    // Two passes: first the (cache-missing) gather of per-tile partials into one compact
+    // record per Gaussian, then the compute-heavy projection backward over contiguous data.
+    let screen: Vec<(ScreenGrad, glam::Vec2)> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let mut sg = ScreenGrad::default();
+            let mut abs = glam::Vec2::ZERO;
+            for &pos in &slots[starts[i]..starts[i + 1]] {
+                let p = &isect[pos];
+                sg.mean2d += p.mean2d;
+                abs += p.mean2d_abs;
+                for k in 0..3 {
+                    sg.conic[k] += p.conic[k];
+                }
+                sg.color += p.color;
+                sg.opacity += p.opacity;
+                sg.depth += p.depth;
+            }
+            (sg, abs)
+        })
+        .collect();
+    drop(isect);
+    let per_gaussian = |i: usize, v_rest: &mut [Vec3]| {
+        let (sg, abs) = &screen[i];
+        let pg = if starts[i] == starts[i + 1] {
+            project::ParamGrad::default()
+        } else {
+            project::project_backward_one(
+                g,
+                i,
+                cam,
+                settings.sh_degree,
+                settings.antialiased,
+                cam_pos,
+                sg,
+                v_rest,
+            )
+        };
+        (pg, [sg.mean2d.x, sg.mean2d.y], [abs.x, abs.y])
+    };
+    let results: Vec<_> = if rc == 0 {
+        (0..n)
+            .into_par_iter()
+            .map(|i| per_gaussian(i, &mut []))
+            .collect()
+    } else {
+        grads
+            .sh_rest
+            .par_chunks_mut(rc)
+            .enumerate()
+            .map(|(i, v_rest)| per_gaussian(i, v_rest))
+            .collect()
+    };
+    for (i, (pg, m2, m2a)) in results.into_iter().enumerate() {
+        grads.means[i] = pg.mean;
+        grads.log_scales[i] = pg.log_scale;
+        grads.rotations[i] = pg.rotation;
+        grads.logit_opacities[i] = pg.logit_opacity;
+        grads.sh_dc[i] = pg.sh_dc;
+        means2d[i] = m2;
+        means2d_abs[i] = m2a;
+    }
+    Ok(Gradients {
+        params: grads,
+        means2d,
+        means2d_abs,
+    })
+}

@@ -1,0 +1,142 @@
+//! Real spherical harmonics, degree 0..=3, in the basis and sign convention of the INRIA 3DGS
+//! code and gsplat (`sh_coeffs_to_color_fast`). Basis `k` for a unit direction `(x, y, z)`:
+//!
+//! | k | function | k | function |
+//! |---|---|---|---|
+//! | 0 | `C0` | 8 | `0.546274 (x²−y²)` |
+//! | 1 | `−C1 y` | 9 | `−0.590044 (3x²y − y³)` |
+//! | 2 | `C1 z` | 10 | `1.445306 z·2xy` |
+//! | 3 | `−C1 x` | 11 | `(−2.285229 z² + 0.457046) y` |
+//! | 4 | `1.092548 xy` | 12 | `z (1.865882 z² − 1.119529)` |
+//! | 5 | `−1.092548 yz` | 13 | `(−2.285229 z² + 0.457046) x` |
+//! | 6 | `0.946175 z² − 0.315392` | 14 | `1.445306 z (x²−y²)` |
+//! | 7 | `−1.092548 xz` | 15 | `−0.590044 (x³ − 3xy²)` |
+//!
+//! with `C0 = 0.2820948`, `C1 = 0.4886025`. The view direction is
+//! `normalize(mean − camera_centre)` and the colour is `max(Σ c_k B_k + 0.5, 0)` per channel.
+
+use glam::Vec3;
+
+pub const SH_C0: f32 = 0.282_094_8;
+pub const SH_C1: f32 = 0.488_602_52;
+const C2_XY: f32 = 1.092_548_4;
+const C2_ZZ: f32 = 0.946_174_7;
+const C2_ZZ0: f32 = 0.315_391_57;
+const C2_XX: f32 = 0.546_274_2;
+const C3_A: f32 = -0.590_043_6;
+const C3_B: f32 = 1.445_305_7;
+const C3_C: f32 = -2.285_229;
+const C3_C0: f32 = 0.457_045_8;
+const C3_D: f32 = 1.865_881_7;
+const C3_D0: f32 = 1.119_529;
+
+/// Number of basis functions for `degree`.
+pub const fn num_bases(degree: u32) -> usize {
+    ((degree + 1) * (degree + 1)) as usize
+}
+
+/// Basis values for unit `d`; only the first `num_bases(degree)` entries are written, so bands
+/// above the active degree cost nothing.
+#[inline]
+pub fn basis(degree: u32, d: Vec3, out: &mut [f32; 16]) {
+    let (x, y, z) = (d.x, d.y, d.z);
+    out[0] = SH_C0;
+    if degree < 1 {
+        return;
+    }
+    out[1] = -SH_C1 * y;
+    out[2] = SH_C1 * z;
+    out[3] = -SH_C1 * x;
+    if degree < 2 {
+        return;
+    }
+    let (xx, yy, zz) = (x * x, y * y, z * z);
+    out[4] = C2_XY * x * y;
+    out[5] = -C2_XY * y * z;
+    out[6] = C2_ZZ * zz - C2_ZZ0;
+    out[7] = -C2_XY * x * z;
+    out[8] = C2_XX * (xx - yy);
+    if degree < 3 {
+        return;
+    }
+    let a = C3_C * zz + C3_C0;
+    out[9] = C3_A * (3.0 * xx * y - yy * y);
+    out[10] = C3_B * z * 2.0 * x * y;
+    out[11] = a * y;
+    out[12] = z * (C3_D * zz - C3_D0);
+    out[13] = a * x;
+    out[14] = C3_B * z * (xx - yy);
+    out[15] = C3_A * (xx * x - 3.0 * x * yy);
+}
+
+/// Gradients of each basis function with respect to the (treated as free) components of `d`.
+#[inline]
+pub fn basis_grad(degree: u32, d: Vec3, out: &mut [Vec3; 16]) {
+    let (x, y, z) = (d.x, d.y, d.z);
+    out[0] = Vec3::ZERO;
+    if degree < 1 {
+        return;
+    }
+    out[1] = Vec3::new(0.0, -SH_C1, 0.0);
+    out[2] = Vec3::new(0.0, 0.0, SH_C1);
+    out[3] = Vec3::new(-SH_C1, 0.0, 0.0);
+    if degree < 2 {
+        return;
+    }
+    out[4] = Vec3::new(C2_XY * y, C2_XY * x, 0.0);
+    out[5] = Vec3::new(0.0, -C2_XY * z, -C2_XY * y);
+    out[6] = Vec3::new(0.0, 0.0, 2.0 * C2_ZZ * z);
+    out[7] = Vec3::new(-C2_XY * z, 0.0, -C2_XY * x);
+    out[8] = Vec3::new(2.0 * C2_XX * x, -2.0 * C2_XX * y, 0.0);
+    if degree < 3 {
+        return;
+    }
+    let (xx, yy, zz) = (x * x, y * y, z * z);
+    let a = C3_C * zz + C3_C0;
+    out[9] = Vec3::new(C3_A * 6.0 * x * y, C3_A * (3.0 * xx - 3.0 * yy), 0.0);
+    out[10] = Vec3::new(C3_B * 2.0 * z * y, C3_B * 2.0 * z * x, C3_B * 2.0 * x * y);
+    out[11] = Vec3::new(0.0, a, 2.0 * C3_C * z * y);
+    out[12] = Vec3::new(0.0, 0.0, 3.0 * C3_D * zz - C3_D0);
+    out[13] = Vec3::new(a, 0.0, 2.0 * C3_C * z * x);
+    out[14] = Vec3::new(2.0 * C3_B * z * x, -2.0 * C3_B * z * y, C3_B * (xx - yy));
+    out[15] = Vec3::new(C3_A * (3.0 * xx - 3.0 * yy), -C3_A * 6.0 * x * y, 0.0);
+}
+
+/// `Σ_k c_k B_k(d) + 0.5` before the clamp (callers clamp and remember which channels clamped).
+#[inline]
+pub fn eval(degree: u32, dc: Vec3, rest: &[Vec3], d: Vec3) -> Vec3 {
+    let mut b = [0.0f32; 16];
+    basis(degree, d, &mut b);
+    let mut c = dc * b[0];
+    for k in 1..num_bases(degree) {
+        c += rest[k - 1] * b[k];
+    }
+    c + Vec3::splat(0.5)
+}
+
+/// Backward of [`eval`]: accumulates coefficient gradients into `v_dc`/`v_rest` and returns the
+/// gradient with respect to the unit direction `d`.
+#[inline]
+pub fn eval_backward(
+    degree: u32,
+    rest: &[Vec3],
+    d: Vec3,
+    v_color: Vec3,
+    v_dc: &mut Vec3,
+    v_rest: &mut [Vec3],
+) -> Vec3 {
+    let mut b = [0.0f32; 16];
+    basis(degree, d, &mut b);
+    *v_dc += v_color * b[0];
+    if degree == 0 {
+        return Vec3::ZERO;
+    }
+    let mut g = [Vec3::ZERO; 16];
+    basis_grad(degree, d, &mut g);
+    let mut v_d = Vec3::ZERO;
+    for k in 1..num_bases(degree) {
+        v_rest[k - 1] += v_color * b[k];
+        v_d += g[k] * rest[k - 1].dot(v_color);
+    }
+    v_d
+}

@@ -1,0 +1,292 @@
+//! PLY read/write: bit-exact round trips, alternative encodings, and typed errors.
+
+mod common;
+
+use std::path::Path;
+
+use common::random_scene;
+use glam::Vec3;
+use splat::ply::{parse_ply, read_ply, write_ply};
+use splat::{Gaussians, SplatError};
+
+fn bits(g: &Gaussians) -> Vec<u32> {
+    let mut b = vec![g.sh_degree, g.len() as u32];
+    b.extend(
+        g.means
+            .iter()
+            .chain(&g.log_scales)
+            .chain(&g.sh_dc)
+            .chain(&g.sh_rest)
+            .flat_map(|v| v.to_array())
+            .chain(g.rotations.iter().flatten().copied())
+            .chain(g.logit_opacities.iter().copied())
+            .map(f32::to_bits),
+    );
+    b
+}
+
+fn tricky_scene(deg: u32) -> Gaussians {
+    let mut g = random_scene(deg as u64 + 1, 17, deg, (1e-3, 10.0), 3.0);
+    g.means[0] = Vec3::new(-0.0, f32::MIN_POSITIVE / 4.0, f32::MAX);
+    g.logit_opacities[1] = -60.0;
+    g.rotations[2] = [0.0; 4];
+    g
+}
+
+/// The float32 body of an INRIA file written by `write_ply`, and its property names.
+fn split_file(bytes: &[u8]) -> (Vec<String>, usize, &[u8]) {
+    let end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .unwrap()
+        + 11;
+    let header = std::str::from_utf8(&bytes[..end]).unwrap();
+    let names: Vec<String> = header
+        .lines()
+        .filter_map(|l| l.strip_prefix("property float ").map(str::to_string))
+        .collect();
+    let n = header
+        .lines()
+        .find_map(|l| l.strip_prefix("element vertex "))
+        .unwrap()
+        .parse()
+        .unwrap();
+    (names, n, &bytes[end..])
+}
+
+fn header(format: &str, n: usize, names: &[String], extra: &str) -> String {
+    let mut h = format!("ply\nformat {format} 1.0\ncomment test\n{extra}element vertex {n}\n");
+    for p in names {
+        h += &format!("property float {p}\n");
+    }
+    h + "end_header\n"
+}
+
+#[test]
+fn binary_round_trip_is_bit_exact_for_every_degree() {
+    let dir = tempfile::tempdir().unwrap();
+    for deg in 0..=3 {
+        let g = tricky_scene(deg);
+        let path = dir.path().join(format!("scene{deg}.ply"));
+        write_ply(&path, &g).unwrap();
+        let back = read_ply(&path).unwrap();
+        assert_eq!(bits(&back), bits(&g), "degree {deg}");
+    }
+    // Only the outputs are left behind: no temporary files.
+    let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    assert_eq!(names.len(), 4);
+}
+
+#[test]
+fn inria_layout_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("s.ply");
+    write_ply(&path, &tricky_scene(3)).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let (names, n, body) = split_file(&bytes);
+    assert_eq!(n, 17);
+    assert_eq!(names.len(), 62);
+    assert_eq!(
+        &names[..9],
+        &[
+            "x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"
+        ]
+    );
+    assert_eq!(names[9], "f_rest_0");
+    assert_eq!(names[53], "f_rest_44");
+    assert_eq!(
+        &names[54..],
+        &[
+            "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"
+        ]
+    );
+    assert_eq!(body.len(), 17 * 62 * 4);
+    // f_rest is channel-major: f_rest_15 is the green weight of basis 1 of vertex 0.
+    let g = tricky_scene(3);
+    let f = |k: usize| f32::from_le_bytes(body[k * 4..k * 4 + 4].try_into().unwrap());
+    assert_eq!(f(9 + 15).to_bits(), g.sh_rest[0].y.to_bits());
+    assert_eq!(f(54).to_bits(), g.logit_opacities[0].to_bits());
+}
+
+#[test]
+fn ascii_big_endian_and_extra_elements_read_identically() {
+    let g = tricky_scene(2);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("s.ply");
+    write_ply(&path, &g).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let (names, n, body) = split_file(&bytes);
+    let floats: Vec<f32> = body
+        .chunks(4)
+        .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+        .collect();
+
+    let extra = "element camera 2\nproperty uchar id\nproperty list uchar int idx\n";
+    let mut ascii = header("ascii", n, &names, extra);
+    ascii += "7 2 1 2\n8 0\n";
+    for row in floats.chunks(names.len()) {
+        let line: Vec<String> = row.iter().map(|v| format!("{v}")).collect();
+        ascii += &line.join(" ");
+        ascii += "\n";
+    }
+    let back = parse_ply(Path::new("ascii.ply"), ascii.as_bytes()).unwrap();
+    assert_eq!(bits(&back), bits(&g));
+
+    let mut be = header(
+        "binary_big_endian",
+        n,
+        &names,
+        "element skip 3\nproperty double a\n",
+    )
+    .into_bytes();
+    be.extend([0u8; 24]);
+    for v in &floats {
+        be.extend(v.to_be_bytes());
+    }
+    be.extend(b"element after vertex is ignored");
+    let back = parse_ply(Path::new("be.ply"), &be).unwrap();
+    assert_eq!(bits(&back), bits(&g));
+}
+
+#[test]
+fn files_without_normals_and_lower_degree_read() {
+    let names: Vec<String> = [
+        "x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
+        "rot_0", "rot_1", "rot_2", "rot_3",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    let mut bytes = header("binary_little_endian", 2, &names, "").into_bytes();
+    for v in 0..28 {
+        bytes.extend((v as f32 * 0.5).to_le_bytes());
+    }
+    let g = parse_ply(Path::new("n.ply"), &bytes).unwrap();
+    assert_eq!(g.sh_degree, 0);
+    assert_eq!(g.means[1], Vec3::new(7.0, 7.5, 8.0));
+    assert_eq!(g.logit_opacities[0], 3.0);
+    assert_eq!(g.rotations[1], [12.0, 12.5, 13.0, 13.5]);
+}
+
+#[test]
+fn real_donut_file_reads() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/ply/donut_sh0.ply");
+    if !path.exists() {
+        eprintln!("SKIP: {} not found", path.display());
+        return;
+    }
+    let g = read_ply(&path).unwrap();
+    assert_eq!(g.len(), 45624);
+    assert_eq!(g.sh_degree, 0);
+    assert!(g.means.iter().all(|m| m.is_finite()));
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("donut.ply");
+    write_ply(&out, &g).unwrap();
+    assert_eq!(bits(&read_ply(&out).unwrap()), bits(&g));
+}
+
+fn expect_err(bytes: &[u8], needle: &str) {
+    match parse_ply(Path::new("/data/broken.ply"), bytes) {
+        Err(e @ SplatError::Ply { .. }) => {
+            let msg = e.to_string();
+            assert!(msg.contains("/data/broken.ply"), "{msg}");
+            assert!(msg.contains(needle), "expected '{needle}' in: {msg}");
+        }
+        other => panic!("expected a PLY error containing '{needle}', got {other:?}"),
+    }
+}
+
+#[test]
+fn corrupt_files_give_errors_naming_file_and_problem() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("s.ply");
+    write_ply(&path, &tricky_scene(1)).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let (names, n, body) = split_file(&bytes);
+
+    expect_err(&bytes[..bytes.len() - 3], "truncated");
+    expect_err(&bytes[..40], "end_header");
+    expect_err(b"plx\nformat ascii 1.0\nend_header\n", "magic");
+    expect_err(
+        b"ply\nformat ascii 1.0\nelement vertex x\nend_header\n",
+        "malformed header",
+    );
+    expect_err(b"ply\nformat ascii 1.0\nend_header\n", "vertex");
+    let mut huge = header("ascii", usize::MAX, &names, "");
+    huge += "1 2";
+    expect_err(huge.as_bytes(), "truncated");
+    let mut huge = header("binary_little_endian", usize::MAX / 2, &names, "").into_bytes();
+    huge.extend(body);
+    expect_err(&huge, "truncated");
+
+    let missing: Vec<String> = names.iter().filter(|p| *p != "rot_3").cloned().collect();
+    let mut b = header("binary_little_endian", n, &missing, "").into_bytes();
+    b.extend(body);
+    expect_err(&b, "'rot_3'");
+
+    let odd: Vec<String> = names.iter().filter(|p| *p != "f_rest_8").cloned().collect();
+    let mut b = header("binary_little_endian", n, &odd, "").into_bytes();
+    b.extend(body);
+    expect_err(&b, "f_rest");
+
+    let mut b = bytes.clone();
+    let at = bytes.len() - body.len() + 4 * 5;
+    b[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    expect_err(&b, "not finite");
+
+    let mut ascii = header("ascii", 1, &names, "");
+    ascii += "1 2 3";
+    expect_err(ascii.as_bytes(), "truncated");
+    let mut ascii = header("ascii", 1, &names, "");
+    ascii += "abc\n";
+    expect_err(ascii.as_bytes(), "cannot parse 'abc'");
+
+    match read_ply(dir.path().join("nope.ply")) {
+        Err(SplatError::Io { path, .. }) => assert!(path.ends_with("nope.ply")),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn refusing_to_write_nan_leaves_the_old_file_intact() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("s.ply");
+    let g = tricky_scene(0);
+    write_ply(&path, &g).unwrap();
+    let mut bad = g.clone();
+    bad.means[3].x = f32::NAN;
+    assert!(write_ply(&path, &bad).is_err());
+    assert_eq!(bits(&read_ply(&path).unwrap()), bits(&g));
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+}
+
+#[test]
+fn real_donut_file_renders() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/ply/donut_sh0.ply");
+    if !path.exists() {
+        eprintln!("SKIP: {} not found", path.display());
+        return;
+    }
+    let g = read_ply(&path).unwrap();
+    let (lo, hi) = g
+        .means
+        .iter()
+        .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), m| {
+            (lo.min(*m), hi.max(*m))
+        });
+    let centre = (lo + hi) * 0.5;
+    let size = (hi - lo).length();
+    let cam = splat::Camera::look_at(
+        centre + Vec3::new(0.3, -0.4, -1.0).normalize() * size * 1.2,
+        centre,
+        Vec3::Y,
+        48.0,
+        48.0,
+        64,
+        48,
+    );
+    let out = splat::render(&g, &cam, &splat::RenderSettings::default()).unwrap();
+    let covered = out.alpha.iter().filter(|&&a| a > 0.5).count();
+    assert!(covered > 64 * 48 / 20, "donut covers {covered} pixels");
+    assert!(out.color.iter().all(|c| c.is_finite()));
+}
