@@ -73,15 +73,7 @@ fn meta_atom_proxy_is_nearly_identity_at_its_design_wavelength() {
 }
 
 fn small_config() -> SimConfig {
-    // A scaled-down lens (same f/D) so the whole grid simulates in a second.
-    let mut cfg = SimConfig::default();
-    cfg.lens.aperture_um = 100.0;
-    cfg.lens.focal_um = 200.0;
-    cfg.fft_size = 700;
-    cfg.grid = 3;
-    cfg.psf_size = 31;
-    cfg.max_field_deg = 10.0;
-    cfg
+    SimConfig::small(31)
 }
 
 #[test]

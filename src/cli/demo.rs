@@ -25,17 +25,6 @@ pub struct DemoArgs {
     pub seed: u64,
 }
 
-fn quick_config() -> SimConfig {
-    let mut cfg = SimConfig::default();
-    cfg.lens.aperture_um = 100.0;
-    cfg.lens.focal_um = 200.0;
-    cfg.fft_size = 700;
-    cfg.grid = 3;
-    cfg.psf_size = 45;
-    cfg.max_field_deg = 10.0;
-    cfg
-}
-
 /// Images side by side with a white gutter.
 fn side_by_side(images: &[&Image]) -> image::RgbImage {
     let gap = 8;
@@ -55,7 +44,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let cfg = if a.quick {
-        quick_config()
+        SimConfig::small(45)
     } else {
         SimConfig::default()
     };

@@ -198,6 +198,13 @@ impl BlurPlan {
         Ok(())
     }
 
+    /// The unit of parallel work: (channel, grid row).
+    fn jobs(&self) -> Vec<(usize, usize)> {
+        (0..3)
+            .flat_map(|ch| (0..self.groups.len()).map(move |gi| (ch, gi)))
+            .collect()
+    }
+
     fn pad(&self) -> usize {
         self.ksize
     }
@@ -211,9 +218,7 @@ impl BlurPlan {
             .into_par_iter()
             .map(|ch| Padded::new(x.channel(ch), w, h, self.pad()))
             .collect();
-        let jobs: Vec<(usize, usize)> = (0..3)
-            .flat_map(|ch| (0..self.groups.len()).map(move |gi| (ch, gi)))
-            .collect();
+        let jobs = self.jobs();
         // Each job sums its terms into a band of rows; bands are added in a fixed order, so
         // the result is bit-identical for any number of threads.
         let bands: Vec<(usize, usize, Vec<f32>)> = jobs
@@ -244,9 +249,7 @@ impl BlurPlan {
         let c = (self.ksize / 2) as isize;
         let pad = self.pad();
         let pw = w + 2 * pad;
-        let jobs: Vec<(usize, usize)> = (0..3)
-            .flat_map(|ch| (0..self.groups.len()).map(move |gi| (ch, gi)))
-            .collect();
+        let jobs = self.jobs();
         let bands: Vec<(usize, usize, Vec<f32>)> = jobs
             .par_iter()
             .map(|&(ch, gi)| {
