@@ -255,3 +255,62 @@ fn scene_info_reads_fern() {
     let text = ok(&["scene", "info", s(&fern)]);
     assert!(text.contains("20") && text.contains("504x378"), "{text}");
 }
+
+#[test]
+fn scene_aberrate_makes_fern_reproducibly() {
+    let fern = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/llff/fern");
+    if !fern.exists() {
+        eprintln!("SKIP: {} not found", fern.display());
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let psf = d.join("psf.npy");
+    let mut args = vec!["psf", "simulate", "--out", s(&psf)];
+    args.extend_from_slice(SMALL_LENS);
+    ok(&args);
+    let (a, b) = (d.join("a"), d.join("b"));
+    for out in [&a, &b] {
+        let text = ok(&[
+            "scene",
+            "aberrate",
+            "--scene",
+            s(&fern),
+            "--psf",
+            s(&psf),
+            "--out",
+            s(out),
+            "--seed",
+            "3",
+        ]);
+        assert!(text.contains("20 images 504x378"), "{text}");
+    }
+    for rel in [
+        "images_8/image007.png",
+        "clean/image007.png",
+        "poses_bounds.npy",
+        "psf.npy",
+    ] {
+        let (x, y) = (
+            std::fs::read(a.join(rel)).unwrap(),
+            std::fs::read(b.join(rel)).unwrap(),
+        );
+        assert!(x == y, "{rel} differs between two runs with one seed");
+    }
+    let info = ok(&["scene", "info", s(&a)]);
+    assert!(
+        info.contains("10091 from"),
+        "points3D must come along:\n{info}"
+    );
+    let err = fails(&[
+        "scene",
+        "aberrate",
+        "--scene",
+        s(&fern),
+        "--psf",
+        s(&psf),
+        "--out",
+        s(&a),
+    ]);
+    assert!(err.contains("already exists"), "{err}");
+}

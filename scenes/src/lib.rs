@@ -1,11 +1,12 @@
 //! Scene captures for metasplat: LLFF and COLMAP readers, train/test splits, initial point
-//! clouds, and an LLFF writer.
+//! clouds, an LLFF writer, and the aberrated-capture maker ([`aberrated`]).
 //!
 //! Start at [`open`], which detects the capture layout and returns a [`Capture`]: cameras in
 //! the OpenCV convention documented in [`camera`], lazily loaded images, per-image near/far
 //! bounds, the initial point cloud and the split. [`Capture::summary`] is what
 //! `metasplat scene info` prints.
 
+pub mod aberrated;
 mod atomic;
 pub mod camera;
 pub mod capture;
@@ -17,6 +18,7 @@ pub mod points;
 pub mod split;
 pub mod summary;
 
+pub use aberrated::{AberrateOptions, AberrateReport, AberrationRecord, make_aberrated};
 pub use camera::{Bounds, Camera, CameraModel, Distortion, Projection, Rigid};
 pub use capture::{Capture, CaptureFormat, OpenOptions, PointSource, Resolution, open};
 pub use error::{Result, SceneError};

@@ -1,0 +1,284 @@
+//! The aberrated-capture maker: a clean capture in, an LLFF capture out whose images went
+//! through a metalens PSF model and sensor noise, with the clean images kept beside them.
+//!
+//! Layout of the result (everything appears at once, by renaming a staging folder):
+//! ```text
+//! DIR2/poses_bounds.npy          same poses and bounds as the source
+//! DIR2/images_N/*.png            aberrated images (what a metalens camera would record)
+//! DIR2/clean/*.png               the source images at the same size, for evaluation
+//! DIR2/psf.npy                   the PSF grid the images were made with (a byte copy)
+//! DIR2/aberration.json           how: blur mode, sensor size, noise, seed
+//! DIR2/sparse/0/{cameras,points3D}.*  copied from the source when it has them
+//! ```
+
+use std::path::{Path, PathBuf};
+
+use aberration::{BlurMode, Image, ImagingModel, NoiseModel, PsfGrid};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::capture::Capture;
+use crate::colmap;
+use crate::error::{Result, SceneError};
+use crate::images::{self, BitDepth, RgbImage};
+use crate::llff::LlffWriter;
+
+pub const CLEAN_DIR: &str = "clean";
+pub const PSF_FILE: &str = "psf.npy";
+pub const RECORD_FILE: &str = "aberration.json";
+
+/// How an aberrated capture was made; enough to rebuild its imaging model exactly.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AberrationRecord {
+    /// The PSF grid file, relative to the capture.
+    pub psf: String,
+    /// `tiled` or `blend` (see [`BlurMode`]).
+    pub mode: String,
+    /// Sensor size in pixels the grid spans; `None` means the grid's own `G·K`.
+    pub sensor_px: Option<usize>,
+    pub noise_gaussian_sigma: f32,
+    pub noise_poisson_scale: f32,
+    pub seed: u64,
+    pub width: u32,
+    pub height: u32,
+    pub images: usize,
+    /// The capture the clean images came from, as given.
+    pub source: String,
+}
+
+impl AberrationRecord {
+    pub fn blur_mode(&self, path: &Path) -> Result<BlurMode> {
+        self.mode
+            .parse()
+            .map_err(|e| SceneError::invalid(path, format!("mode {:?}: {e}", self.mode)))
+    }
+
+    pub fn noise(&self) -> NoiseModel {
+        NoiseModel {
+            gaussian_sigma: self.noise_gaussian_sigma,
+            poisson_scale: self.noise_poisson_scale,
+        }
+    }
+
+    /// Reads `DIR/aberration.json`; `Ok(None)` when the capture has none (a clean capture).
+    pub fn read(capture_dir: &Path) -> Result<Option<AberrationRecord>> {
+        let path = capture_dir.join(RECORD_FILE);
+        if !path.exists() {
+            return Ok(None);
+        }
+        let text = std::fs::read_to_string(&path).map_err(|e| SceneError::io(&path, e))?;
+        let record: AberrationRecord = serde_json::from_str(&text)
+            .map_err(|e| SceneError::invalid(&path, format!("not a valid record: {e}")))?;
+        record.blur_mode(&path)?;
+        Ok(Some(record))
+    }
+
+    /// Loads the PSF grid named by the record.
+    pub fn load_psf(&self, capture_dir: &Path) -> Result<PsfGrid> {
+        let path = capture_dir.join(&self.psf);
+        PsfGrid::load_npy(&path).map_err(|e| SceneError::invalid(&path, e.to_string()))
+    }
+}
+
+/// Settings of the maker.
+#[derive(Clone, Debug)]
+pub struct AberrateOptions {
+    pub mode: BlurMode,
+    pub sensor_px: Option<usize>,
+    pub noise: NoiseModel,
+    pub seed: u64,
+    /// 16-bit keeps the paper's tiny sensor noise, which 8-bit quantisation would swamp.
+    pub depth: BitDepth,
+}
+
+impl Default for AberrateOptions {
+    fn default() -> Self {
+        Self {
+            mode: BlurMode::Tiled,
+            sensor_px: None,
+            noise: NoiseModel::default(),
+            seed: 0,
+            depth: BitDepth::Sixteen,
+        }
+    }
+}
+
+/// What the maker did.
+#[derive(Clone, Debug)]
+pub struct AberrateReport {
+    pub dest: PathBuf,
+    pub images: usize,
+    pub width: u32,
+    pub height: u32,
+    /// PSF size in pixels after mapping the grid onto the images.
+    pub psf_px: usize,
+    /// Mean PSNR (dB) of the aberrated images against the clean ones.
+    pub mean_psnr: f64,
+}
+
+/// Interleaved RGB (scenes) to planar (aberration).
+pub fn to_planar(img: &RgbImage) -> Image {
+    let (w, h) = (img.width as usize, img.height as usize);
+    Image::from_fn(w, h, |x, y| {
+        let i = (y * w + x) * 3;
+        [img.data[i], img.data[i + 1], img.data[i + 2]]
+    })
+}
+
+/// Planar (aberration) to interleaved RGB (scenes).
+pub fn from_planar(img: &Image) -> RgbImage {
+    let n = img.plane_len();
+    let mut data = vec![0.0f32; n * 3];
+    for c in 0..3 {
+        for (i, v) in img.channel(c).iter().enumerate() {
+            data[i * 3 + c] = *v;
+        }
+    }
+    RgbImage {
+        width: img.width as u32,
+        height: img.height as u32,
+        data,
+    }
+}
+
+/// Noise seed of image `index`: distinct, well-mixed streams from one user seed.
+pub fn image_seed(seed: u64, index: usize) -> u64 {
+    let mut z = seed
+        ^ (index as u64)
+            .wrapping_add(1)
+            .wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// The path of the clean image for camera `index` of an aberrated capture, if it exists.
+pub fn clean_image_path(capture: &Capture, index: usize) -> Option<PathBuf> {
+    let name = capture.image_paths.get(index)?.file_name()?;
+    let path = capture.root.join(CLEAN_DIR).join(name);
+    path.is_file().then_some(path)
+}
+
+/// Loads the clean image of camera `index`; `Ok(None)` when the capture has no `clean/` copy.
+pub fn load_clean_image(capture: &Capture, index: usize) -> Result<Option<RgbImage>> {
+    let Some(path) = clean_image_path(capture, index) else {
+        return Ok(None);
+    };
+    let img = images::load_rgb(&path)?;
+    let camera = &capture.cameras[index];
+    if (img.width, img.height) != (camera.width, camera.height) {
+        return Err(SceneError::invalid(
+            &path,
+            format!(
+                "clean image is {}x{} but the capture's images are {}x{}",
+                img.width, img.height, camera.width, camera.height
+            ),
+        ));
+    }
+    Ok(Some(img))
+}
+
+/// Writes the aberrated version of `capture` to `dest`. `psf_path` is copied byte for byte;
+/// `on_image` is called once per finished image (for a progress bar). The same inputs and
+/// seed give the same bytes.
+pub fn make_aberrated(
+    capture: &Capture,
+    psf_path: &Path,
+    dest: &Path,
+    options: &AberrateOptions,
+    on_image: &(dyn Fn() + Sync),
+) -> Result<AberrateReport> {
+    let psf =
+        PsfGrid::load_npy(psf_path).map_err(|e| SceneError::invalid(psf_path, e.to_string()))?;
+    let Some(first) = capture.cameras.first() else {
+        return Err(SceneError::NoImages {
+            dir: capture.image_dir.clone(),
+        });
+    };
+    let (width, height) = (first.width, first.height);
+    let model = ImagingModel::new(
+        &psf,
+        width as usize,
+        height as usize,
+        options.mode,
+        options.sensor_px,
+        options.noise,
+    )
+    .map_err(|e| SceneError::invalid(psf_path, format!("cannot plan the blur: {e}")))?;
+    let downsample = capture.downsample.round().max(1.0) as u32;
+    let mut writer = LlffWriter::create(dest, downsample, options.depth)?;
+    let staging = writer.staging_dir().to_path_buf();
+    let clean_dir = staging.join(CLEAN_DIR);
+    std::fs::create_dir(&clean_dir).map_err(|e| SceneError::io(&clean_dir, e))?;
+
+    // Images are independent: aberrate in parallel, then hand them to the writer in order.
+    let made: Vec<Result<(RgbImage, RgbImage, f64)>> = (0..capture.len())
+        .into_par_iter()
+        .map(|i| {
+            let clean = capture.load_image(i)?;
+            let planar = to_planar(&clean);
+            let abr = model
+                .capture(&planar, image_seed(options.seed, i))
+                .map_err(|e| SceneError::invalid(&capture.image_paths[i], e.to_string()))?;
+            let psnr = aberration::psnr(&abr, &planar);
+            on_image();
+            Ok((clean, from_planar(&abr), psnr))
+        })
+        .collect();
+    let mut psnr_sum = 0.0;
+    for (i, result) in made.into_iter().enumerate() {
+        let (clean, abr, psnr) = result?;
+        let camera = &capture.cameras[i];
+        let name = format!("{}.png", camera.name);
+        images::write_png(&clean_dir.join(&name), &clean, options.depth)?;
+        writer.add(camera, capture.bounds[i], &abr)?;
+        psnr_sum += psnr;
+    }
+
+    let psf_dest = staging.join(PSF_FILE);
+    std::fs::copy(psf_path, &psf_dest).map_err(|e| SceneError::io(&psf_dest, e))?;
+    copy_sparse(capture, &staging)?;
+    let record = AberrationRecord {
+        psf: PSF_FILE.into(),
+        mode: options.mode.to_string(),
+        sensor_px: options.sensor_px,
+        noise_gaussian_sigma: options.noise.gaussian_sigma,
+        noise_poisson_scale: options.noise.poisson_scale,
+        seed: options.seed,
+        width,
+        height,
+        images: capture.len(),
+        source: capture.root.display().to_string(),
+    };
+    let record_path = staging.join(RECORD_FILE);
+    let text = serde_json::to_string_pretty(&record)
+        .map_err(|e| SceneError::invalid(&record_path, e.to_string()))?;
+    std::fs::write(&record_path, text + "\n").map_err(|e| SceneError::io(&record_path, e))?;
+
+    let dest = writer.finish()?;
+    Ok(AberrateReport {
+        dest,
+        images: capture.len(),
+        width,
+        height,
+        psf_px: model.psf().size(),
+        mean_psnr: psnr_sum / capture.len() as f64,
+    })
+}
+
+/// Copies the sparse model's cameras and points so the new capture keeps its initial point
+/// cloud and distortion report.
+fn copy_sparse(capture: &Capture, staging: &Path) -> Result<()> {
+    let Some(sparse) = colmap::sparse_dir(&capture.root) else {
+        return Ok(());
+    };
+    let out = staging.join("sparse").join("0");
+    for stem in ["cameras", "points3D"] {
+        if let Some((src, _)) = colmap::find_file(&sparse, stem) {
+            std::fs::create_dir_all(&out).map_err(|e| SceneError::io(&out, e))?;
+            let name = src.file_name().expect("find_file returns file paths");
+            std::fs::copy(&src, out.join(name)).map_err(|e| SceneError::io(&src, e))?;
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,261 @@
+//! The aberrated-capture maker: layout, agreement with the imaging model applied directly,
+//! byte-for-byte reproducibility, and no half scene on failure.
+
+mod common;
+
+use std::path::Path;
+
+use aberration::{BlurMode, ImagingModel, NoiseModel, PsfGrid};
+use scenes::aberrated::{self, AberrationRecord, CLEAN_DIR, PSF_FILE};
+use scenes::{AberrateOptions, BitDepth, OpenOptions, Resolution, make_aberrated, write_llff};
+
+const W: u32 = 48;
+const H: u32 = 36;
+
+fn write_source(dir: &Path) {
+    let (cameras, bounds) = common::arc_cameras(5, W, H, 3);
+    let images: Vec<_> = (0..5).map(|k| common::pattern(W, H, k)).collect();
+    write_llff(dir, &cameras, &bounds, &images, 4, BitDepth::Eight).unwrap();
+}
+
+/// A 3×3 grid of Gaussian blurs whose width grows away from the centre.
+fn write_psf(path: &Path) -> PsfGrid {
+    let (g, k) = (3usize, 7usize);
+    let mut planar = Vec::new();
+    for cell in 0..g * g {
+        let (gy, gx) = ((cell / g) as f64 - 1.0, (cell % g) as f64 - 1.0);
+        for c in 0..3 {
+            let sigma = 0.6 + 0.4 * (gx * gx + gy * gy).sqrt() + 0.2 * c as f64;
+            let mut kernel: Vec<f32> = (0..k * k)
+                .map(|i| {
+                    let (y, x) = ((i / k) as f64 - 3.0, (i % k) as f64 - 3.0);
+                    (-(x * x + y * y) / (2.0 * sigma * sigma)).exp() as f32
+                })
+                .collect();
+            let sum: f32 = kernel.iter().sum();
+            kernel.iter_mut().for_each(|v| *v /= sum);
+            planar.extend(kernel);
+        }
+    }
+    let psf = PsfGrid::from_planar(g, k, planar).unwrap();
+    psf.save_npy(path).unwrap();
+    psf
+}
+
+fn open(dir: &Path) -> scenes::Capture {
+    let options = OpenOptions {
+        resolution: Resolution::Downsample(4),
+        ..OpenOptions::default()
+    };
+    scenes::open(dir, &options).unwrap()
+}
+
+fn options(seed: u64) -> AberrateOptions {
+    AberrateOptions {
+        mode: BlurMode::Blend,
+        sensor_px: Some(54),
+        noise: NoiseModel::default(),
+        seed,
+        depth: BitDepth::Sixteen,
+    }
+}
+
+fn all_files(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let rel = p.strip_prefix(dir).unwrap().display().to_string();
+                out.push((rel, std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn maker_writes_an_llff_capture_the_model_would_record() {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = tmp.path().join("src");
+    write_source(&src);
+    let psf_path = tmp.path().join("grid.npy");
+    let psf = write_psf(&psf_path);
+    let capture = open(&src);
+    let dest = tmp.path().join("abr");
+    let report = make_aberrated(&capture, &psf_path, &dest, &options(11), &|| {}).unwrap();
+    assert_eq!((report.images, report.width, report.height), (5, W, H));
+    assert!(report.mean_psnr.is_finite() && report.mean_psnr < 60.0);
+
+    let out = open(&dest);
+    assert_eq!(out.len(), capture.len());
+    for (a, b) in capture.cameras.iter().zip(&out.cameras) {
+        assert_eq!(a.name, b.name);
+        assert!((a.fx - b.fx).abs() < 1e-9 && (a.cx - b.cx).abs() < 1e-9);
+        let (ma, mb) = (a.world_to_camera.to_mat4(), b.world_to_camera.to_mat4());
+        assert!(ma.abs_diff_eq(mb, 1e-9), "{} pose changed", a.name);
+    }
+    assert_eq!(
+        std::fs::read(&psf_path).unwrap(),
+        std::fs::read(dest.join(PSF_FILE)).unwrap()
+    );
+    let record = AberrationRecord::read(&dest).unwrap().unwrap();
+    assert_eq!(record.blur_mode(&dest).unwrap(), BlurMode::Blend);
+    assert_eq!((record.seed, record.sensor_px), (11, Some(54)));
+    assert_eq!(record.load_psf(&dest).unwrap(), psf);
+
+    // Independent of the maker: the imaging model applied by hand to the source image.
+    let model = ImagingModel::new(
+        &psf,
+        W as usize,
+        H as usize,
+        BlurMode::Blend,
+        Some(54),
+        NoiseModel::default(),
+    )
+    .unwrap();
+    for i in 0..capture.len() {
+        let clean = capture.load_image(i).unwrap();
+        let stored_clean = aberrated::load_clean_image(&out, i).unwrap().unwrap();
+        assert_eq!(clean, stored_clean, "clean/ must hold the source pixels");
+        let expect = model
+            .capture(&aberrated::to_planar(&clean), aberrated::image_seed(11, i))
+            .unwrap();
+        let got = aberrated::to_planar(&out.load_image(i).unwrap());
+        let worst = expect
+            .data
+            .iter()
+            .zip(&got.data)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(worst <= 0.51 / 65535.0 + 1e-7, "image {i}: off by {worst}");
+        assert!(
+            aberration::psnr(&got, &expect) > aberration::psnr(&got, &aberrated::to_planar(&clean))
+        );
+    }
+}
+
+#[test]
+fn same_seed_same_bytes_other_seed_other_noise() {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = tmp.path().join("src");
+    write_source(&src);
+    let psf_path = tmp.path().join("grid.npy");
+    write_psf(&psf_path);
+    let capture = open(&src);
+    let count = std::sync::atomic::AtomicUsize::new(0);
+    let tick = || {
+        count.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    };
+    let a = tmp.path().join("a");
+    let b = tmp.path().join("b");
+    let c = tmp.path().join("c");
+    make_aberrated(&capture, &psf_path, &a, &options(5), &tick).unwrap();
+    assert_eq!(count.load(std::sync::atomic::Ordering::Relaxed), 5);
+    make_aberrated(&capture, &psf_path, &b, &options(5), &|| {}).unwrap();
+    make_aberrated(&capture, &psf_path, &c, &options(6), &|| {}).unwrap();
+    let (fa, fb, fc) = (all_files(&a), all_files(&b), all_files(&c));
+    let names: Vec<&str> = fa.iter().map(|f| f.0.as_str()).collect();
+    assert!(names.contains(&"poses_bounds.npy"));
+    assert!(names.contains(&"images_4/img000.png"));
+    assert!(names.contains(&format!("{CLEAN_DIR}/img004.png").as_str()));
+    assert_eq!(fa, fb, "same seed must reproduce every byte");
+    let differing: Vec<&str> = fa
+        .iter()
+        .zip(&fc)
+        .filter(|(x, y)| x.1 != y.1)
+        .map(|(x, _)| x.0.as_str())
+        .collect();
+    assert!(differing.iter().any(|n| n.starts_with("images_4/")));
+    assert!(
+        differing
+            .iter()
+            .all(|n| n.starts_with("images_4/") || *n == "aberration.json")
+    );
+}
+
+#[test]
+fn failures_leave_no_half_scene() {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = tmp.path().join("src");
+    write_source(&src);
+    let capture = open(&src);
+    let listing = |dir: &Path| -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    };
+
+    // Not a PSF file: the error names it and nothing is created.
+    let bad = tmp.path().join("bad.npy");
+    std::fs::write(&bad, b"not an npy file").unwrap();
+    let before = listing(tmp.path());
+    let err = make_aberrated(&capture, &bad, &tmp.path().join("x"), &options(0), &|| {})
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("bad.npy"), "{err}");
+    assert_eq!(listing(tmp.path()), before);
+
+    // A source image that turns unreadable half-way: no destination, no staging folder left.
+    let psf_path = tmp.path().join("grid.npy");
+    write_psf(&psf_path);
+    let before = listing(tmp.path());
+    std::fs::write(&capture.image_paths[3], b"garbage").unwrap();
+    let err = make_aberrated(
+        &capture,
+        &psf_path,
+        &tmp.path().join("y"),
+        &options(0),
+        &|| {},
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("img003"), "{err}");
+    assert_eq!(listing(tmp.path()), before);
+
+    // An existing destination is never overwritten.
+    let existing = tmp.path().join("exists");
+    std::fs::create_dir(&existing).unwrap();
+    std::fs::write(existing.join("keep.txt"), b"mine").unwrap();
+    // (a fresh source: the first one now has a broken image)
+    let err = make_aberrated(
+        &open_fresh(tmp.path()),
+        &psf_path,
+        &existing,
+        &options(0),
+        &|| {},
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("exists"), "{err}");
+    assert_eq!(std::fs::read(existing.join("keep.txt")).unwrap(), b"mine");
+}
+
+fn open_fresh(root: &Path) -> scenes::Capture {
+    let src = root.join("src2");
+    write_source(&src);
+    open(&src)
+}
+
+#[test]
+fn clean_capture_has_no_record_and_no_clean_images() {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = tmp.path().join("src");
+    write_source(&src);
+    assert!(AberrationRecord::read(&src).unwrap().is_none());
+    assert!(
+        aberrated::load_clean_image(&open(&src), 0)
+            .unwrap()
+            .is_none()
+    );
+    std::fs::write(src.join(aberrated::RECORD_FILE), "{ \"psf\": 3 }").unwrap();
+    let err = AberrationRecord::read(&src).unwrap_err().to_string();
+    assert!(err.contains("aberration.json"), "{err}");
+}
