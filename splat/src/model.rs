@@ -111,6 +111,28 @@ impl Gaussians {
         out
     }
 
+    /// Changes the stored SH degree: new bands start at zero (rendering is unchanged), dropped
+    /// bands are discarded. Lets a trainer store only the bands a scene uses.
+    pub fn set_sh_degree(&mut self, degree: u32) {
+        let degree = degree.min(MAX_SH_DEGREE);
+        let (old, new) = (self.rest_count(), sh_rest_count(degree));
+        if old != new {
+            let mut rest = Vec::with_capacity(self.len() * new);
+            for i in 0..self.len() {
+                let src = &self.sh_rest[i * old..(i + 1) * old];
+                rest.extend_from_slice(&src[..old.min(new)]);
+                rest.extend(std::iter::repeat_n(Vec3::ZERO, new.saturating_sub(old)));
+            }
+            self.sh_rest = rest;
+        }
+        self.sh_degree = degree;
+    }
+
+    /// Bytes held by the parameters (what a trainer reports as model memory).
+    pub fn param_bytes(&self) -> usize {
+        self.len() * (3 + 3 + 4 + 1 + 3 + 3 * self.rest_count()) * std::mem::size_of::<f32>()
+    }
+
     /// Checks that all arrays agree in length (fields are public, so this can be violated).
     pub fn validate(&self) -> Result<(), SplatError> {
         let n = self.len();

@@ -230,6 +230,33 @@ impl Adam {
         Ok(())
     }
 
+    /// The moments `(m, v)`, for checkpoints.
+    pub fn moments(&self) -> (&Gaussians, &Gaussians) {
+        (&self.m, &self.v)
+    }
+
+    /// Rebuilds an optimiser from a checkpoint (3DGS β and ε); the moments must share a shape.
+    pub fn from_state(step: u64, m: Gaussians, v: Gaussians) -> Result<Self, SplatError> {
+        m.validate()?;
+        v.validate()?;
+        if m.len() != v.len() || m.sh_degree != v.sh_degree {
+            return Err(SplatError::InvalidInput(
+                "Adam moments m and v differ in shape".into(),
+            ));
+        }
+        let mut adam = Adam::new(&Gaussians::new(m.sh_degree));
+        adam.step = step;
+        adam.m = m;
+        adam.v = v;
+        Ok(adam)
+    }
+
+    /// Follows [`Gaussians::set_sh_degree`]: new bands start with zero moments.
+    pub fn set_sh_degree(&mut self, degree: u32) {
+        self.m.set_sh_degree(degree);
+        self.v.set_sh_degree(degree);
+    }
+
     /// Zeroes the moments of one group (3DGS does this for opacities after an opacity reset).
     pub fn reset_group(&mut self, group: ParamGroup) {
         for buf in [&mut self.m, &mut self.v] {

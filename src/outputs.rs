@@ -1,0 +1,186 @@
+//! Everything a finished run leaves in its folder: the PLY, metrics, the log, test-view
+//! renders beside their clean and aberrated images, and the spiral frames.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use aberration::atomic::write_atomically;
+use aberration::image::save_rgb8_png;
+use glam::Vec3;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::convert::{pixels_to_image, save_pixels, splat_camera};
+use crate::error::{Result, TrainError};
+use crate::eval::{self, Metrics};
+use crate::train::config::TrainConfig;
+use crate::train::data::Dataset;
+use crate::train::{LogRow, Outcome};
+
+pub const PLY_FILE: &str = "point_cloud.ply";
+pub const METRICS_FILE: &str = "metrics.json";
+pub const LOG_FILE: &str = "train_log.csv";
+pub const CHECKPOINT_FILE: &str = "checkpoint.bin";
+
+/// Creates the run folder and proves it writable before any training time is spent.
+pub fn prepare_run_dir(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
+    let probe = dir.join(".write-test");
+    std::fs::write(&probe, b"ok")
+        .map_err(|e| TrainError::file(dir, format!("not writable: {e}")))?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
+}
+
+pub fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
+    let text =
+        serde_json::to_string_pretty(value).map_err(|e| TrainError::file(path, e.to_string()))?;
+    write_atomically(path, |f| f.write_all((text + "\n").as_bytes()))
+        .map_err(|e| TrainError::io(path, e))
+}
+
+pub fn write_log_csv(path: &Path, log: &[LogRow]) -> Result<()> {
+    let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.4}"));
+    let mut text =
+        String::from("step,seconds,loss,train_psnr,test_psnr,test_ssim,splats,sh_degree\n");
+    for r in log {
+        text += &format!(
+            "{},{:.3},{:.6},{:.4},{},{},{},{}\n",
+            r.step,
+            r.seconds,
+            r.loss,
+            r.train_psnr,
+            opt(r.test_psnr),
+            opt(r.test_ssim),
+            r.splats,
+            r.sh_degree
+        );
+    }
+    write_atomically(path, |f| f.write_all(text.as_bytes())).map_err(|e| TrainError::io(path, e))
+}
+
+/// `metrics.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct RunSummary {
+    pub mode: String,
+    pub iters: u64,
+    pub train_seconds: f64,
+    pub splats: usize,
+    pub model_bytes: usize,
+    pub sh_degree: u32,
+    pub restorer: Option<String>,
+    /// Why there are no metrics, when there are none.
+    pub not_evaluated: Option<String>,
+    pub metrics: Option<Metrics>,
+    /// Mean PSNR of the observed (aberrated) test images against the clean ones.
+    pub observed_psnr: Option<f64>,
+}
+
+/// Images side by side with a white gutter.
+fn side_by_side(images: &[&[Vec3]], width: u32, height: u32) -> image::RgbImage {
+    let gap = 6;
+    let mut out = image::RgbImage::from_pixel(
+        images.len() as u32 * (width + gap) - gap,
+        height,
+        image::Rgb([255, 255, 255]),
+    );
+    for (i, px) in images.iter().enumerate() {
+        let mut img = pixels_to_image(px, width, height);
+        img.clamp01();
+        image::imageops::replace(
+            &mut out,
+            &img.to_rgb8(),
+            (i as u32 * (width + gap)) as i64,
+            0,
+        );
+    }
+    out
+}
+
+/// Writes the whole run folder and returns what went into `metrics.json`.
+pub fn write_run(
+    dir: &Path,
+    data: &Dataset,
+    config: &TrainConfig,
+    outcome: &Outcome,
+    spiral_frames: usize,
+) -> Result<RunSummary> {
+    let model = &outcome.model;
+    splat::ply::write_ply(dir.join(PLY_FILE), model)?;
+    write_log_csv(&dir.join(LOG_FILE), &outcome.log)?;
+    let metrics = eval::evaluate(model, &data.test, &outcome.settings)?;
+    let not_evaluated = match (&metrics, data.test.is_empty()) {
+        (Some(_), _) => None,
+        (None, true) => Some("no held-out views (llffhold 0 or too few images)".to_string()),
+        (None, false) => Some(format!(
+            "{} has no clean/ images to compare with (make captures with `metasplat scene aberrate`)",
+            data.capture.root.display()
+        )),
+    };
+
+    let test_dir = dir.join("test");
+    std::fs::create_dir_all(&test_dir).map_err(|e| TrainError::io(&test_dir, e))?;
+    let (w, h) = (data.width, data.height);
+    data.test.par_iter().try_for_each(|v| -> Result<()> {
+        let render = eval::render_pixels(model, &v.camera, &outcome.settings)?;
+        save_pixels(&test_dir.join(format!("{}.png", v.name)), &render, w, h)?;
+        let mut row: Vec<&[Vec3]> = vec![&v.observed, &render];
+        if let Some(c) = &v.clean {
+            row.push(c);
+        }
+        save_rgb8_png(
+            &side_by_side(&row, w, h),
+            &test_dir.join(format!("{}_compare.png", v.name)),
+        )?;
+        Ok(())
+    })?;
+
+    if spiral_frames > 0 {
+        let spiral_dir = dir.join("spiral");
+        std::fs::create_dir_all(&spiral_dir).map_err(|e| TrainError::io(&spiral_dir, e))?;
+        let path =
+            crate::spiral::spiral(&data.capture.cameras, &data.capture.bounds, spiral_frames);
+        render_frames(model, &outcome.settings, &path, &spiral_dir)?;
+    }
+
+    let observed_psnr = metrics.as_ref().map(|_| {
+        data.test
+            .iter()
+            .map(|v| crate::convert::psnr(&v.observed, v.clean.as_deref().expect("evaluated")))
+            .sum::<f64>()
+            / data.test.len() as f64
+    });
+    let summary = RunSummary {
+        mode: config.mode.to_string(),
+        iters: config.iters,
+        train_seconds: outcome.train_seconds,
+        splats: model.len(),
+        model_bytes: model.param_bytes(),
+        sh_degree: model.sh_degree,
+        restorer: data.restorer.map(|r| r.describe().to_string()),
+        not_evaluated,
+        metrics,
+        observed_psnr,
+    };
+    write_json(&dir.join(METRICS_FILE), &summary)?;
+    Ok(summary)
+}
+
+/// Renders `cameras` to `dir/<name>.png`.
+pub fn render_frames(
+    model: &splat::Gaussians,
+    settings: &splat::RenderSettings,
+    cameras: &[scenes::Camera],
+    dir: &Path,
+) -> Result<Vec<PathBuf>> {
+    cameras
+        .par_iter()
+        .map(|c| {
+            let cam = splat_camera(c);
+            let px = eval::render_pixels(model, &cam, settings)?;
+            let path = dir.join(format!("{}.png", c.name));
+            save_pixels(&path, &px, cam.width, cam.height)?;
+            Ok(path)
+        })
+        .collect()
+}

@@ -1,0 +1,208 @@
+//! Checkpoints: everything the loop needs to continue bit for bit (model, Adam moments,
+//! densification statistics, SH state, log), in one file written to a temporary name and
+//! renamed, so a kill leaves the previous checkpoint intact.
+//!
+//! Layout: magic, u64 header length, JSON header, then little-endian arrays in a fixed order.
+
+use std::io::Write;
+use std::path::Path;
+
+use aberration::atomic::write_atomically;
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+use splat::Gaussians;
+use splat::densify::DensifyStats;
+use splat::optim::Adam;
+
+use crate::error::{Result, TrainError};
+use crate::train::LogRow;
+use crate::train::config::TrainConfig;
+use crate::train::densify::Densifier;
+use crate::train::sh::ShBands;
+
+const MAGIC: &[u8; 16] = b"metasplat-ckpt01";
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct Header {
+    config: TrainConfig,
+    step: u64,
+    train_seconds: f64,
+    sh: ShBands,
+    log: Vec<LogRow>,
+    splats: usize,
+    sh_degree: u32,
+    adam_step: u64,
+}
+
+/// The loop's whole state between two steps.
+pub struct State {
+    pub config: TrainConfig,
+    pub step: u64,
+    pub train_seconds: f64,
+    pub model: Gaussians,
+    pub adam: Adam,
+    pub densifier: Densifier,
+    pub sh: ShBands,
+    pub log: Vec<LogRow>,
+}
+
+fn put_f32s(out: &mut Vec<u8>, v: impl IntoIterator<Item = f32>) {
+    for x in v {
+        out.extend_from_slice(&x.to_le_bytes());
+    }
+}
+
+fn put_gaussians(out: &mut Vec<u8>, g: &Gaussians) {
+    let v3 = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).collect::<Vec<f32>>();
+    put_f32s(out, v3(&g.means));
+    put_f32s(out, v3(&g.log_scales));
+    put_f32s(out, g.rotations.iter().flatten().copied());
+    put_f32s(out, g.logit_opacities.iter().copied());
+    put_f32s(out, v3(&g.sh_dc));
+    put_f32s(out, v3(&g.sh_rest));
+}
+
+pub fn save(path: &Path, s: &State) -> Result<()> {
+    let header = Header {
+        config: s.config.clone(),
+        step: s.step,
+        train_seconds: s.train_seconds,
+        sh: s.sh.clone(),
+        log: s.log.clone(),
+        splats: s.model.len(),
+        sh_degree: s.model.sh_degree,
+        adam_step: s.adam.steps_taken(),
+    };
+    let json = serde_json::to_vec(&header).map_err(|e| TrainError::file(path, e.to_string()))?;
+    let mut out = Vec::with_capacity(s.model.param_bytes() * 3 + json.len() + 64);
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(&(json.len() as u64).to_le_bytes());
+    out.extend_from_slice(&json);
+    put_gaussians(&mut out, &s.model);
+    let (m, v) = s.adam.moments();
+    put_gaussians(&mut out, m);
+    put_gaussians(&mut out, v);
+    let st = &s.densifier.stats;
+    put_f32s(&mut out, st.grad_norm_sum.iter().copied());
+    for c in &st.count {
+        out.extend_from_slice(&c.to_le_bytes());
+    }
+    put_f32s(&mut out, st.max_radius.iter().copied());
+    out.extend(s.densifier.seen.iter().map(|&b| b as u8));
+
+    write_atomically(path, |f| f.write_all(&out)).map_err(|e| TrainError::io(path, e))
+}
+
+struct Reader<'a> {
+    path: &'a Path,
+    bytes: &'a [u8],
+    at: usize,
+}
+
+impl Reader<'_> {
+    fn take(&mut self, n: usize, what: &str) -> Result<&[u8]> {
+        let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
+        let Some(end) = end else {
+            return Err(TrainError::file(
+                self.path,
+                format!("truncated while reading {what}"),
+            ));
+        };
+        let s = &self.bytes[self.at..end];
+        self.at = end;
+        Ok(s)
+    }
+
+    fn f32s(&mut self, n: usize, what: &str) -> Result<Vec<f32>> {
+        Ok(self
+            .take(n * 4, what)?
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect())
+    }
+
+    fn vec3s(&mut self, n: usize, what: &str) -> Result<Vec<Vec3>> {
+        Ok(self
+            .f32s(n * 3, what)?
+            .chunks_exact(3)
+            .map(Vec3::from_slice)
+            .collect())
+    }
+
+    fn gaussians(&mut self, n: usize, degree: u32, what: &str) -> Result<Gaussians> {
+        let mut g = Gaussians::new(degree);
+        let rc = g.rest_count();
+        g.means = self.vec3s(n, what)?;
+        g.log_scales = self.vec3s(n, what)?;
+        g.rotations = self
+            .f32s(n * 4, what)?
+            .chunks_exact(4)
+            .map(|c| [c[0], c[1], c[2], c[3]])
+            .collect();
+        g.logit_opacities = self.f32s(n, what)?;
+        g.sh_dc = self.vec3s(n, what)?;
+        g.sh_rest = self.vec3s(n * rc, what)?;
+        Ok(g)
+    }
+}
+
+pub fn load(path: &Path) -> Result<State> {
+    let bytes = std::fs::read(path).map_err(|e| TrainError::io(path, e))?;
+    let mut r = Reader {
+        path,
+        bytes: &bytes,
+        at: 0,
+    };
+    if r.take(MAGIC.len(), "the magic")? != MAGIC {
+        return Err(TrainError::file(path, "not a metasplat checkpoint"));
+    }
+    let len = u64::from_le_bytes(r.take(8, "the header length")?.try_into().expect("8 bytes"));
+    let json = r.take(len as usize, "the header")?;
+    let h: Header = serde_json::from_slice(json)
+        .map_err(|e| TrainError::file(path, format!("bad header: {e}")))?;
+    if h.sh_degree > splat::MAX_SH_DEGREE {
+        return Err(TrainError::file(
+            path,
+            format!("SH degree {} too high", h.sh_degree),
+        ));
+    }
+    let n = h.splats;
+    let model = r.gaussians(n, h.sh_degree, "the model")?;
+    let m = r.gaussians(n, h.sh_degree, "Adam's first moments")?;
+    let v = r.gaussians(n, h.sh_degree, "Adam's second moments")?;
+    let grad_norm_sum = r.f32s(n, "densification statistics")?;
+    let count = r
+        .take(n * 4, "densification statistics")?
+        .chunks_exact(4)
+        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    let max_radius = r.f32s(n, "densification statistics")?;
+    let seen = r.take(n, "visibility")?.iter().map(|&b| b != 0).collect();
+    if r.at != bytes.len() {
+        return Err(TrainError::file(
+            path,
+            "trailing bytes after the checkpoint",
+        ));
+    }
+    if !model.means.iter().all(|p| p.is_finite()) {
+        return Err(TrainError::file(path, "non-finite splat positions"));
+    }
+    let adam = Adam::from_state(h.adam_step, m, v)?;
+    let mut densifier = Densifier::new(h.config.recipe.clone(), h.config.max_splats, 1.0, n);
+    densifier.stats = DensifyStats {
+        grad_norm_sum,
+        count,
+        max_radius,
+    };
+    densifier.seen = seen;
+    Ok(State {
+        config: h.config,
+        step: h.step,
+        train_seconds: h.train_seconds,
+        model,
+        adam,
+        densifier,
+        sh: h.sh,
+        log: h.log,
+    })
+}

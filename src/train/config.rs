@@ -1,0 +1,161 @@
+//! What a training run does: the mode, the objective's weights, the 3DGS recipe scaled to the
+//! run's length, and the budget.
+
+use serde::{Deserialize, Serialize};
+use splat::optim::LearningRates;
+
+/// Per-group learning rates (INRIA defaults; `means` before scaling by the scene extent).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Lrs {
+    pub means: f32,
+    pub log_scales: f32,
+    pub rotations: f32,
+    pub opacities: f32,
+    pub sh_dc: f32,
+    pub sh_rest: f32,
+}
+
+impl Default for Lrs {
+    fn default() -> Self {
+        let d = LearningRates::default();
+        Lrs {
+            means: d.means,
+            log_scales: d.log_scales,
+            rotations: d.rotations,
+            opacities: d.opacities,
+            sh_dc: d.sh_dc,
+            sh_rest: d.sh_rest,
+        }
+    }
+}
+
+impl Lrs {
+    /// The rates at one step, the position rate taken from its schedule.
+    pub fn at(&self, means: f32) -> LearningRates {
+        LearningRates {
+            means,
+            log_scales: self.log_scales,
+            rotations: self.rotations,
+            opacities: self.opacities,
+            sh_dc: self.sh_dc,
+            sh_rest: self.sh_rest,
+        }
+    }
+}
+
+/// The paper's three rows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// "3D-GS + Ours": `L(PSF ⊛ render, I_abr) + λ·L(render, I_ac)`.
+    Aware,
+    /// "3D-GS w/ Ours": plain 3DGS on the restored images `I_ac`.
+    Restored,
+    /// "3D-GS": plain 3DGS on the aberrated images.
+    Plain,
+}
+
+impl Mode {
+    pub const ALL: [Mode; 3] = [Mode::Plain, Mode::Restored, Mode::Aware];
+
+    pub fn needs_psf(self) -> bool {
+        self != Mode::Plain
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Mode::Aware => "aware",
+            Mode::Restored => "restored",
+            Mode::Plain => "plain",
+        }
+    }
+}
+
+impl std::fmt::Display for Mode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// The 3DGS schedule (INRIA defaults at 30k steps) and thresholds.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Recipe {
+    pub densify_from: u64,
+    pub densify_until: u64,
+    pub densify_every: u64,
+    /// `None` disables the opacity reset (the paper did for LLFF scenes).
+    pub opacity_reset_every: Option<u64>,
+    /// Steps between SH band decisions (raise one band, or drop one that did not pay).
+    pub sh_every: u64,
+    pub grad_threshold: f32,
+    /// Clone (rather than split) when the largest scale is below this fraction of the extent.
+    pub percent_dense: f32,
+    pub prune_opacity: f32,
+    pub lrs: Lrs,
+    pub position_lr_final_ratio: f32,
+    pub dssim_weight: f32,
+}
+
+impl Recipe {
+    /// The INRIA recipe with its step counts scaled by `iters / 30000` (clamped so short runs
+    /// still average densification statistics over several passes through the views).
+    pub fn for_iters(iters: u64, opacity_reset: bool) -> Recipe {
+        let f = iters as f64 / 30_000.0;
+        let scale = |v: f64, lo: u64, hi: u64| ((v * f).round() as u64).clamp(lo, hi);
+        let densify_every = scale(100.0, 25, 100);
+        Recipe {
+            densify_from: scale(500.0, 2 * densify_every, 500),
+            densify_until: iters / 2,
+            densify_every,
+            opacity_reset_every: opacity_reset.then(|| scale(3000.0, 4 * densify_every, 3000)),
+            sh_every: scale(1000.0, 100, 1000),
+            grad_threshold: 2e-4,
+            percent_dense: 0.01,
+            prune_opacity: 0.005,
+            lrs: Lrs::default(),
+            position_lr_final_ratio: 0.01,
+            dssim_weight: 0.2,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrainConfig {
+    pub mode: Mode,
+    pub iters: u64,
+    /// Weight of `L(render, I_ac)` in `aware` mode (0.75 for LLFF in the paper).
+    pub lambda: f32,
+    /// Most splats densification may create; pruning keeps the count lower where it can.
+    pub max_splats: usize,
+    pub max_sh_degree: u32,
+    pub seed: u64,
+    pub background: [f32; 3],
+    /// Held-out evaluation every this many steps (0: only at the end).
+    pub eval_every: u64,
+    /// Checkpoint every this many steps (0: never).
+    pub checkpoint_every: u64,
+    pub recipe: Recipe,
+}
+
+/// Default budget: one splat per two pixels of a view (≈ 95k at 504×378), the order of
+/// what 3DGS keeps for LLFF scenes at that size.
+pub fn default_max_splats(width: u32, height: u32) -> usize {
+    ((width as usize * height as usize) / 2).max(1000)
+}
+
+impl TrainConfig {
+    pub fn new(mode: Mode, iters: u64, width: u32, height: u32) -> TrainConfig {
+        TrainConfig {
+            mode,
+            iters,
+            lambda: 0.75,
+            max_splats: default_max_splats(width, height),
+            max_sh_degree: 3,
+            seed: 0,
+            background: [0.0; 3],
+            eval_every: (iters / 10).max(1),
+            checkpoint_every: (iters / 5).max(100),
+            recipe: Recipe::for_iters(iters, false),
+        }
+    }
+}

@@ -1,0 +1,237 @@
+//! The training data of a run: every view's camera and images (observed, restored, clean),
+//! the imaging model the capture was made with, and the initial point cloud.
+
+use std::path::{Path, PathBuf};
+
+use aberration::{BlurMode, ImagingModel, NoiseModel, PsfGrid, wiener_bank};
+use glam::Vec3;
+use rayon::prelude::*;
+use scenes::aberrated::{self, AberrationRecord};
+use scenes::{Capture, OpenOptions, PointCloud, Resolution};
+
+use crate::convert::{image_to_pixels, pixels_to_image, rgb_to_pixels, splat_camera};
+use crate::error::{Result, TrainError};
+use crate::train::config::Mode;
+
+/// One camera and its images, row-major RGB in [0, 1].
+#[derive(Clone, Debug)]
+pub struct View {
+    pub name: String,
+    pub camera: splat::Camera,
+    /// What the camera recorded: `I_abr` for an aberrated capture.
+    pub observed: Vec<Vec3>,
+    /// `I_ac`: the restorer's output for `observed` (training views of modes that use it).
+    pub restored: Option<Vec<Vec3>>,
+    /// Ground truth from the capture's `clean/` folder, when it has one.
+    pub clean: Option<Vec<Vec3>>,
+}
+
+/// Where `I_ac` comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Restorer {
+    /// The median filter of the 13-filter MAFG Wiener bank: a stand-in until the transformer
+    /// restorer ships.
+    MedianWiener,
+}
+
+impl Restorer {
+    pub fn describe(self) -> &'static str {
+        match self {
+            Restorer::MedianWiener => {
+                "I_ac = median MAFG Wiener image (stand-in: the transformer restorer is not built yet)"
+            }
+        }
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct DataOptions {
+    pub downsample: u32,
+    pub llffhold: usize,
+    /// A PSF grid file; must agree with the capture's own `psf.npy` when it has one.
+    pub psf: Option<PathBuf>,
+    pub restorer: Restorer,
+    pub seed: u64,
+}
+
+impl Default for DataOptions {
+    fn default() -> Self {
+        Self {
+            downsample: 8,
+            llffhold: scenes::LLFFHOLD,
+            psf: None,
+            restorer: Restorer::MedianWiener,
+            seed: 0,
+        }
+    }
+}
+
+pub struct Dataset {
+    pub capture: Capture,
+    pub width: u32,
+    pub height: u32,
+    pub train: Vec<View>,
+    pub test: Vec<View>,
+    /// The blur the capture went through (None for a clean capture without `--psf`).
+    pub imaging: Option<ImagingModel>,
+    pub restorer: Option<Restorer>,
+    /// 3DGS scene extent (camera radius × 1.1): scales position lr and size thresholds.
+    pub extent: f32,
+    pub points: PointCloud,
+}
+
+impl Dataset {
+    /// True when every test view has a clean image to compare against.
+    pub fn can_evaluate(&self) -> bool {
+        !self.test.is_empty() && self.test.iter().all(|v| v.clean.is_some())
+    }
+}
+
+fn load_psf(path: &Path) -> Result<PsfGrid> {
+    PsfGrid::load_npy(path).map_err(|e| TrainError::file(path, e.to_string()))
+}
+
+/// The PSF grid and blur settings of a capture: its own record, checked against `--psf`.
+fn imaging_settings(
+    dir: &Path,
+    capture: &Capture,
+    user_psf: Option<&Path>,
+) -> Result<Option<(PsfGrid, BlurMode, Option<usize>, NoiseModel)>> {
+    let record = AberrationRecord::read(dir)?;
+    let (w, h) = (capture.cameras[0].width, capture.cameras[0].height);
+    if let Some(r) = &record
+        && (r.width, r.height) != (w, h)
+    {
+        return Err(TrainError::file(
+            dir.join(aberrated::RECORD_FILE),
+            format!(
+                "the capture was aberrated at {}x{} but {} holds {w}x{h} images; the PSF model would not match (use the downsample it was made at)",
+                r.width,
+                r.height,
+                capture.image_dir.display()
+            ),
+        ));
+    }
+    let own = match &record {
+        Some(r) => Some(r.load_psf(dir)?),
+        None => None,
+    };
+    let given = user_psf.map(load_psf).transpose()?;
+    let psf = match (own, given) {
+        (Some(own), Some(given)) => {
+            if own != given {
+                return Err(TrainError::file(
+                    user_psf.expect("given implies a path"),
+                    format!(
+                        "this PSF grid ({}x{} of {} px) is not the one {} was made with ({}x{} of {} px, {}); leave out --psf to use the capture's",
+                        given.grid(),
+                        given.grid(),
+                        given.size(),
+                        dir.display(),
+                        own.grid(),
+                        own.grid(),
+                        own.size(),
+                        dir.join(aberrated::PSF_FILE).display()
+                    ),
+                ));
+            }
+            own
+        }
+        (Some(p), None) | (None, Some(p)) => p,
+        (None, None) => return Ok(None),
+    };
+    let (mode, sensor, noise) = match &record {
+        Some(r) => (
+            r.blur_mode(&dir.join(aberrated::RECORD_FILE))?,
+            r.sensor_px,
+            r.noise(),
+        ),
+        None => (BlurMode::Tiled, None, NoiseModel::default()),
+    };
+    Ok(Some((psf, mode, sensor, noise)))
+}
+
+/// Loads a capture for training in `mode`. Errors name the file and the problem.
+pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
+    let open = OpenOptions {
+        resolution: Resolution::Downsample(options.downsample),
+        llffhold: options.llffhold,
+        seed: options.seed,
+        ..OpenOptions::default()
+    };
+    let capture = scenes::open(dir, &open)?;
+    if capture.split.train.is_empty() {
+        return Err(TrainError::file(dir, "no training views after the split"));
+    }
+    let (width, height) = (capture.cameras[0].width, capture.cameras[0].height);
+    let imaging = match imaging_settings(dir, &capture, options.psf.as_deref())? {
+        Some((psf, blur, sensor, noise)) => Some(
+            ImagingModel::new(&psf, width as usize, height as usize, blur, sensor, noise).map_err(
+                |e| {
+                    TrainError::file(
+                        options.psf.clone().unwrap_or(dir.join(aberrated::PSF_FILE)),
+                        format!("PSF grid does not fit {width}x{height} images: {e}"),
+                    )
+                },
+            )?,
+        ),
+        None => None,
+    };
+    if mode.needs_psf() && imaging.is_none() {
+        return Err(TrainError::file(
+            dir,
+            format!(
+                "mode {mode} needs the PSF grid: pass --psf, or train on a capture made by `metasplat scene aberrate` (it holds psf.npy)"
+            ),
+        ));
+    }
+    let restorer = mode.needs_psf().then_some(options.restorer);
+
+    let make_view = |i: usize, restore: bool| -> Result<View> {
+        let observed = rgb_to_pixels(&capture.load_image(i)?);
+        let clean = aberrated::load_clean_image(&capture, i)?.map(|c| rgb_to_pixels(&c));
+        let restored = match (restore, &imaging) {
+            (true, Some(model)) => {
+                let blurred = pixels_to_image(&observed, width, height);
+                let mut median = wiener_bank(&blurred, model.psf())?.median().clone();
+                median.clamp01();
+                Some(image_to_pixels(&median))
+            }
+            _ => None,
+        };
+        Ok(View {
+            name: capture.cameras[i].name.clone(),
+            camera: splat_camera(&capture.cameras[i]),
+            observed,
+            restored,
+            clean,
+        })
+    };
+    let train = capture
+        .split
+        .train
+        .par_iter()
+        .map(|&i| make_view(i, restorer.is_some()))
+        .collect::<Result<Vec<_>>>()?;
+    let test = capture
+        .split
+        .test
+        .par_iter()
+        .map(|&i| make_view(i, false))
+        .collect::<Result<Vec<_>>>()?;
+    // One camera (or all at one spot) has no radius; 1 keeps the thresholds meaningful.
+    let radius = capture.normalization().radius as f32;
+    let extent = if radius > 0.0 { radius } else { 1.0 };
+    let points = capture.points.clone();
+    Ok(Dataset {
+        width,
+        height,
+        train,
+        test,
+        imaging,
+        restorer,
+        extent,
+        points,
+        capture,
+    })
+}

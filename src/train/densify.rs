@@ -1,0 +1,195 @@
+//! The densification strategy: the 3DGS "default strategy" (clone small, split large, prune
+//! transparent, optional opacity reset) held to a splat budget, plus pruning of splats that
+//! no training view can see. The trainer calls it at three hooks (after backward, after the
+//! optimiser step, at the end of an epoch) and once at the end, so the loop stays short.
+
+use serde::{Deserialize, Serialize};
+use splat::densify::{
+    DensifyStats, clone_gaussians, prune_gaussians, prune_mask, reset_opacity, split_gaussians,
+};
+use splat::model::sigmoid;
+use splat::optim::{Adam, ParamGroup};
+use splat::project::ALPHA_THRESHOLD;
+use splat::{Gaussians, Gradients, RenderOutput};
+
+use crate::error::Result;
+use crate::train::config::Recipe;
+
+/// Screen radius (px) above which 3DGS prunes after the first opacity reset.
+const MAX_SCREEN_RADIUS: f32 = 20.0;
+/// Largest world scale kept, as a fraction of the extent (3DGS: 0.1).
+const MAX_WORLD_SCALE: f32 = 0.1;
+
+/// What one hook changed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Edit {
+    pub cloned: usize,
+    pub split: usize,
+    pub pruned: usize,
+    /// Candidates turned away because the budget was reached.
+    pub over_budget: usize,
+    pub opacity_reset: bool,
+}
+
+/// The strategy's state (saved in checkpoints).
+#[derive(Clone, Debug)]
+pub struct Densifier {
+    pub recipe: Recipe,
+    pub budget: usize,
+    pub extent: f32,
+    pub stats: DensifyStats,
+    /// Visible in at least one training view since the epoch began.
+    pub seen: Vec<bool>,
+}
+
+/// Applies a structural edit's `sources` to everything indexed by Gaussian.
+fn carry(
+    adam: &mut Adam,
+    stats: &mut DensifyStats,
+    seen: &mut Vec<bool>,
+    sources: &[Option<usize>],
+) -> Result<()> {
+    adam.remap(sources)?;
+    stats.remap(sources)?;
+    *seen = sources.iter().map(|s| s.is_none_or(|i| seen[i])).collect();
+    Ok(())
+}
+
+impl Densifier {
+    pub fn new(recipe: Recipe, budget: usize, extent: f32, n: usize) -> Self {
+        Self {
+            recipe,
+            budget,
+            extent,
+            stats: DensifyStats::new(n),
+            seen: vec![false; n],
+        }
+    }
+
+    fn densifying(&self, step: u64) -> bool {
+        step < self.recipe.densify_until
+    }
+
+    /// Hook 1: accumulate this view's screen-space gradients and visibility.
+    pub fn after_backward(&mut self, step: u64, grads: &Gradients, out: &RenderOutput) {
+        for (s, v) in self.seen.iter_mut().zip(&out.visible) {
+            *s |= *v;
+        }
+        if self.densifying(step) {
+            self.stats.add(grads, out, false);
+        }
+    }
+
+    /// Hook 2, after the optimiser step `step` (1-based count of steps done).
+    pub fn after_step(
+        &mut self,
+        step: u64,
+        model: &mut Gaussians,
+        adam: &mut Adam,
+        seed: u64,
+    ) -> Result<Option<Edit>> {
+        let r = self.recipe.clone();
+        let mut edit = Edit::default();
+        let mut changed = false;
+        if self.densifying(step) && step >= r.densify_from && step % r.densify_every == 0 {
+            self.grow(model, adam, seed ^ step, &mut edit)?;
+            let after_reset = r.opacity_reset_every.is_some_and(|every| step > every);
+            let mask = prune_mask(
+                model,
+                r.prune_opacity,
+                after_reset.then_some(MAX_WORLD_SCALE * self.extent),
+                after_reset.then_some((&self.stats, MAX_SCREEN_RADIUS)),
+            );
+            edit.pruned += self.prune(model, adam, &mask)?;
+            self.stats = DensifyStats::new(model.len());
+            changed = true;
+        }
+        if let Some(every) = r.opacity_reset_every
+            && self.densifying(step)
+            && step % every == 0
+        {
+            reset_opacity(model, 2.0 * r.prune_opacity);
+            adam.reset_group(ParamGroup::Opacities);
+            edit.opacity_reset = true;
+            changed = true;
+        }
+        Ok(changed.then_some(edit))
+    }
+
+    /// Hook 3, when every training view has been rendered once since the last call: splats
+    /// no view saw get no gradient and can never contribute, so they go.
+    pub fn end_of_epoch(&mut self, model: &mut Gaussians, adam: &mut Adam) -> Result<usize> {
+        let mask: Vec<bool> = self.seen.iter().map(|s| !s).collect();
+        let pruned = self.prune(model, adam, &mask)?;
+        self.seen = vec![false; model.len()];
+        Ok(pruned)
+    }
+
+    /// At the end of training: drop splats too transparent ever to be blended (α < 1/255
+    /// everywhere), which leaves every render unchanged.
+    pub fn finish(&mut self, model: &mut Gaussians, adam: &mut Adam) -> Result<usize> {
+        let mask: Vec<bool> = model
+            .logit_opacities
+            .iter()
+            .map(|&o| sigmoid(o) < ALPHA_THRESHOLD)
+            .collect();
+        self.prune(model, adam, &mask)
+    }
+
+    fn prune(&mut self, model: &mut Gaussians, adam: &mut Adam, mask: &[bool]) -> Result<usize> {
+        let count = mask.iter().filter(|m| **m).count();
+        if count > 0 {
+            let sources = prune_gaussians(model, mask)?;
+            carry(adam, &mut self.stats, &mut self.seen, &sources)?;
+        }
+        Ok(count)
+    }
+
+    /// Clone or split the splats with the largest mean screen gradients, as many as the budget
+    /// allows (each adds one splat).
+    fn grow(
+        &mut self,
+        model: &mut Gaussians,
+        adam: &mut Adam,
+        seed: u64,
+        edit: &mut Edit,
+    ) -> Result<()> {
+        let n = model.len();
+        let mut candidates: Vec<(f32, usize)> = self
+            .stats
+            .grow_mask(self.recipe.grad_threshold)
+            .iter()
+            .enumerate()
+            .filter(|(_, m)| **m)
+            .map(|(i, _)| (self.stats.grad_norm_sum[i] / self.stats.count[i] as f32, i))
+            .collect();
+        let room = self.budget.saturating_sub(n);
+        if candidates.len() > room {
+            candidates.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+            edit.over_budget = candidates.len() - room;
+            candidates.truncate(room);
+        }
+        let small = self.recipe.percent_dense * self.extent;
+        let mut clone = vec![false; n];
+        let mut split = vec![false; n];
+        for &(_, i) in &candidates {
+            if model.log_scales[i].exp().max_element() <= small {
+                clone[i] = true;
+            } else {
+                split[i] = true;
+            }
+        }
+        edit.cloned = clone.iter().filter(|m| **m).count();
+        edit.split = split.iter().filter(|m| **m).count();
+        if edit.cloned > 0 {
+            let sources = clone_gaussians(model, &clone)?;
+            carry(adam, &mut self.stats, &mut self.seen, &sources)?;
+            split.resize(model.len(), false);
+        }
+        if edit.split > 0 {
+            let sources = split_gaussians(model, &split, seed)?;
+            carry(adam, &mut self.stats, &mut self.seen, &sources)?;
+        }
+        Ok(())
+    }
+}

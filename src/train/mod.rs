@@ -1,0 +1,286 @@
+//! The training loop: render a view, score it with the mode's objective, backpropagate
+//! through the renderer, step Adam, and let the densification strategy and the SH-band
+//! controller act at their hooks. Deterministic for a seed, and resumable bit for bit.
+
+pub mod checkpoint;
+pub mod config;
+pub mod data;
+pub mod densify;
+pub mod objective;
+pub mod sh;
+
+use std::path::Path;
+use std::time::Instant;
+
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+use splat::optim::{Adam, ExponentialLr};
+use splat::rng::SplitMix64;
+use splat::{Gaussians, RenderSettings, render, render_backward};
+
+use crate::error::{Result, TrainError};
+use crate::eval::{self, Metrics};
+use checkpoint::State;
+use config::TrainConfig;
+use data::Dataset;
+use densify::{Densifier, Edit};
+use objective::{LossParts, Objective};
+use sh::{ShBands, ShEvent};
+
+/// One line of `train_log.csv`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LogRow {
+    pub step: u64,
+    /// Training time so far (evaluation and checkpoint writing excluded).
+    pub seconds: f64,
+    pub loss: f32,
+    pub train_psnr: f64,
+    pub test_psnr: Option<f64>,
+    pub test_ssim: Option<f64>,
+    pub splats: usize,
+    pub sh_degree: u32,
+}
+
+/// What the loop reports as it goes.
+pub enum Event<'a> {
+    Step {
+        step: u64,
+        loss: &'a LossParts,
+        splats: usize,
+        sh_degree: u32,
+        seconds: f64,
+    },
+    Evaluated {
+        step: u64,
+        metrics: &'a Metrics,
+    },
+    Densified {
+        step: u64,
+        edit: Edit,
+        splats: usize,
+    },
+    Unseen {
+        step: u64,
+        pruned: usize,
+    },
+    Sh {
+        step: u64,
+        event: ShEvent,
+    },
+    Checkpoint {
+        step: u64,
+    },
+}
+
+pub struct Outcome {
+    pub model: Gaussians,
+    pub log: Vec<LogRow>,
+    pub train_seconds: f64,
+    pub settings: RenderSettings,
+    /// Splats removed at the end because they could never be blended (α < 1/255).
+    pub final_pruned: usize,
+    pub sh_events: Vec<ShEvent>,
+    pub resumed_from: Option<u64>,
+}
+
+/// View `step` visits: a fresh seeded permutation of the training views each epoch.
+pub fn view_index(seed: u64, step: u64, n: usize) -> usize {
+    let epoch = step / n as u64;
+    let mut order: Vec<usize> = (0..n).collect();
+    let mut rng = SplitMix64::new(seed ^ epoch.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    for i in (1..n).rev() {
+        order.swap(i, (rng.next_u64() % (i as u64 + 1)) as usize);
+    }
+    order[(step % n as u64) as usize]
+}
+
+fn settings(config: &TrainConfig, model: &Gaussians) -> RenderSettings {
+    RenderSettings {
+        sh_degree: model.sh_degree,
+        background: Vec3::from_array(config.background),
+        antialiased: false,
+    }
+}
+
+/// Names the settings that differ between two configs (for `--resume`).
+fn config_differences(a: &TrainConfig, b: &TrainConfig) -> Vec<String> {
+    let (a, b) = (serde_json::to_value(a), serde_json::to_value(b));
+    let (Ok(serde_json::Value::Object(a)), Ok(serde_json::Value::Object(b))) = (a, b) else {
+        return vec!["config".into()];
+    };
+    a.iter()
+        .filter(|(k, v)| b.get(*k) != Some(*v))
+        .map(|(k, v)| {
+            format!(
+                "{k} (checkpoint {}, now {v})",
+                b.get(k).cloned().unwrap_or_default()
+            )
+        })
+        .collect()
+}
+
+fn fresh_state(config: &TrainConfig, data: &Dataset) -> Result<State> {
+    if data.points.is_empty() {
+        return Err(TrainError::file(&data.capture.root, "no initial points"));
+    }
+    let model = crate::init::from_points(&data.points, 0);
+    let n = model.len();
+    Ok(State {
+        config: config.clone(),
+        step: 0,
+        train_seconds: 0.0,
+        adam: Adam::new(&model),
+        densifier: Densifier::new(config.recipe.clone(), config.max_splats, data.extent, n),
+        sh: ShBands::new(config.max_sh_degree, config.recipe.sh_every),
+        log: Vec::new(),
+        model,
+    })
+}
+
+/// Trains on `data`. With `checkpoint_path`, saves there every `checkpoint_every` steps;
+/// with `resume` too, continues from the checkpoint if one exists (same config required).
+pub fn train(
+    config: &TrainConfig,
+    data: &Dataset,
+    checkpoint_path: Option<&Path>,
+    resume: bool,
+    on_event: &mut dyn FnMut(Event),
+) -> Result<Outcome> {
+    let (mut s, resumed_from) = match checkpoint_path {
+        Some(p) if resume && p.exists() => {
+            let mut s = checkpoint::load(p)?;
+            let diff = config_differences(config, &s.config);
+            if !diff.is_empty() {
+                return Err(TrainError::file(
+                    p,
+                    format!("cannot resume with other settings: {}", diff.join("; ")),
+                ));
+            }
+            s.densifier.extent = data.extent;
+            let from = s.step;
+            (s, Some(from))
+        }
+        _ => (fresh_state(config, data)?, None),
+    };
+    let objective = Objective {
+        mode: config.mode,
+        lambda: config.lambda,
+        dssim_weight: config.recipe.dssim_weight,
+        imaging: data.imaging.as_ref(),
+        width: data.width,
+        height: data.height,
+    };
+    let lrs = &config.recipe.lrs;
+    let position_lr = ExponentialLr {
+        lr_init: lrs.means * data.extent,
+        lr_final: lrs.means * data.extent * config.recipe.position_lr_final_ratio,
+        max_steps: config.iters,
+    };
+    let n_views = data.train.len();
+    let mut sh_events = Vec::new();
+    // Mean training loss over (up to 8, evenly spread) training views at a given SH degree.
+    let probe: Vec<usize> = (0..n_views.min(8))
+        .map(|k| k * n_views / n_views.min(8))
+        .collect();
+    let mut loss_at = |model: &Gaussians, degree: u32| -> Result<f64> {
+        let rs = RenderSettings {
+            sh_degree: degree,
+            ..settings(config, model)
+        };
+        let mut sum = 0.0;
+        for &i in &probe {
+            let out = render(model, &data.train[i].camera, &rs)?;
+            sum += objective.evaluate(&out.color, &data.train[i])?.0.total as f64;
+        }
+        Ok(sum / probe.len() as f64)
+    };
+
+    while s.step < config.iters {
+        let started = Instant::now();
+        let view = &data.train[view_index(config.seed, s.step, n_views)];
+        let rs = settings(config, &s.model);
+        let out = render(&s.model, &view.camera, &rs)?;
+        let (parts, v_color) = objective.evaluate(&out.color, view)?;
+        let grads = render_backward(&s.model, &view.camera, &rs, &out, &v_color, None, None)?;
+        s.densifier.after_backward(s.step, &grads, &out);
+        s.adam
+            .step(&mut s.model, &grads.params, &lrs.at(position_lr.at(s.step)))?;
+        drop((out, grads));
+        s.step += 1;
+        let step = s.step;
+        if let Some(edit) = s
+            .densifier
+            .after_step(step, &mut s.model, &mut s.adam, config.seed)?
+        {
+            on_event(Event::Densified {
+                step,
+                edit,
+                splats: s.model.len(),
+            });
+        }
+        if step % n_views as u64 == 0 {
+            let pruned = s.densifier.end_of_epoch(&mut s.model, &mut s.adam)?;
+            if pruned > 0 {
+                on_event(Event::Unseen { step, pruned });
+            }
+        }
+        for event in
+            s.sh.after_step(step, &mut s.model, &mut s.adam, &mut loss_at)?
+        {
+            sh_events.push(event);
+            on_event(Event::Sh { step, event });
+        }
+        s.train_seconds += started.elapsed().as_secs_f64();
+        on_event(Event::Step {
+            step,
+            loss: &parts,
+            splats: s.model.len(),
+            sh_degree: s.model.sh_degree,
+            seconds: s.train_seconds,
+        });
+
+        let eval_now =
+            step == config.iters || (config.eval_every > 0 && step % config.eval_every == 0);
+        if eval_now {
+            let metrics = eval::evaluate(&s.model, &data.test, &settings(config, &s.model))?;
+            if let Some(m) = &metrics {
+                on_event(Event::Evaluated { step, metrics: m });
+            }
+            s.log.push(LogRow {
+                step,
+                seconds: s.train_seconds,
+                loss: parts.total,
+                train_psnr: parts.psnr,
+                test_psnr: metrics.as_ref().map(|m| m.mean_psnr),
+                test_ssim: metrics.as_ref().map(|m| m.mean_ssim),
+                splats: s.model.len(),
+                sh_degree: s.model.sh_degree,
+            });
+        }
+        if let Some(p) = checkpoint_path
+            && config.checkpoint_every > 0
+            && (step % config.checkpoint_every == 0 || step == config.iters)
+        {
+            checkpoint::save(p, &s)?;
+            on_event(Event::Checkpoint { step });
+        }
+    }
+
+    let final_pruned = s.densifier.finish(&mut s.model, &mut s.adam)?;
+    for event in s.sh.finish(&mut s.model, &mut s.adam, &mut loss_at)? {
+        sh_events.push(event);
+        on_event(Event::Sh {
+            step: s.step,
+            event,
+        });
+    }
+    Ok(Outcome {
+        settings: settings(config, &s.model),
+        model: s.model,
+        log: s.log,
+        train_seconds: s.train_seconds,
+        final_pruned,
+        sh_events,
+        resumed_from,
+    })
+}

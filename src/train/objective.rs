@@ -1,0 +1,114 @@
+//! The per-view loss of each mode and its gradient with respect to the rendered image.
+//!
+//! `aware`: `L_GS(PSF ⊛ r, I_abr) + λ·L_GS(r, I_ac)`; the first term's gradient reaches `r`
+//! through the blur's exact adjoint (`aberration::BlurPlan::adjoint`).
+
+use aberration::ImagingModel;
+use glam::Vec3;
+use splat::loss::photometric_loss;
+
+use crate::convert::{image_to_pixels, pixels_to_image, psnr};
+use crate::error::{Result, TrainError};
+use crate::train::config::Mode;
+use crate::train::data::View;
+
+/// Loss parts of one view.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LossParts {
+    pub total: f32,
+    /// The term against the observed images (`L_abr` in aware mode, or the only term).
+    pub main: f32,
+    /// `L_GS(render, I_ac)` in aware mode.
+    pub restored: Option<f32>,
+    /// PSNR of what the main term compares (e.g. the re-blurred render) to its target.
+    pub psnr: f64,
+}
+
+pub struct Objective<'a> {
+    pub mode: Mode,
+    pub lambda: f32,
+    pub dssim_weight: f32,
+    pub imaging: Option<&'a ImagingModel>,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl Objective<'_> {
+    fn term(&self, image: &[Vec3], target: &[Vec3]) -> Result<(f32, Vec<Vec3>, f64)> {
+        let l = photometric_loss(image, target, self.width, self.height, self.dssim_weight)?;
+        Ok((l.value, l.grad, psnr(image, target)))
+    }
+
+    fn blur(&self) -> Result<&ImagingModel> {
+        self.imaging
+            .ok_or_else(|| TrainError::Invalid("aware mode without an imaging model".into()))
+    }
+
+    /// The image the main term compares with the observation: the render itself, or in aware
+    /// mode the render as the metalens would have recorded it (without noise).
+    pub fn as_observed(&self, rendered: &[Vec3]) -> Result<Vec<Vec3>> {
+        if self.mode != Mode::Aware {
+            return Ok(rendered.to_vec());
+        }
+        let img = pixels_to_image(rendered, self.width, self.height);
+        Ok(image_to_pixels(&self.blur()?.blur(&img)?))
+    }
+
+    /// Loss and `∂loss/∂rendered`.
+    pub fn evaluate(&self, rendered: &[Vec3], view: &View) -> Result<(LossParts, Vec<Vec3>)> {
+        let restored = || {
+            view.restored.as_deref().ok_or_else(|| {
+                TrainError::Invalid(format!("view {} has no restored image", view.name))
+            })
+        };
+        match self.mode {
+            Mode::Plain => {
+                let (v, g, p) = self.term(rendered, &view.observed)?;
+                Ok((
+                    LossParts {
+                        total: v,
+                        main: v,
+                        restored: None,
+                        psnr: p,
+                    },
+                    g,
+                ))
+            }
+            Mode::Restored => {
+                let (v, g, p) = self.term(rendered, restored()?)?;
+                Ok((
+                    LossParts {
+                        total: v,
+                        main: v,
+                        restored: None,
+                        psnr: p,
+                    },
+                    g,
+                ))
+            }
+            Mode::Aware => {
+                let blurred = self.as_observed(rendered)?;
+                let (v_abr, g_blurred, p) = self.term(&blurred, &view.observed)?;
+                let g_img = pixels_to_image(&g_blurred, self.width, self.height);
+                let g_abr = image_to_pixels(&self.blur()?.plan().adjoint(&g_img)?);
+                let (v_ac, g_ac, _) = if self.lambda != 0.0 {
+                    self.term(rendered, restored()?)?
+                } else {
+                    (0.0, vec![Vec3::ZERO; rendered.len()], 0.0)
+                };
+                let grad = g_abr
+                    .iter()
+                    .zip(&g_ac)
+                    .map(|(a, b)| *a + *b * self.lambda)
+                    .collect();
+                let parts = LossParts {
+                    total: v_abr + self.lambda * v_ac,
+                    main: v_abr,
+                    restored: Some(v_ac),
+                    psnr: p,
+                };
+                Ok((parts, grad))
+            }
+        }
+    }
+}

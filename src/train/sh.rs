@@ -1,0 +1,117 @@
+//! SH bands on demand: the model stores only the bands it renders, gains one every
+//! `sh_every` steps (as 3DGS raises its active degree), and gives the top band back, and stops
+//! growing, when that band does not lower the training loss. A flat-coloured scene thus
+//! keeps 3 floats of colour per splat instead of 48.
+
+use serde::{Deserialize, Serialize};
+use splat::Gaussians;
+use splat::optim::Adam;
+
+use crate::error::Result;
+
+/// A band stays when dropping it raises the training loss by at least this fraction.
+pub const MIN_RELATIVE_GAIN: f64 = 1e-3;
+
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum ShEvent {
+    Raised {
+        degree: u32,
+    },
+    /// Band `degree + 1` was dropped: its loss gain was below the threshold.
+    Dropped {
+        degree: u32,
+        gain: f64,
+    },
+    /// Band `degree` was tested and kept.
+    Kept {
+        degree: u32,
+        gain: f64,
+    },
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ShBands {
+    pub max_degree: u32,
+    pub every: u64,
+    /// No more bands once one was dropped.
+    pub frozen: bool,
+}
+
+impl ShBands {
+    pub fn new(max_degree: u32, every: u64) -> Self {
+        Self {
+            max_degree: max_degree.min(splat::MAX_SH_DEGREE),
+            every: every.max(1),
+            frozen: false,
+        }
+    }
+
+    /// Tests the model's top band with `loss_at(model, degree)` (the mean training loss when
+    /// rendering with `degree` bands); drops it if it does not pay.
+    fn test_top(
+        &mut self,
+        model: &mut Gaussians,
+        adam: &mut Adam,
+        loss_at: &mut dyn FnMut(&Gaussians, u32) -> Result<f64>,
+    ) -> Result<Option<ShEvent>> {
+        let d = model.sh_degree;
+        if d == 0 {
+            return Ok(None);
+        }
+        let with = loss_at(model, d)?;
+        let without = loss_at(model, d - 1)?;
+        let gain = (without - with) / with.abs().max(1e-12);
+        if gain < MIN_RELATIVE_GAIN {
+            model.set_sh_degree(d - 1);
+            adam.set_sh_degree(d - 1);
+            self.frozen = true;
+            Ok(Some(ShEvent::Dropped {
+                degree: d - 1,
+                gain,
+            }))
+        } else {
+            Ok(Some(ShEvent::Kept { degree: d, gain }))
+        }
+    }
+
+    /// Called after every step: on a band step, test the top band, then raise if it paid.
+    pub fn after_step(
+        &mut self,
+        step: u64,
+        model: &mut Gaussians,
+        adam: &mut Adam,
+        loss_at: &mut dyn FnMut(&Gaussians, u32) -> Result<f64>,
+    ) -> Result<Vec<ShEvent>> {
+        let mut events = Vec::new();
+        if self.frozen || step == 0 || step % self.every != 0 {
+            return Ok(events);
+        }
+        if let Some(e) = self.test_top(model, adam, loss_at)? {
+            events.push(e);
+        }
+        if !self.frozen && model.sh_degree < self.max_degree {
+            let d = model.sh_degree + 1;
+            model.set_sh_degree(d);
+            adam.set_sh_degree(d);
+            events.push(ShEvent::Raised { degree: d });
+        }
+        Ok(events)
+    }
+
+    /// At the end of training: drop top bands while they do not pay.
+    pub fn finish(
+        &mut self,
+        model: &mut Gaussians,
+        adam: &mut Adam,
+        loss_at: &mut dyn FnMut(&Gaussians, u32) -> Result<f64>,
+    ) -> Result<Vec<ShEvent>> {
+        let mut events = Vec::new();
+        while let Some(e) = self.test_top(model, adam, loss_at)? {
+            events.push(e);
+            if matches!(e, ShEvent::Kept { .. }) {
+                break;
+            }
+        }
+        Ok(events)
+    }
+}
