@@ -44,12 +44,10 @@ pub fn pixels_to_rgb(pixels: &[Vec3], width: u32, height: u32) -> RgbImage {
 }
 
 pub fn pixels_to_image(pixels: &[Vec3], width: u32, height: u32) -> Image {
-    let n = pixels.len();
     let mut img = Image::new(width as usize, height as usize);
     for c in 0..3 {
-        let plane = img.channel_mut(c);
-        for i in 0..n {
-            plane[i] = pixels[i][c];
+        for (v, p) in img.channel_mut(c).iter_mut().zip(pixels) {
+            *v = p[c];
         }
     }
     img

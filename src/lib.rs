@@ -9,6 +9,7 @@ pub mod error;
 pub mod eval;
 pub mod init;
 pub mod outputs;
+pub mod plot;
 pub mod procedural;
 pub mod spiral;
 pub mod train;

@@ -290,3 +290,204 @@ fn real_donut_file_renders() {
     assert!(covered > 64 * 48 / 20, "donut covers {covered} pixels");
     assert!(out.color.iter().all(|c| c.is_finite()));
 }
+
+/// `(names, floats)` of the INRIA file `write_ply` makes for `g`.
+fn written_floats(g: &Gaussians) -> (Vec<String>, usize, Vec<f32>) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("s.ply");
+    write_ply(&path, g).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let (names, n, body) = split_file(&bytes);
+    let floats = body
+        .chunks(4)
+        .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+        .collect();
+    (names, n, floats)
+}
+
+#[test]
+fn repeated_element_or_property_names_are_errors_not_misreads() {
+    // ply-rs-bw keys its header by name: without the guard a repeated name drops a
+    // declaration and the body is decoded shifted.
+    let g = tricky_scene(0);
+    let (names, n, floats) = written_floats(&g);
+    let mut dup = names.clone();
+    dup.push("x".into());
+    let mut b = header("binary_little_endian", n, &dup, "").into_bytes();
+    for row in floats.chunks(names.len()) {
+        row.iter().for_each(|v| b.extend(v.to_le_bytes()));
+        b.extend(9.0f32.to_le_bytes());
+    }
+    expect_err(&b, "declared twice");
+
+    let h = header(
+        "binary_little_endian",
+        n,
+        &names,
+        "element camera 1\nproperty uchar id\n",
+    )
+    .replace(
+        "end_header\n",
+        "element camera 1\nproperty uchar id\nend_header\n",
+    );
+    let mut b = h.into_bytes();
+    b.push(7);
+    floats.iter().for_each(|v| b.extend(v.to_le_bytes()));
+    b.push(8);
+    expect_err(&b, "declared twice");
+}
+
+#[test]
+fn binary_elements_without_properties_are_skipped_whatever_their_count() {
+    // ply-rs-bw would loop `count` times reading nothing (here: forever).
+    let g = tricky_scene(1);
+    let (names, n, floats) = written_floats(&g);
+    let extra = format!("element marker {}\n", usize::MAX);
+    let mut b = header("binary_little_endian", n, &names, &extra).into_bytes();
+    floats.iter().for_each(|v| b.extend(v.to_le_bytes()));
+    let back = parse_ply(Path::new("m.ply"), &b).unwrap();
+    assert_eq!(bits(&back), bits(&g));
+}
+
+#[test]
+fn ascii_vertex_lines_must_hold_exactly_the_declared_values() {
+    let g = tricky_scene(0);
+    let (names, n, floats) = written_floats(&g);
+    let lines: Vec<String> = floats
+        .chunks(names.len())
+        .map(|row| {
+            let s: Vec<String> = row.iter().map(|v| format!("{v}")).collect();
+            s.join(" ")
+        })
+        .collect();
+    let mut ascii = header("ascii", n, &names, "");
+    ascii += &format!("{} 1.5\n", lines[0]);
+    ascii += &lines[1..].join("\n");
+    expect_err(ascii.as_bytes(), "has 18 values, the header declares 17");
+    let mut ascii = header("ascii", n, &names, "");
+    ascii += &lines.join("\n");
+    assert_eq!(
+        bits(&parse_ply(Path::new("a.ply"), ascii.as_bytes()).unwrap()),
+        bits(&g)
+    );
+}
+
+#[test]
+fn mutated_files_give_models_or_errors_never_panics() {
+    // Byte flips, truncations, deletions, insertions and token swaps of small valid ASCII,
+    // big- and little-endian files (with list elements). A panic inside ply-rs-bw would be
+    // caught and reported as "panicked"; none may occur.
+    let g = tricky_scene(1).gather(&[0, 1, 2]);
+    let (names, n, floats) = written_floats(&g);
+    let mut le = header(
+        "binary_little_endian",
+        n,
+        &names,
+        "element face 2\nproperty list uchar int idx\n",
+    )
+    .into_bytes();
+    le.extend([2, 1, 0, 0, 0, 2, 0, 0, 0, 0]);
+    floats.iter().for_each(|v| le.extend(v.to_le_bytes()));
+    let mut be = header(
+        "binary_big_endian",
+        n,
+        &names,
+        "element e 1\nproperty double a\nproperty list int short l\n",
+    )
+    .into_bytes();
+    be.extend([0u8; 8]);
+    be.extend([0, 0, 0, 1, 0, 5]);
+    floats.iter().for_each(|v| be.extend(v.to_be_bytes()));
+    let mut ascii = header(
+        "ascii",
+        n,
+        &names,
+        "element face 1\nproperty list uchar int i\n",
+    );
+    ascii += "3 0 1 2\n";
+    for row in floats.chunks(names.len()) {
+        let s: Vec<String> = row.iter().map(|v| format!("{v}")).collect();
+        ascii += &s.join(" ");
+        ascii += "\n";
+    }
+    let seeds = [le, be, ascii.into_bytes()];
+    const TOKENS: &[&str] = &[
+        "ply",
+        "format",
+        "ascii",
+        "binary_big_endian",
+        "element",
+        "property",
+        "list",
+        "uchar",
+        "int",
+        "float",
+        "double",
+        "vertex",
+        "end_header",
+        "comment",
+        "\n",
+        "\r\n",
+        " ",
+        "0",
+        "1",
+        "-1",
+        "4294967295",
+        "18446744073709551615",
+        "99999999999999999999",
+        "1e40",
+        "nan",
+        "x",
+        "f_rest_0",
+        "\u{ff}",
+    ];
+    let mut rng = splat::rng::SplitMix64::new(7);
+    let mut below = |n: usize| (rng.next_u64() % n.max(1) as u64) as usize;
+    let (mut ok, mut errors) = (0, 0);
+    for it in 0..20_000 {
+        let mut d = seeds[it % seeds.len()].clone();
+        for _ in 0..1 + below(3) {
+            let i = below(d.len() + 1);
+            match below(5) {
+                0 if i < d.len() => d[i] = below(256) as u8,
+                1 => d.truncate(i),
+                2 => {
+                    let j = (i + below(8)).min(d.len());
+                    d.drain(i..j);
+                }
+                3 => {
+                    let t = TOKENS[below(TOKENS.len())];
+                    d.splice(i..i, t.bytes());
+                }
+                _ => {
+                    // Replace the space-delimited token starting at or after `i`.
+                    let Some(a) = d[i..].iter().position(|&c| c == b' ').map(|p| i + p + 1) else {
+                        continue;
+                    };
+                    let b = d[a..]
+                        .iter()
+                        .position(|&c| c == b' ' || c == b'\n')
+                        .map_or(d.len(), |p| a + p);
+                    let t = TOKENS[below(TOKENS.len())];
+                    d.splice(a..b, t.bytes());
+                }
+            }
+        }
+        match parse_ply(Path::new("/fuzz.ply"), &d) {
+            Ok(m) => {
+                ok += 1;
+                assert!(m.validate().is_ok());
+            }
+            Err(e @ SplatError::Ply { .. }) => {
+                errors += 1;
+                let msg = e.to_string();
+                assert!(
+                    msg.starts_with("/fuzz.ply: ") && !msg.contains("panicked"),
+                    "{msg}"
+                );
+            }
+            Err(e) => panic!("unexpected error kind: {e}"),
+        }
+    }
+    assert!(ok > 100 && errors > 100, "ok {ok}, errors {errors}");
+}

@@ -2,7 +2,7 @@
 
 use super::progress::step;
 use aberration::wiener::{BANK_MEDIAN, bank_constants};
-use aberration::{Image, PsfGrid, Regularizer, deconvolve, wiener_bank};
+use aberration::{Image, PsfGrid, Regularizer, deconvolve, psnr, wiener_bank};
 use anyhow::{Context, Result};
 use clap::Args;
 use std::path::PathBuf;
@@ -25,12 +25,36 @@ pub struct DeconvolveArgs {
     /// Sensor size (px) the grid was made for; default G·K.
     #[arg(long)]
     pub sensor_px: Option<usize>,
+    /// A clean image to report PSNR against (input and every output).
+    #[arg(long)]
+    pub reference: Option<PathBuf>,
 }
 
 pub fn run(a: DeconvolveArgs) -> Result<()> {
     let native = PsfGrid::load_npy(&a.psf)?;
     let blurred = Image::load(&a.input)?;
     let psf = native.for_image(blurred.width, blurred.height, a.sensor_px);
+    let reference = a.reference.as_deref().map(Image::load).transpose()?;
+    if let Some(r) = &reference
+        && (r.width, r.height) != (blurred.width, blurred.height)
+    {
+        anyhow::bail!(
+            "{}: reference is {}x{} but the input is {}x{}",
+            a.reference.as_ref().expect("loaded").display(),
+            r.width,
+            r.height,
+            blurred.width,
+            blurred.height
+        );
+    }
+    let score = |img: &Image| {
+        reference
+            .as_ref()
+            .map_or(String::new(), |r| format!(" ({:.2} dB)", psnr(img, r)))
+    };
+    if reference.is_some() {
+        println!("input{}", score(&blurred));
+    }
     match &a.bank {
         Some(dir) => {
             std::fs::create_dir_all(dir)
@@ -39,6 +63,9 @@ pub fn run(a: DeconvolveArgs) -> Result<()> {
             let bank = bank?;
             for (m, (img, k)) in bank.images.iter().zip(bank_constants()).enumerate() {
                 img.save_png(&dir.join(format!("wiener_{m:02}_k{k:.1e}.png")))?;
+                if reference.is_some() {
+                    println!("filter {m:2} k {k:.1e}{}", score(img));
+                }
             }
             bank.median().save_png(&a.out)?;
             println!(
@@ -53,9 +80,11 @@ pub fn run(a: DeconvolveArgs) -> Result<()> {
             let (out, secs) = step("Wiener", || {
                 deconvolve(&blurred, &psf, Regularizer::Fixed(k))
             });
-            out?.save_png(&a.out)?;
+            let out = out?;
+            out.save_png(&a.out)?;
             println!(
-                "Wiener K = {k:.2e} in {secs:.2} s: wrote {}",
+                "Wiener K = {k:.2e} in {secs:.2} s{}: wrote {}",
+                score(&out),
                 a.out.display()
             );
         }

@@ -169,9 +169,30 @@ pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<RunSummary> {
 
 /// The PSNR-vs-time picture, when there are test PSNRs to plot.
 fn plot_log(dir: &Path, log: &[train::LogRow]) -> Option<Result<()>> {
-    let _ = (dir, log);
-    None
+    let points: Vec<(f64, f64)> = log
+        .iter()
+        .filter_map(|r| r.test_psnr.map(|p| (r.seconds, p)))
+        .collect();
+    if points.is_empty() {
+        return None;
+    }
+    let series = [metasplat::plot::Series {
+        name: "held-out PSNR".into(),
+        points,
+    }];
+    Some(
+        metasplat::plot::line_plot(
+            &dir.join(PSNR_PLOT),
+            "held-out PSNR vs training time",
+            "training time (s)",
+            "PSNR vs clean (dB)",
+            &series,
+        )
+        .map_err(Into::into),
+    )
 }
+
+pub const PSNR_PLOT: &str = "psnr_vs_time.png";
 
 fn print_summary(dir: &Path, s: &RunSummary, outcome: &train::Outcome) {
     if let Some(from) = outcome.resumed_from {

@@ -91,12 +91,15 @@ fn load_psf(path: &Path) -> Result<PsfGrid> {
     PsfGrid::load_npy(path).map_err(|e| TrainError::file(path, e.to_string()))
 }
 
+/// How a capture was imaged: grid, blur mode, sensor size, noise.
+type ImagingSettings = (PsfGrid, BlurMode, Option<usize>, NoiseModel);
+
 /// The PSF grid and blur settings of a capture: its own record, checked against `--psf`.
 fn imaging_settings(
     dir: &Path,
     capture: &Capture,
     user_psf: Option<&Path>,
-) -> Result<Option<(PsfGrid, BlurMode, Option<usize>, NoiseModel)>> {
+) -> Result<Option<ImagingSettings>> {
     let record = AberrationRecord::read(dir)?;
     let (w, h) = (capture.cameras[0].width, capture.cameras[0].height);
     if let Some(r) = &record

@@ -91,7 +91,7 @@ impl Densifier {
         let r = self.recipe.clone();
         let mut edit = Edit::default();
         let mut changed = false;
-        if self.densifying(step) && step >= r.densify_from && step % r.densify_every == 0 {
+        if self.densifying(step) && step >= r.densify_from && step.is_multiple_of(r.densify_every) {
             self.grow(model, adam, seed ^ step, &mut edit)?;
             let after_reset = r.opacity_reset_every.is_some_and(|every| step > every);
             let mask = prune_mask(
@@ -106,7 +106,7 @@ impl Densifier {
         }
         if let Some(every) = r.opacity_reset_every
             && self.densifying(step)
-            && step % every == 0
+            && step.is_multiple_of(every)
         {
             reset_opacity(model, 2.0 * r.prune_opacity);
             adam.reset_group(ParamGroup::Opacities);

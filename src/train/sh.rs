@@ -83,7 +83,7 @@ impl ShBands {
         loss_at: &mut dyn FnMut(&Gaussians, u32) -> Result<f64>,
     ) -> Result<Vec<ShEvent>> {
         let mut events = Vec::new();
-        if self.frozen || step == 0 || step % self.every != 0 {
+        if self.frozen || step == 0 || !step.is_multiple_of(self.every) {
             return Ok(events);
         }
         if let Some(e) = self.test_top(model, adam, loss_at)? {

@@ -1,0 +1,661 @@
+//! Line plots written as PNG files (training curves such as PSNR against time).
+//!
+//! Drawing uses `plotters` with its pure-Rust `ab_glyph` text renderer, so the build links no
+//! system font libraries. Text needs a TrueType font file at run time: the first readable one in
+//! [`FONT_PATHS`] is used (on Debian/Ubuntu, package `fonts-dejavu-core` provides the first).
+//! Without any of them the plot is still written, with lines, grid and frame but no text at all
+//! (no title, axis labels, tick labels, legend or "no data" note); that is not an error.
+
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use image::{ExtendedColorType, ImageEncoder};
+use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
+
+/// Width of the written PNG in pixels.
+pub const WIDTH: u32 = 800;
+/// Height of the written PNG in pixels.
+pub const HEIGHT: u32 = 500;
+
+/// Font files tried in order; the first that exists and parses is used for all text.
+pub const FONT_PATHS: &[&str] = &[
+    // Debian, Ubuntu (fonts-dejavu-core)
+    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+    // Fedora (dejavu-sans-fonts), older Red Hat layouts, Arch (ttf-dejavu)
+    "/usr/share/fonts/dejavu-sans-fonts/DejaVuSans.ttf",
+    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/TTF/DejaVuSans.ttf",
+    // Debian, Ubuntu (fonts-liberation, fonts-liberation2)
+    "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
+    "/usr/share/fonts/truetype/liberation2/LiberationSans-Regular.ttf",
+    // macOS, Windows
+    "/System/Library/Fonts/Supplemental/Arial.ttf",
+    "/Library/Fonts/Arial.ttf",
+    "C:\\Windows\\Fonts\\arial.ttf",
+];
+
+/// One named line of (x, y) points.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Series {
+    pub name: String,
+    pub points: Vec<(f64, f64)>,
+}
+
+/// Why a plot could not be written; every message starts with the file's path.
+#[derive(Debug, thiserror::Error)]
+pub enum PlotError {
+    #[error("{}: cannot draw plot: {message}", path.display())]
+    Draw { path: PathBuf, message: String },
+    #[error("{}: cannot encode PNG: {source}", path.display())]
+    Encode {
+        path: PathBuf,
+        #[source]
+        source: image::ImageError,
+    },
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// Writes an 800×500 PNG line plot of `series` to `path`, with title, axis labels, tick labels
+/// and a legend of the series names.
+///
+/// Axis ranges cover all finite points plus a small margin. Non-finite points are skipped (the
+/// line joins the neighbouring finite points); a series left with one point is drawn as a dot;
+/// series with no points only appear in the legend; with no points at all the axes span about
+/// [0, 1] and the plot says "no data". Each series gets its own colour (ten distinct ones, then more from
+/// a larger palette).
+///
+/// Text needs one of the font files in [`FONT_PATHS`]; when none is readable the plot is still
+/// written, without any text (no error, no panic).
+///
+/// The PNG is written to a temporary file in the same folder and renamed onto `path`, so `path`
+/// never holds a partial image; on failure the temporary file is removed.
+pub fn line_plot(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series],
+) -> Result<(), PlotError> {
+    let labels = Labels {
+        title,
+        x: x_label,
+        y: y_label,
+    };
+    let rgb = render(series, &labels, font_available()).map_err(|message| PlotError::Draw {
+        path: path.to_path_buf(),
+        message,
+    })?;
+    write_png_atomic(path, &rgb)
+}
+
+struct Labels<'a> {
+    title: &'a str,
+    x: &'a str,
+    y: &'a str,
+}
+
+/// Family name under which the font is registered; `FontFamily::SansSerif` looks it up.
+const FONT_FAMILY: &str = "sans-serif";
+
+/// Registers the first usable font in [`FONT_PATHS`] once per process; false when none is.
+fn font_available() -> bool {
+    static AVAILABLE: OnceLock<bool> = OnceLock::new();
+    *AVAILABLE.get_or_init(|| {
+        FONT_PATHS.iter().any(|p| {
+            let Ok(bytes) = std::fs::read(p) else {
+                return false;
+            };
+            // plotters keeps fonts for the life of the process and wants `'static` bytes; this
+            // runs once per process, so at most a few font files are leaked.
+            let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+            plotters::style::register_font(FONT_FAMILY, FontStyle::Normal, bytes).is_ok()
+        })
+    })
+}
+
+/// Series colours: the ten "Tableau 10" colours, then plotters' 99-colour palette.
+const COLOURS: [RGBColor; 10] = [
+    RGBColor(0x1f, 0x77, 0xb4),
+    RGBColor(0xff, 0x7f, 0x0e),
+    RGBColor(0x2c, 0xa0, 0x2c),
+    RGBColor(0xd6, 0x27, 0x28),
+    RGBColor(0x94, 0x67, 0xbd),
+    RGBColor(0x8c, 0x56, 0x4b),
+    RGBColor(0xe3, 0x77, 0xc2),
+    RGBColor(0x7f, 0x7f, 0x7f),
+    RGBColor(0xbc, 0xbd, 0x22),
+    RGBColor(0x17, 0xbe, 0xcf),
+];
+
+fn colour(i: usize) -> RGBColor {
+    match COLOURS.get(i) {
+        Some(&c) => c,
+        None => {
+            let (r, g, b) = Palette99::pick(i - COLOURS.len()).rgb();
+            RGBColor(r, g, b)
+        }
+    }
+}
+
+fn finite_points(s: &Series) -> Vec<(f64, f64)> {
+    s.points
+        .iter()
+        .copied()
+        .filter(|(x, y)| x.is_finite() && y.is_finite())
+        .collect()
+}
+
+/// `[lo, hi]` covering `values` with a 5% margin each side (covering `[0, 1]` when there are no
+/// values, a widened range when all are equal), never beyond ±1e300.
+fn axis_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+        (lo.min(v), hi.max(v))
+    });
+    let (lo, hi) = if lo > hi { (0.0, 1.0) } else { (lo, hi) };
+    // plotters' tick placement loops forever on an infinite span, so keep |ends| <= LIMIT.
+    const LIMIT: f64 = 1e300;
+    let (lo, hi) = (lo.clamp(-LIMIT, LIMIT), hi.clamp(-LIMIT, LIMIT));
+    let span = hi - lo;
+    let margin = if span > 0.0 {
+        span * 0.05
+    } else {
+        (lo.abs() * 0.1).max(1.0)
+    };
+    ((lo - margin).max(-LIMIT), (hi + margin).min(LIMIT))
+}
+
+/// Tick label for `v` on an axis over `range` with about `ticks` ticks: just enough decimals
+/// for the tick spacing, and scientific notation for very large or very small magnitudes
+/// (plotters' own labels have no exponent form and at most five decimals).
+fn tick_label(v: f64, (lo, hi): (f64, f64), ticks: usize) -> String {
+    let step = (hi - lo) / ticks.max(1) as f64;
+    if !(step.is_finite() && step > 0.0) {
+        return format!("{v}");
+    }
+    // Tick positions come from float arithmetic: snap near-zero noise so it prints as 0, and
+    // `+ 0.0` turns -0.0 into 0.0.
+    let v = if v.abs() < step * 1e-6 { 0.0 } else { v } + 0.0;
+    let magnitude = lo.abs().max(hi.abs());
+    let decimals = (-step.log10()).ceil().max(0.0) as usize;
+    if (1e-3..1e6).contains(&magnitude) && decimals <= 4 {
+        format!("{v:.decimals$}")
+    } else if v == 0.0 {
+        "0".to_string()
+    } else {
+        let digits = (magnitude.log10().floor() - step.log10().floor()).clamp(0.0, 6.0) as usize;
+        format!("{v:.digits$e}")
+    }
+}
+
+/// Legend corner holding the fewest samples of the drawn lines, in axis-fraction coordinates.
+fn legend_corner(lines: &[Vec<(f64, f64)>], x: (f64, f64), y: (f64, f64)) -> SeriesLabelPosition {
+    const SAMPLES_PER_SEGMENT: usize = 8;
+    const BOX: f64 = 0.4; // legend box size as a fraction of the plot width and height
+    let mut counts = [0usize; 4]; // upper left, upper right, lower left, lower right
+    let mut count = |(px, py): (f64, f64)| {
+        let fx = (px - x.0) / (x.1 - x.0);
+        let fy = (py - y.0) / (y.1 - y.0);
+        let left = fx <= BOX;
+        let right = fx >= 1.0 - BOX;
+        let lower = fy <= BOX;
+        let upper = fy >= 1.0 - BOX;
+        for (i, hit) in [upper && left, upper && right, lower && left, lower && right]
+            .into_iter()
+            .enumerate()
+        {
+            counts[i] += usize::from(hit);
+        }
+    };
+    for line in lines {
+        if let [only] = line.as_slice() {
+            count(*only);
+        }
+        for w in line.windows(2) {
+            let ((x0, y0), (x1, y1)) = (w[0], w[1]);
+            for k in 0..SAMPLES_PER_SEGMENT {
+                let t = k as f64 / SAMPLES_PER_SEGMENT as f64;
+                count((x0 + t * (x1 - x0), y0 + t * (y1 - y0)));
+            }
+        }
+        if let Some(&last) = line.last() {
+            count(last);
+        }
+    }
+    // Ties go to the earlier entry: upper right first, the usual place for a legend.
+    let order = [1, 0, 3, 2];
+    let best = order.into_iter().min_by_key(|&i| counts[i]).unwrap_or(1);
+    match best {
+        0 => SeriesLabelPosition::UpperLeft,
+        2 => SeriesLabelPosition::LowerLeft,
+        3 => SeriesLabelPosition::LowerRight,
+        _ => SeriesLabelPosition::UpperRight,
+    }
+}
+
+/// Draws the plot into an RGB8 buffer of `WIDTH * HEIGHT` pixels. With `text` false nothing
+/// that needs a font is drawn.
+fn render(series: &[Series], labels: &Labels, text: bool) -> Result<Vec<u8>, String> {
+    let mut rgb = vec![0u8; WIDTH as usize * HEIGHT as usize * 3];
+    draw(&mut rgb, series, labels, text).map_err(|e| e.to_string())?;
+    Ok(rgb)
+}
+
+type DrawResult =
+    Result<(), DrawingAreaErrorKind<<BitMapBackend<'static> as DrawingBackend>::ErrorType>>;
+
+fn draw(rgb: &mut [u8], series: &[Series], labels: &Labels, text: bool) -> DrawResult {
+    let lines: Vec<Vec<(f64, f64)>> = series.iter().map(finite_points).collect();
+    let x_range = axis_range(lines.iter().flatten().map(|p| p.0));
+    let y_range = axis_range(lines.iter().flatten().map(|p| p.1));
+    let has_data = lines.iter().any(|l| !l.is_empty());
+
+    let root = BitMapBackend::with_buffer(rgb, (WIDTH, HEIGHT)).into_drawing_area();
+    root.fill(&WHITE)?;
+
+    let mut builder = ChartBuilder::on(&root);
+    if text {
+        builder
+            .caption(labels.title, (FontFamily::SansSerif, 24))
+            .margin(12)
+            .margin_right(24)
+            .x_label_area_size(52)
+            .y_label_area_size(78);
+    } else {
+        builder.margin(20);
+    }
+    let mut chart = builder.build_cartesian_2d(x_range.0..x_range.1, y_range.0..y_range.1)?;
+
+    const X_TICKS: usize = 10;
+    const Y_TICKS: usize = 8;
+    let x_format = |v: &f64| tick_label(*v, x_range, X_TICKS);
+    let y_format = |v: &f64| tick_label(*v, y_range, Y_TICKS);
+    let mut mesh = chart.configure_mesh();
+    mesh.x_labels(X_TICKS)
+        .y_labels(Y_TICKS)
+        .x_label_formatter(&x_format)
+        .y_label_formatter(&y_format)
+        .bold_line_style(BLACK.mix(0.15))
+        .light_line_style(BLACK.mix(0.05));
+    if text {
+        mesh.x_desc(labels.x)
+            .y_desc(labels.y)
+            .label_style((FontFamily::SansSerif, 16))
+            .axis_desc_style((FontFamily::SansSerif, 18));
+    }
+    // Without label areas plotters draws no tick labels or axis titles, so no font is needed.
+    mesh.draw()?;
+    // Frame around the plot area (the axes in text mode, the only border otherwise).
+    chart.plotting_area().draw(&Rectangle::new(
+        [(x_range.0, y_range.0), (x_range.1, y_range.1)],
+        BLACK.stroke_width(1),
+    ))?;
+
+    for (i, (s, line)) in series.iter().zip(&lines).enumerate() {
+        let c = colour(i);
+        let drawn = if line.len() == 1 {
+            chart.draw_series(line.iter().map(|&p| Circle::new(p, 4, c.filled())))?
+        } else {
+            chart.draw_series(LineSeries::new(line.iter().copied(), c.stroke_width(2)))?
+        };
+        if text {
+            drawn.label(s.name.as_str()).legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 24, y)], c.stroke_width(3))
+            });
+        }
+    }
+
+    if text {
+        if !series.is_empty() {
+            chart
+                .configure_series_labels()
+                .position(legend_corner(&lines, x_range, y_range))
+                .margin(10)
+                .legend_area_size(30)
+                .label_font((FontFamily::SansSerif, 16))
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK.mix(0.4))
+                .draw()?;
+        }
+        if !has_data {
+            let centre = ((x_range.0 + x_range.1) / 2.0, (y_range.0 + y_range.1) / 2.0);
+            let style = TextStyle::from((FontFamily::SansSerif, 22))
+                .color(&RGBColor(0x66, 0x66, 0x66))
+                .pos(Pos::new(HPos::Center, VPos::Center));
+            chart
+                .plotting_area()
+                .draw(&Text::new("no data", centre, style))?;
+        }
+    }
+
+    root.present()?;
+    Ok(())
+}
+
+/// Encodes `rgb` as PNG into a temporary file next to `path`, then renames it onto `path`.
+fn write_png_atomic(path: &Path, rgb: &[u8]) -> Result<(), PlotError> {
+    let io = |source| PlotError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(".partial-").suffix(".png");
+    // Same mode as `File::create` (0o666 less the umask), not tempfile's private 0o600.
+    #[cfg(unix)]
+    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+    let mut tmp = builder.tempfile_in(dir).map_err(io)?;
+    {
+        let mut w = BufWriter::new(tmp.as_file_mut());
+        image::codecs::png::PngEncoder::new(&mut w)
+            .write_image(rgb, WIDTH, HEIGHT, ExtendedColorType::Rgb8)
+            .map_err(|source| PlotError::Encode {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        w.flush().map_err(io)?;
+    }
+    tmp.as_file().sync_all().map_err(io)?;
+    tmp.persist(path).map_err(|e| io(e.error))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn series(name: &str, points: &[(f64, f64)]) -> Series {
+        Series {
+            name: name.to_string(),
+            points: points.to_vec(),
+        }
+    }
+
+    fn labels() -> Labels<'static> {
+        Labels {
+            title: "PSNR during training",
+            x: "time (s)",
+            y: "PSNR (dB)",
+        }
+    }
+
+    fn rgb_at(rgb: &[u8], x: u32, y: u32) -> [u8; 3] {
+        let i = (y as usize * WIDTH as usize + x as usize) * 3;
+        [rgb[i], rgb[i + 1], rgb[i + 2]]
+    }
+
+    /// Pixels exactly of colour `c` as (x, y).
+    fn pixels_of(rgb: &[u8], c: RGBColor) -> Vec<(u32, u32)> {
+        (0..HEIGHT)
+            .flat_map(|y| (0..WIDTH).map(move |x| (x, y)))
+            .filter(|&(x, y)| rgb_at(rgb, x, y) == [c.0, c.1, c.2])
+            .collect()
+    }
+
+    fn dir_entries(dir: &Path) -> Vec<String> {
+        let mut names: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        names
+    }
+
+    #[test]
+    fn writes_png_of_the_right_size_and_no_leftovers() {
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("psnr.png");
+        let s = [
+            series("plain", &[(0.0, 20.0), (10.0, 25.0), (20.0, 27.0)]),
+            series("aware", &[(0.0, 21.0), (10.0, 28.0), (20.0, 31.0)]),
+        ];
+        line_plot(&path, "PSNR", "time (s)", "PSNR (dB)", &s).unwrap();
+        let img = image::open(&path).unwrap();
+        assert_eq!((img.width(), img.height()), (WIDTH, HEIGHT));
+        assert_eq!(dir_entries(tmp.path()), ["psnr.png"]);
+        // Overwriting an existing plot works too.
+        line_plot(&path, "PSNR", "time (s)", "PSNR (dB)", &s[..1]).unwrap();
+        assert_eq!(dir_entries(tmp.path()), ["psnr.png"]);
+    }
+
+    #[test]
+    fn series_colours_appear_in_the_written_plot() {
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("p.png");
+        let s = [
+            series("rising", &[(0.0, 0.0), (1.0, 1.0)]),
+            series("falling", &[(0.0, 1.0), (1.0, 0.0)]),
+        ];
+        line_plot(&path, "t", "x", "y", &s).unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        for c in [colour(0), colour(1)] {
+            let n = img.pixels().filter(|p| p.0 == [c.0, c.1, c.2]).count();
+            // A diagonal across the plot, 2 px wide, is far more than a 24 px legend swatch.
+            assert!(n > 500, "only {n} pixels of {c:?}");
+        }
+    }
+
+    #[test]
+    fn lines_are_drawn_inside_the_frame_where_the_data_is() {
+        // Text-free rendering has a fixed 20 px margin, so the data area is known exactly.
+        let s = [series("flat", &[(0.0, 5.0), (10.0, 5.0)])];
+        let rgb = render(&s, &labels(), false).unwrap();
+        let px = pixels_of(&rgb, colour(0));
+        assert!(px.len() > 700, "only {} line pixels", px.len());
+        let mid = HEIGHT as f64 / 2.0;
+        for &(x, y) in &px {
+            assert!((20..WIDTH - 20).contains(&x), "pixel at x = {x}");
+            assert!((y as f64 - mid).abs() < 4.0, "pixel at y = {y}");
+        }
+    }
+
+    #[test]
+    fn distinct_colours_per_series() {
+        let all: Vec<RGBColor> = (0..30).map(colour).collect();
+        for (i, a) in all.iter().enumerate() {
+            for b in &all[i + 1..] {
+                assert_ne!(a, b);
+            }
+        }
+    }
+
+    #[test]
+    fn single_point_draws_a_marker_at_the_centre() {
+        let s = [series("one", &[(3.0, 7.0)])];
+        let rgb = render(&s, &labels(), false).unwrap();
+        let px = pixels_of(&rgb, colour(0));
+        assert!(px.len() >= 20, "only {} marker pixels", px.len());
+        for &(x, y) in &px {
+            assert!((x as i64 - WIDTH as i64 / 2).abs() <= 6, "pixel at x = {x}");
+            assert!(
+                (y as i64 - HEIGHT as i64 / 2).abs() <= 6,
+                "pixel at y = {y}"
+            );
+        }
+    }
+
+    #[test]
+    fn non_finite_points_are_skipped() {
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("nan.png");
+        let s = [
+            series(
+                "gappy",
+                &[
+                    (0.0, 1.0),
+                    (1.0, f64::NAN),
+                    (f64::INFINITY, 2.0),
+                    (2.0, f64::NEG_INFINITY),
+                    (3.0, 3.0),
+                ],
+            ),
+            series("all bad", &[(f64::NAN, f64::NAN), (1.0, f64::INFINITY)]),
+        ];
+        line_plot(&path, "t", "x", "y", &s).unwrap();
+        assert_eq!(image::open(&path).unwrap().width(), WIDTH);
+        // The ranges come from the finite points only.
+        let lines: Vec<_> = s.iter().map(finite_points).collect();
+        assert_eq!(lines[0], [(0.0, 1.0), (3.0, 3.0)]);
+        assert!(lines[1].is_empty());
+        let rgb = render(&s, &labels(), false).unwrap();
+        assert!(pixels_of(&rgb, colour(0)).len() > 500);
+    }
+
+    #[test]
+    fn empty_inputs_still_write_a_plot() {
+        let tmp = tempfile::tempdir().unwrap();
+        let cases: [&[Series]; 3] = [
+            &[],
+            &[series("empty", &[])],
+            &[series("a", &[]), series("", &[(f64::NAN, 0.0)])],
+        ];
+        for (i, s) in cases.into_iter().enumerate() {
+            let path = tmp.path().join(format!("empty{i}.png"));
+            line_plot(&path, "", "", "", s).unwrap();
+            let img = image::open(&path).unwrap();
+            assert_eq!((img.width(), img.height()), (WIDTH, HEIGHT));
+            render(s, &labels(), false).unwrap();
+        }
+    }
+
+    #[test]
+    fn extreme_values_do_not_fail() {
+        let tmp = tempfile::tempdir().unwrap();
+        let cases = [
+            vec![(0.0, f64::MAX), (1.0, -f64::MAX)],
+            vec![(0.0, 1e-300), (1e-300, 2e-300)],
+            vec![(5.0, 5.0), (5.0, 5.0)],
+            vec![(-1e12, 0.0), (1e12, 1e-12)],
+            vec![(f64::MAX, f64::MAX)],
+            vec![(0.0, 1.0), (1.0, 1.0 + 1e-15)],
+            vec![(1e9, 1e9), (1e9 + 1e-6, 1e9 + 1e-6)],
+            vec![(f64::MIN_POSITIVE, -1e300), (1e300, 1e300)],
+        ];
+        for (i, points) in cases.into_iter().enumerate() {
+            let path = tmp.path().join(format!("x{i}.png"));
+            let s = [series("s", &points)];
+            line_plot(&path, "t", "x", "y", &s).unwrap();
+            render(&s, &labels(), false).unwrap();
+        }
+    }
+
+    #[test]
+    fn axis_range_has_a_margin() {
+        let (lo, hi) = axis_range([0.0, 10.0].into_iter());
+        assert!(
+            lo < 0.0 && lo > -1.0 && hi > 10.0 && hi < 11.0,
+            "{lo}..{hi}"
+        );
+        let (lo, hi) = axis_range([30.0].into_iter());
+        assert!(lo < 30.0 && hi > 30.0, "{lo}..{hi}");
+        let (lo, hi) = axis_range(std::iter::empty());
+        assert!(lo < 0.0 && hi > 1.0, "{lo}..{hi}");
+        let (lo, hi) = axis_range([-f64::MAX, f64::MAX].into_iter());
+        assert!(lo.is_finite() && hi.is_finite());
+    }
+
+    #[test]
+    fn tick_labels_fit_the_spacing() {
+        let psnr = (17.0, 32.0);
+        assert_eq!(tick_label(20.0, psnr, 8), "20");
+        assert_eq!(tick_label(0.5, (0.0, 4.0), 8), "0.5");
+        assert_eq!(tick_label(0.05, (0.0, 0.3), 8), "0.05");
+        assert_eq!(tick_label(-1e-17, (-0.3, 0.3), 8), "0.00");
+        assert_eq!(tick_label(-0.0, (-30.0, 30.0), 8), "0");
+        assert_eq!(tick_label(-0.0, (-3.0, 3.0), 8), "0.0");
+        assert_eq!(tick_label(2.5e9, (0.0, 1e10), 10), "2.5e9");
+        assert_eq!(tick_label(3e-7, (0.0, 1e-6), 10), "3.0e-7");
+        assert_eq!(tick_label(0.0, (0.0, 1e-6), 10), "0");
+    }
+
+    #[test]
+    fn legend_goes_where_the_lines_are_not() {
+        let x = (0.0, 1.0);
+        let y = (0.0, 1.0);
+        // Rising line from lower left to upper right: the upper left corner is free first.
+        let rising = vec![vec![(0.0, 0.0), (1.0, 1.0)]];
+        let pos = legend_corner(&rising, x, y);
+        assert!(matches!(pos, SeriesLabelPosition::UpperLeft), "{pos:?}");
+        // Saturating curve high on the right: lower right is free.
+        let saturating = vec![vec![(0.0, 0.0), (0.1, 0.9), (1.0, 1.0)]];
+        let pos = legend_corner(&saturating, x, y);
+        assert!(matches!(pos, SeriesLabelPosition::LowerRight), "{pos:?}");
+    }
+
+    #[test]
+    fn missing_folder_is_an_error_naming_the_path() {
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("missing").join("plot.png");
+        let err = line_plot(&path, "t", "x", "y", &[series("s", &[(0.0, 1.0)])]).unwrap_err();
+        assert!(matches!(err, PlotError::Io { .. }), "{err:?}");
+        assert!(
+            err.to_string().contains(&path.display().to_string()),
+            "{err}"
+        );
+        assert!(dir_entries(tmp.path()).is_empty());
+    }
+
+    #[test]
+    fn failed_rename_is_an_error_naming_the_path_and_leaves_no_temp_file() {
+        // The target is an existing folder: the temporary PNG is written, the rename fails.
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("plot.png");
+        std::fs::create_dir(&path).unwrap();
+        let err = line_plot(&path, "t", "x", "y", &[series("s", &[(0.0, 1.0)])]).unwrap_err();
+        assert!(
+            err.to_string().contains(&path.display().to_string()),
+            "{err}"
+        );
+        assert_eq!(dir_entries(tmp.path()), ["plot.png"]);
+        assert!(dir_entries(&path).is_empty());
+    }
+
+    #[test]
+    fn no_font_rendering_draws_lines_and_frame_only() {
+        let s = [series("a", &[(0.0, 0.0), (1.0, 2.0)])];
+        let rgb = render(&s, &labels(), false).unwrap();
+        // A frame: the pixel 20 px in from the top left corner is dark.
+        let [r, g, b] = rgb_at(&rgb, 20, 20);
+        assert!(r < 80 && g < 80 && b < 80, "frame pixel {r},{g},{b}");
+        // Outside the frame there is nothing but white (no title or tick labels).
+        for y in 0..15 {
+            for x in 0..WIDTH {
+                assert_eq!(rgb_at(&rgb, x, y), [255, 255, 255], "at {x},{y}");
+            }
+        }
+    }
+
+    #[test]
+    #[ignore = "writes /tmp/plot_example.png for a look"]
+    fn example_plot() {
+        let plain: Vec<(f64, f64)> = (0..=60)
+            .map(|i| {
+                let t = i as f64 * 5.0;
+                (t, 18.0 + 8.0 * (1.0 - (-t / 60.0).exp()))
+            })
+            .collect();
+        let aware: Vec<(f64, f64)> = (0..=60)
+            .map(|i| {
+                let t = i as f64 * 5.0;
+                (t, 18.5 + 12.5 * (1.0 - (-t / 80.0).exp()))
+            })
+            .collect();
+        line_plot(
+            Path::new("/tmp/plot_example.png"),
+            "Test-view PSNR during training",
+            "time (s)",
+            "PSNR (dB)",
+            &[series("plain", &plain), series("aware", &aware)],
+        )
+        .unwrap();
+    }
+}
