@@ -224,25 +224,47 @@ fn bad_inputs_name_the_file_and_leave_no_output() {
 }
 
 #[test]
-fn quick_demo_writes_its_pictures_and_table() {
+fn quick_demo_trains_plain_and_aware_and_reports_both() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
     let text = ok(&["demo", "--quick", "--out", s(&out)]);
     for f in [
         "psf.npy",
         "psf.png",
-        "chart_clean.png",
-        "chart_tiled.png",
-        "chart_blend.png",
-        "chart_wiener_median.png",
-        "comparison.png",
+        "scene_aberrated/clean/view001.png",
+        "run_plain/point_cloud.ply",
+        "run_aware/point_cloud.ply",
+        "run_aware/metrics.json",
+        "run_aware/train_log.csv",
+        "run_aware/psnr_vs_time.png",
+        "run_aware/test/view000_compare.png",
+        "run_aware/spiral/spiral000.png",
     ] {
         assert!(out.join(f).exists(), "demo did not write {f}");
     }
+    let psnr = |row: &str| -> f64 {
+        let line = text
+            .lines()
+            .find(|l| l.starts_with(row))
+            .unwrap_or_else(|| panic!("{row}:\n{text}"));
+        line[row.len()..]
+            .split_whitespace()
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    let (input, plain, aware) = (
+        psnr("aberrated input"),
+        psnr("3DGS plain"),
+        psnr("3DGS aware"),
+    );
     assert!(
-        text.contains("aberrated, tiled") && text.contains("Wiener"),
+        input.is_finite() && plain.is_finite() && aware.is_finite(),
         "{text}"
     );
+    // A second run replaces its own scene folders instead of failing.
+    ok(&["demo", "--quick", "--out", s(&out), "--iters", "20"]);
 }
 
 #[test]
@@ -313,4 +335,132 @@ fn scene_aberrate_makes_fern_reproducibly() {
         s(&a),
     ]);
     assert!(err.contains("already exists"), "{err}");
+}
+
+#[test]
+fn train_then_render_and_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (clean, abr, psf) = (d.join("clean"), d.join("abr"), d.join("psf.npy"));
+    let mut args = vec!["psf", "simulate", "--out", s(&psf)];
+    args.extend_from_slice(SMALL_LENS);
+    ok(&args);
+    ok(&[
+        "scene",
+        "procedural",
+        "--out",
+        s(&clean),
+        "--width",
+        "48",
+        "--height",
+        "32",
+        "--views",
+        "9",
+    ]);
+    ok(&[
+        "scene",
+        "aberrate",
+        "--scene",
+        s(&clean),
+        "--psf",
+        s(&psf),
+        "--out",
+        s(&abr),
+        "--downsample",
+        "1",
+    ]);
+    let run = d.join("run");
+    let text = ok(&[
+        "train",
+        "--scene",
+        s(&abr),
+        "--out",
+        s(&run),
+        "--mode",
+        "restored",
+        "--iters",
+        "40",
+        "--downsample",
+        "1",
+        "--spiral",
+        "3",
+    ]);
+    assert!(
+        text.contains("median MAFG Wiener") && text.contains("mean"),
+        "{text}"
+    );
+    let metrics = std::fs::read_to_string(run.join("metrics.json")).unwrap();
+    assert!(
+        metrics.contains("\"mean_psnr\"") && metrics.contains("stand-in"),
+        "{metrics}"
+    );
+    let log = std::fs::read_to_string(run.join("train_log.csv")).unwrap();
+    assert!(
+        log.lines().count() >= 2 && log.starts_with("step,seconds"),
+        "{log}"
+    );
+
+    let frames = d.join("frames");
+    let text = ok(&[
+        "render",
+        "--ply",
+        s(&run.join("point_cloud.ply")),
+        "--scene",
+        s(&abr),
+        "--out",
+        s(&frames),
+        "--downsample",
+        "1",
+    ]);
+    assert!(text.contains("to 9 images 48x32"), "{text}");
+    assert!(frames.join("view004.png").exists());
+
+    // Aware on a clean capture without a PSF; an unwritable run folder; a foreign PSF grid.
+    let err = fails(&[
+        "train",
+        "--scene",
+        s(&clean),
+        "--out",
+        s(&d.join("r2")),
+        "--downsample",
+        "1",
+    ]);
+    assert!(err.contains("needs the PSF grid"), "{err}");
+    let blocker = d.join("file");
+    std::fs::write(&blocker, b"x").unwrap();
+    let err = fails(&[
+        "train",
+        "--scene",
+        s(&abr),
+        "--out",
+        s(&blocker.join("run")),
+        "--downsample",
+        "1",
+    ]);
+    assert!(err.contains("cannot use") && err.contains("file"), "{err}");
+    let other = d.join("other.npy");
+    let mut args = vec![
+        "psf",
+        "simulate",
+        "--out",
+        s(&other),
+        "--grid",
+        "3",
+        "--size",
+        "15",
+    ];
+    args.extend_from_slice(&SMALL_LENS[4..]);
+    ok(&args);
+    let err = fails(&[
+        "train",
+        "--scene",
+        s(&abr),
+        "--out",
+        s(&d.join("r3")),
+        "--downsample",
+        "1",
+        "--psf",
+        s(&other),
+    ]);
+    assert!(err.contains("not the one"), "{err}");
 }

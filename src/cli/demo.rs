@@ -1,55 +1,60 @@
-//! `metasplat demo`: the built-in default run, needing no data. Simulates the paper's PSF
-//! grid, aberrates a test chart both ways, runs the Wiener bank, and reports PSNRs.
+//! `metasplat demo`: the main job on built-in data. Simulates the paper's metalens PSF grid,
+//! renders a procedural forward-facing scene with known ground truth, aberrates it, trains
+//! `plain` and `aware` splats on the aberrated views, and compares both with the clean ones.
 
-use super::progress::step;
 use super::psf::{print_report, simulate};
+use super::train::{TrainArgs, train_run};
+use aberration::image::save_rgb8_png;
 use aberration::optics::SimConfig;
 use aberration::picture::psf_grid_picture;
-use aberration::testchart::test_chart;
-use aberration::{
-    BlurMode, Image, ImagingModel, NoiseModel, image::save_rgb8_png, psnr, wiener_bank,
-};
 use anyhow::{Context, Result};
 use clap::Args;
-use std::path::PathBuf;
+use metasplat::outputs::RunSummary;
+use metasplat::procedural::{ProceduralOptions, write_capture};
+use metasplat::train::config::Mode;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 #[derive(Args)]
 pub struct DemoArgs {
     /// Output directory.
     #[arg(long, default_value = "demo_out")]
     pub out: PathBuf,
-    /// A small lens and grid that run in seconds (for tests), instead of the paper's.
+    /// A small lens, a 64x48 scene and a short run (seconds; for tests).
     #[arg(long)]
     pub quick: bool,
+    /// Training steps per mode (default 1500; 300 with --quick).
+    #[arg(long)]
+    pub iters: Option<u64>,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
 }
 
-/// Images side by side with a white gutter.
-fn side_by_side(images: &[&Image]) -> image::RgbImage {
-    let gap = 8;
-    let (w, h) = (images[0].width, images[0].height);
-    let mut out = image::RgbImage::from_pixel(
-        (images.len() * (w + gap) - gap) as u32,
-        h as u32,
-        image::Rgb([255, 255, 255]),
-    );
-    for (i, img) in images.iter().enumerate() {
-        image::imageops::replace(&mut out, &img.to_rgb8(), (i * (w + gap)) as i64, 0);
+/// A scene folder the demo made earlier is replaced; anything else is left alone.
+fn clear_previous(dir: &Path) -> Result<()> {
+    if dir.join("poses_bounds.npy").is_file() {
+        std::fs::remove_dir_all(dir)
+            .with_context(|| format!("cannot replace {}", dir.display()))?;
+    } else if dir.exists() {
+        anyhow::bail!(
+            "{} exists and is not a scene the demo wrote; move it away",
+            dir.display()
+        );
     }
-    out
+    Ok(())
 }
 
 pub fn run(a: DemoArgs) -> Result<()> {
+    let start = Instant::now();
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let cfg = if a.quick {
-        SimConfig::small(45)
+        SimConfig::small(21)
     } else {
         SimConfig::default()
     };
     println!(
-        "simulating the {}x{} PSF grid of the Tseng et al. metalens ({} px PSFs, {}x{} propagation grid)",
+        "1/4 simulating the {}x{} PSF grid of the Tseng et al. metalens ({} px PSFs, {}x{} propagation grid)",
         cfg.grid, cfg.grid, cfg.psf_size, cfg.fft_size, cfg.fft_size
     );
     let (psf, report) = simulate(&cfg)?;
@@ -58,55 +63,105 @@ pub fn run(a: DemoArgs) -> Result<()> {
     psf.save_npy(&psf_path)?;
     save_rgb8_png(&psf_grid_picture(&psf), &a.out.join("psf.png"))?;
 
-    let side = psf.native_sensor_px();
-    let clean = test_chart(side, side);
-    clean.save_png(&a.out.join("chart_clean.png"))?;
-    let mut rows = Vec::new();
-    let mut tiled = None;
-    for mode in [BlurMode::Tiled, BlurMode::Blend] {
-        let (res, secs) = step(&format!("aberrating ({mode})"), || -> Result<_> {
-            let model = ImagingModel::new(&psf, side, side, mode, None, NoiseModel::default())?;
-            Ok(model.capture(&clean, a.seed)?)
-        });
-        let img = res?;
-        img.save_png(&a.out.join(format!("chart_{mode}.png")))?;
-        rows.push((format!("aberrated, {mode}"), psnr(&img, &clean), secs));
-        if mode == BlurMode::Tiled {
-            tiled = Some(img);
-        }
-    }
-    let tiled = tiled.expect("tiled mode ran");
-    let (bank, secs) = step("Wiener bank", || wiener_bank(&tiled, &psf));
-    let bank = bank?;
-    bank.median()
-        .save_png(&a.out.join("chart_wiener_median.png"))?;
-    rows.push((
-        "Wiener, median MAFG filter".into(),
-        psnr(bank.median(), &clean),
-        secs,
-    ));
-    let best = bank
-        .images
-        .iter()
-        .map(|img| psnr(img, &clean))
-        .fold(f64::NEG_INFINITY, f64::max);
-    rows.push(("Wiener, best of the 13 filters".into(), best, 0.0));
-    save_rgb8_png(
-        &side_by_side(&[&clean, &tiled, bank.median()]),
-        &a.out.join("comparison.png"),
+    let scene = ProceduralOptions {
+        width: if a.quick { 64 } else { 160 },
+        height: if a.quick { 48 } else { 120 },
+        views: if a.quick { 10 } else { 12 },
+        seed: a.seed,
+    };
+    let clean_dir = a.out.join("scene_clean");
+    let aberrated_dir = a.out.join("scene_aberrated");
+    clear_previous(&clean_dir)?;
+    clear_previous(&aberrated_dir)?;
+    println!(
+        "2/4 rendering the procedural scene: {} views {}x{}",
+        scene.views, scene.width, scene.height
+    );
+    write_capture(&clean_dir, &scene)?;
+    let capture = scenes::open(
+        &clean_dir,
+        &scenes::OpenOptions {
+            resolution: scenes::Resolution::Downsample(1),
+            ..Default::default()
+        },
     )?;
+    let options = scenes::AberrateOptions {
+        seed: a.seed,
+        ..Default::default()
+    };
+    let made = scenes::make_aberrated(&capture, &psf_path, &aberrated_dir, &options, &|| {})?;
+    println!(
+        "3/4 aberrated through {} px PSFs with sensor noise: {:.2} dB vs clean",
+        made.psf_px, made.mean_psnr
+    );
+
+    let iters = a.iters.unwrap_or(if a.quick { 300 } else { 1500 });
+    let mut results: Vec<(Mode, RunSummary, PathBuf)> = Vec::new();
+    for mode in [Mode::Plain, Mode::Aware] {
+        println!("4/4 training {mode} ({iters} steps)");
+        let run_dir = a.out.join(format!("run_{mode}"));
+        let args = TrainArgs {
+            scene: aberrated_dir.clone(),
+            out: run_dir.clone(),
+            psf: None,
+            mode,
+            lambda: 0.75,
+            iters,
+            max_splats: None,
+            restorer: "wiener".into(),
+            resume: false,
+            downsample: 1,
+            llffhold: scenes::LLFFHOLD,
+            seed: a.seed,
+            max_sh_degree: 3,
+            opacity_reset: false,
+            eval_every: None,
+            checkpoint_every: Some(0),
+            spiral: if a.quick { 4 } else { 30 },
+        };
+        if run_dir.join(metasplat::outputs::CHECKPOINT_FILE).exists() {
+            std::fs::remove_file(run_dir.join(metasplat::outputs::CHECKPOINT_FILE))?;
+        }
+        let (summary, _) = train_run(&args, true)?;
+        results.push((mode, summary, run_dir));
+    }
 
     println!(
-        "\n{side}x{side} test chart through the simulated metalens (noise seed {}):",
-        a.seed
+        "\nheld-out views of the procedural scene vs the clean images (I_ac for aware: median MAFG Wiener stand-in):"
     );
-    println!("{:<32} {:>9} {:>9}", "image", "PSNR dB", "seconds");
-    for (name, db, secs) in &rows {
-        println!("{name:<32} {db:>9.2} {secs:>9.2}");
+    println!(
+        "{:<22} {:>8} {:>7} {:>8} {:>9}",
+        "", "PSNR dB", "SSIM", "splats", "train s"
+    );
+    let observed = results
+        .first()
+        .and_then(|r| r.1.observed_psnr)
+        .unwrap_or(f64::NAN);
+    println!("{:<22} {:>8.2}", "aberrated input", observed);
+    for (mode, s, _) in &results {
+        if let Some(m) = &s.metrics {
+            println!(
+                "{:<22} {:>8.2} {:>7.4} {:>8} {:>9.1}",
+                format!("3DGS {mode}"),
+                m.mean_psnr,
+                m.mean_ssim,
+                s.splats,
+                s.train_seconds
+            );
+        }
+    }
+    for (mode, _, dir) in &results {
+        println!(
+            "{mode}: {} (PLY), {}/test/*_compare.png (aberrated | render | clean), {}/spiral/",
+            dir.join(metasplat::outputs::PLY_FILE).display(),
+            dir.display(),
+            dir.display()
+        );
     }
     println!(
-        "\nwrote {}: psf.npy, psf.png (PSF grid), chart_*.png, comparison.png (clean | aberrated | Wiener)",
-        a.out.display()
+        "PSF grid picture: {}; total {:.0} s",
+        a.out.join("psf.png").display(),
+        start.elapsed().as_secs_f64()
     );
     Ok(())
 }

@@ -3,8 +3,10 @@
 mod aberrate;
 mod deconvolve;
 mod demo;
+mod experiment;
 mod progress;
 mod psf;
+mod render;
 mod scene;
 mod train;
 
@@ -35,6 +37,11 @@ enum Command {
     Scene(scene::SceneCommand),
     /// Train a splat scene from an (aberrated) capture: aware, restored or plain.
     Train(train::TrainArgs),
+    /// Render a PLY from a capture's cameras or its spiral path.
+    Render(render::RenderArgs),
+    /// The paper's comparison (plain, restored, aware) on a capture, with speed against error.
+    #[command(subcommand)]
+    Experiment(experiment::ExperimentCommand),
     /// Built-in demo: simulate the default PSF grid and aberrate a test chart.
     Demo(demo::DemoArgs),
 }
@@ -46,6 +53,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Deconvolve(a) => deconvolve::run(a),
         Command::Scene(c) => scene::run(c),
         Command::Train(a) => train::run(a),
+        Command::Render(a) => render::run(a),
+        Command::Experiment(c) => experiment::run(c),
         Command::Demo(a) => demo::run(a),
     }
 }

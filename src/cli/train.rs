@@ -62,7 +62,8 @@ pub struct TrainArgs {
 }
 
 /// Trains one run and writes its folder; shared by `train`, `experiment` and `demo`.
-pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<RunSummary> {
+/// Returns what went into `metrics.json` and the training log.
+pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<(RunSummary, Vec<train::LogRow>)> {
     outputs::prepare_run_dir(&a.out)
         .with_context(|| format!("cannot use {} as the run folder", a.out.display()))?;
     let options = DataOptions {
@@ -164,7 +165,7 @@ pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<RunSummary> {
     if !quiet {
         print_summary(&a.out, &summary, &outcome);
     }
-    Ok(summary)
+    Ok((summary, outcome.log))
 }
 
 /// The PSNR-vs-time picture, when there are test PSNRs to plot.
