@@ -15,6 +15,13 @@ pub struct AberrateArgs {
     pub input: PathBuf,
     #[arg(long)]
     pub out: PathBuf,
+    #[command(flatten)]
+    pub imaging: ImagingArgs,
+}
+
+/// How images go through the PSF model (shared by `aberrate` and `scene aberrate`).
+#[derive(Args, Clone)]
+pub struct ImagingArgs {
     /// tiled (the paper's patch-wise blur) or blend (seamless).
     #[arg(long, default_value = "tiled")]
     pub mode: BlurMode,
@@ -23,23 +30,37 @@ pub struct AberrateArgs {
     /// Blur only, no sensor noise.
     #[arg(long)]
     pub no_noise: bool,
-    /// Sensor size (px) the grid was made for; default G·K.
+    /// Sensor size (px) the grid spans; default G·K.
     #[arg(long)]
     pub sensor_px: Option<usize>,
+}
+
+impl ImagingArgs {
+    pub fn noise(&self) -> NoiseModel {
+        if self.no_noise {
+            NoiseModel::none()
+        } else {
+            NoiseModel::default()
+        }
+    }
 }
 
 pub fn run(a: AberrateArgs) -> Result<()> {
     let psf = PsfGrid::load_npy(&a.psf)?;
     let clean = Image::load(&a.input)?;
-    let noise = if a.no_noise {
-        NoiseModel::none()
-    } else {
-        NoiseModel::default()
-    };
+    let im = &a.imaging;
+    let noise = im.noise();
     let (result, secs) = step("aberrating", || -> Result<_> {
-        let model = ImagingModel::new(&psf, clean.width, clean.height, a.mode, a.sensor_px, noise)
-            .context("cannot plan the blur")?;
-        let out = model.capture(&clean, a.seed)?;
+        let model = ImagingModel::new(
+            &psf,
+            clean.width,
+            clean.height,
+            im.mode,
+            im.sensor_px,
+            noise,
+        )
+        .context("cannot plan the blur")?;
+        let out = model.capture(&clean, im.seed)?;
         Ok((model, out))
     });
     let (model, out) = result?;
@@ -51,7 +72,7 @@ pub fn run(a: AberrateArgs) -> Result<()> {
         model.psf().grid(),
         model.psf().grid(),
         model.psf().size(),
-        a.mode,
+        im.mode,
         psnr(&out, &clean),
         a.out.display()
     );

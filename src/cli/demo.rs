@@ -78,13 +78,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         scene.views, scene.width, scene.height
     );
     write_capture(&clean_dir, &scene)?;
-    let capture = scenes::open(
-        &clean_dir,
-        &scenes::OpenOptions {
-            resolution: scenes::Resolution::Downsample(1),
-            ..Default::default()
-        },
-    )?;
+    let capture = super::open_scene(&clean_dir, 1)?;
     let options = scenes::AberrateOptions {
         seed: a.seed,
         ..Default::default()
@@ -101,23 +95,10 @@ pub fn run(a: DemoArgs) -> Result<()> {
         println!("4/4 training {mode} ({iters} steps)");
         let run_dir = a.out.join(format!("run_{mode}"));
         let args = TrainArgs {
-            scene: aberrated_dir.clone(),
-            out: run_dir.clone(),
-            psf: None,
-            mode,
-            lambda: 0.75,
-            iters,
-            max_splats: None,
-            restorer: "wiener".into(),
-            resume: false,
-            downsample: 1,
-            llffhold: scenes::LLFFHOLD,
             seed: a.seed,
-            max_sh_degree: 3,
-            opacity_reset: false,
-            eval_every: None,
             checkpoint_every: Some(0),
             spiral: if a.quick { 4 } else { 30 },
+            ..TrainArgs::new(aberrated_dir.clone(), run_dir.clone(), mode, iters, 1)
         };
         if run_dir.join(metasplat::outputs::CHECKPOINT_FILE).exists() {
             std::fs::remove_file(run_dir.join(metasplat::outputs::CHECKPOINT_FILE))?;

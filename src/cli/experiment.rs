@@ -60,14 +60,7 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
     };
     let aberrated = a.out.join("aberrated");
     if !aberrated.join(scenes::aberrated::RECORD_FILE).exists() {
-        let capture = scenes::open(
-            &a.scene,
-            &scenes::OpenOptions {
-                resolution: scenes::Resolution::Downsample(a.downsample),
-                ..Default::default()
-            },
-        )
-        .with_context(|| format!("cannot open the scene {}", a.scene.display()))?;
+        let capture = super::open_scene(&a.scene, a.downsample)?;
         let options = scenes::AberrateOptions {
             seed: a.seed,
             ..Default::default()
@@ -84,23 +77,10 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
         let run_dir = a.out.join(format!("run_{mode}"));
         let _ = std::fs::remove_file(run_dir.join(metasplat::outputs::CHECKPOINT_FILE));
         let args = TrainArgs {
-            scene: aberrated.clone(),
-            out: run_dir,
-            psf: None,
-            mode,
             lambda: a.lambda,
-            iters: a.iters,
-            max_splats: None,
-            restorer: "wiener".into(),
-            resume: false,
-            downsample: a.downsample,
-            llffhold: scenes::LLFFHOLD,
             seed: a.seed,
-            max_sh_degree: 3,
-            opacity_reset: false,
             eval_every: Some((a.iters / 20).max(1)),
-            checkpoint_every: None,
-            spiral: 30,
+            ..TrainArgs::new(aberrated.clone(), run_dir, mode, a.iters, a.downsample)
         };
         let (summary, log) = train_run(&args, false)?;
         rows.push((mode, summary, log));

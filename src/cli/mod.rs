@@ -46,6 +46,16 @@ enum Command {
     Demo(demo::DemoArgs),
 }
 
+/// Opens a capture at `images_{downsample}` (every 8th image held out), naming it on failure.
+pub fn open_scene(dir: &std::path::Path, downsample: u32) -> anyhow::Result<scenes::Capture> {
+    use anyhow::Context;
+    let options = scenes::OpenOptions {
+        resolution: scenes::Resolution::Downsample(downsample),
+        ..Default::default()
+    };
+    scenes::open(dir, &options).with_context(|| format!("cannot open the scene {}", dir.display()))
+}
+
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Psf(c) => psf::run(c),

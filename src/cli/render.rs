@@ -24,14 +24,7 @@ pub struct RenderArgs {
 
 pub fn run(a: RenderArgs) -> Result<()> {
     let model = splat::ply::read_ply(&a.ply)?;
-    let capture = scenes::open(
-        &a.scene,
-        &scenes::OpenOptions {
-            resolution: scenes::Resolution::Downsample(a.downsample),
-            ..Default::default()
-        },
-    )
-    .with_context(|| format!("cannot open the scene {}", a.scene.display()))?;
+    let capture = super::open_scene(&a.scene, a.downsample)?;
     let cameras = match a.spiral {
         Some(n) => metasplat::spiral::spiral(&capture.cameras, &capture.bounds, n),
         None => capture.cameras.clone(),

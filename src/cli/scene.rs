@@ -1,7 +1,6 @@
 //! `metasplat scene info` and `metasplat scene aberrate`.
 
 use super::progress::bar;
-use aberration::{BlurMode, NoiseModel};
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use scenes::BitDepth;
@@ -46,17 +45,8 @@ pub struct SceneAberrateArgs {
     /// Read images_N of the source.
     #[arg(long, default_value_t = 8)]
     pub downsample: u32,
-    /// tiled (the paper's patch-wise blur) or blend (seamless).
-    #[arg(long, default_value = "tiled")]
-    pub mode: BlurMode,
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Blur only, no sensor noise.
-    #[arg(long)]
-    pub no_noise: bool,
-    /// Sensor size (px) the grid spans; default G·K.
-    #[arg(long)]
-    pub sensor_px: Option<usize>,
+    #[command(flatten)]
+    pub imaging: super::aberrate::ImagingArgs,
     /// PNG sample depth of the written images (8 or 16); 16 keeps the sensor noise.
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u8).range(8..=16))]
     pub bit_depth: u8,
@@ -110,21 +100,12 @@ pub fn run(cmd: SceneCommand) -> Result<()> {
 }
 
 fn aberrate(a: SceneAberrateArgs) -> Result<()> {
-    let opts = scenes::OpenOptions {
-        resolution: scenes::Resolution::Downsample(a.downsample),
-        ..Default::default()
-    };
-    let capture = scenes::open(&a.scene, &opts)
-        .with_context(|| format!("cannot open the scene {}", a.scene.display()))?;
+    let capture = super::open_scene(&a.scene, a.downsample)?;
     let options = scenes::AberrateOptions {
-        mode: a.mode,
-        sensor_px: a.sensor_px,
-        noise: if a.no_noise {
-            NoiseModel::none()
-        } else {
-            NoiseModel::default()
-        },
-        seed: a.seed,
+        mode: a.imaging.mode,
+        sensor_px: a.imaging.sensor_px,
+        noise: a.imaging.noise(),
+        seed: a.imaging.seed,
         depth: match a.bit_depth {
             8 => BitDepth::Eight,
             16 => BitDepth::Sixteen,
@@ -142,8 +123,8 @@ fn aberrate(a: SceneAberrateArgs) -> Result<()> {
         report.width,
         report.height,
         report.psf_px,
-        a.mode,
-        a.seed,
+        a.imaging.mode,
+        a.imaging.seed,
         start.elapsed().as_secs_f64(),
         report.mean_psnr,
         report.dest.display(),

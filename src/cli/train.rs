@@ -61,6 +61,31 @@ pub struct TrainArgs {
     pub spiral: usize,
 }
 
+impl TrainArgs {
+    /// The command-line defaults for one run (as `metasplat train` would use them).
+    pub fn new(scene: PathBuf, out: PathBuf, mode: Mode, iters: u64, downsample: u32) -> Self {
+        TrainArgs {
+            scene,
+            out,
+            psf: None,
+            mode,
+            lambda: 0.75,
+            iters,
+            max_splats: None,
+            restorer: "wiener".into(),
+            resume: false,
+            downsample,
+            llffhold: scenes::LLFFHOLD,
+            seed: 0,
+            max_sh_degree: 3,
+            opacity_reset: false,
+            eval_every: None,
+            checkpoint_every: None,
+            spiral: 30,
+        }
+    }
+}
+
 /// Trains one run and writes its folder; shared by `train`, `experiment` and `demo`.
 /// Returns what went into `metrics.json` and the training log.
 pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<(RunSummary, Vec<train::LogRow>)> {
