@@ -69,6 +69,8 @@ pub struct RunSummary {
     pub model_bytes: usize,
     pub sh_degree: u32,
     pub restorer: Option<String>,
+    /// Weight of `L(render, I_ac)` (aware mode only).
+    pub lambda: Option<f32>,
     /// Why there are no metrics, when there are none.
     pub not_evaluated: Option<String>,
     pub metrics: Option<Metrics>,
@@ -158,6 +160,7 @@ pub fn write_run(
         model_bytes: model.param_bytes(),
         sh_degree: model.sh_degree,
         restorer: data.restorer.map(|r| r.describe().to_string()),
+        lambda: (config.mode == crate::train::config::Mode::Aware).then_some(config.lambda),
         not_evaluated,
         metrics,
         observed_psnr,

@@ -108,7 +108,11 @@ pub fn run(a: DemoArgs) -> Result<()> {
     }
 
     println!(
-        "\nheld-out views of the procedural scene vs the clean images (I_ac for aware: median MAFG Wiener stand-in):"
+        "\nheld-out views of the procedural scene vs the clean images (aware: lambda {}, I_ac = median MAFG Wiener stand-in):",
+        results
+            .iter()
+            .find_map(|r| r.1.lambda)
+            .map_or("-".to_string(), |l| l.to_string())
     );
     println!(
         "{:<22} {:>8} {:>7} {:>8} {:>9}",

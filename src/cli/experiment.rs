@@ -33,8 +33,9 @@ pub struct LlffArgs {
     pub iters: u64,
     #[arg(long, default_value_t = 8)]
     pub downsample: u32,
-    #[arg(long, default_value_t = 0.75)]
-    pub lambda: f32,
+    /// Weight of L(render, I_ac) in aware mode (default: as `train`).
+    #[arg(long)]
+    pub lambda: Option<f32>,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Modes to run, in order.

@@ -24,9 +24,10 @@ pub struct TrainArgs {
     pub psf: Option<PathBuf>,
     #[arg(long, value_enum, default_value_t = Mode::Aware)]
     pub mode: Mode,
-    /// Weight of L(render, I_ac) in aware mode.
-    #[arg(long, default_value_t = 0.75)]
-    pub lambda: f32,
+    /// Weight of L(render, I_ac) in aware mode; default 0.75 (the paper's) with a trained
+    /// restorer, 0.25 with the median-Wiener stand-in.
+    #[arg(long)]
+    pub lambda: Option<f32>,
     #[arg(long, default_value_t = 7000)]
     pub iters: u64,
     /// Splat budget; default: one per two pixels of a view.
@@ -69,7 +70,7 @@ impl TrainArgs {
             out,
             psf: None,
             mode,
-            lambda: 0.75,
+            lambda: None,
             iters,
             max_splats: None,
             restorer: "wiener".into(),
@@ -101,7 +102,9 @@ pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<(RunSummary, Vec<train::L
     let data = data::load(&a.scene, a.mode, &options)
         .with_context(|| format!("cannot load the scene {}", a.scene.display()))?;
     let mut config = TrainConfig::new(a.mode, a.iters, data.width, data.height);
-    config.lambda = a.lambda;
+    config.lambda = a
+        .lambda
+        .unwrap_or_else(|| Restorer::MedianWiener.default_lambda());
     config.seed = a.seed;
     config.max_sh_degree = a.max_sh_degree;
     config.recipe = Recipe::for_iters(a.iters, a.opacity_reset);
@@ -129,6 +132,9 @@ pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<(RunSummary, Vec<train::L
         );
         if let Some(r) = data.restorer {
             println!("{}", r.describe());
+            if a.mode == Mode::Aware {
+                println!("lambda {} for L(render, I_ac)", config.lambda);
+            }
         }
         if !data.can_evaluate() {
             println!(

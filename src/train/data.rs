@@ -35,6 +35,15 @@ pub enum Restorer {
 }
 
 impl Restorer {
+    /// The default weight of `L(render, I_ac)` for this source of `I_ac`. The paper's 0.75
+    /// assumes its trained restorer; with the Wiener stand-in (worse than the aberrated input
+    /// at low resolution) 0.75 cost 2 dB on the demo scene (26.15 vs 28.18 dB at 0.25 or 0).
+    pub fn default_lambda(self) -> f32 {
+        match self {
+            Restorer::MedianWiener => 0.25,
+        }
+    }
+
     pub fn describe(self) -> &'static str {
         match self {
             Restorer::MedianWiener => {
