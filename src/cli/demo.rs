@@ -100,9 +100,6 @@ pub fn run(a: DemoArgs) -> Result<()> {
             spiral: if a.quick { 4 } else { 30 },
             ..TrainArgs::new(aberrated_dir.clone(), run_dir.clone(), mode, iters, 1)
         };
-        if run_dir.join(metasplat::outputs::CHECKPOINT_FILE).exists() {
-            std::fs::remove_file(run_dir.join(metasplat::outputs::CHECKPOINT_FILE))?;
-        }
         let (summary, _) = train_run(&args, true)?;
         results.push((mode, summary, run_dir));
     }

@@ -76,7 +76,6 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
     let mut rows = Vec::new();
     for &mode in &a.modes {
         let run_dir = a.out.join(format!("run_{mode}"));
-        let _ = std::fs::remove_file(run_dir.join(metasplat::outputs::CHECKPOINT_FILE));
         let args = TrainArgs {
             lambda: a.lambda,
             seed: a.seed,

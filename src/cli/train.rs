@@ -186,6 +186,11 @@ pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<(RunSummary, Vec<train::L
         _ => {}
     };
     let ckpt = a.out.join(CHECKPOINT_FILE);
+    // A fresh run must not leave an older run's checkpoint for a later --resume to pick up.
+    if !a.resume && ckpt.exists() {
+        std::fs::remove_file(&ckpt)
+            .with_context(|| format!("cannot replace {}", ckpt.display()))?;
+    }
     let outcome = train::train(&config, &data, Some(&ckpt), a.resume, &mut on_event)?;
     pb.finish_and_clear();
     let summary = outputs::write_run(&a.out, &data, &config, &outcome, a.spiral)

@@ -62,20 +62,12 @@ impl Objective<'_> {
             })
         };
         match self.mode {
-            Mode::Plain => {
-                let (v, g, p) = self.term(rendered, &view.observed)?;
-                Ok((
-                    LossParts {
-                        total: v,
-                        main: v,
-                        restored: None,
-                        psnr: p,
-                    },
-                    g,
-                ))
-            }
-            Mode::Restored => {
-                let (v, g, p) = self.term(rendered, restored()?)?;
+            Mode::Plain | Mode::Restored => {
+                let target = match self.mode {
+                    Mode::Plain => view.observed.as_slice(),
+                    _ => restored()?,
+                };
+                let (v, g, p) = self.term(rendered, target)?;
                 Ok((
                     LossParts {
                         total: v,
