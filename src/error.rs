@@ -9,6 +9,8 @@ pub enum TrainError {
     #[error(transparent)]
     Aberration(#[from] aberration::AberrationError),
     #[error(transparent)]
+    Restore(#[from] restore::RestoreError),
+    #[error(transparent)]
     Splat(#[from] splat::SplatError),
     #[error("{}: {source}", path.display())]
     Io {

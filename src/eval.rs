@@ -70,3 +70,16 @@ pub fn evaluate(
         views: per_view,
     }))
 }
+
+/// PSNR and SSIM of two images of the same size (`image` clamped to [0, 1]).
+pub fn compare_images(
+    image: &aberration::Image,
+    reference: &aberration::Image,
+) -> Result<(f64, f64)> {
+    compare(
+        &crate::convert::image_to_pixels(image),
+        &crate::convert::image_to_pixels(reference),
+        image.width as u32,
+        image.height as u32,
+    )
+}

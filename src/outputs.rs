@@ -159,7 +159,7 @@ pub fn write_run(
         splats: model.len(),
         model_bytes: model.param_bytes(),
         sh_degree: model.sh_degree,
-        restorer: data.restorer.map(|r| r.describe().to_string()),
+        restorer: data.restorer.as_ref().map(|r| r.describe()),
         lambda: (config.mode == crate::train::config::Mode::Aware).then_some(config.lambda),
         not_evaluated,
         metrics,

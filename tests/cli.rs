@@ -464,3 +464,202 @@ fn train_then_render_and_clear_errors() {
     ]);
     assert!(err.contains("not the one"), "{err}");
 }
+
+/// Writes `n` smooth colourful test photos of `w × h` into `dir`.
+fn photos(dir: &Path, n: u32, w: u32, h: u32) {
+    std::fs::create_dir_all(dir).unwrap();
+    for i in 0..n {
+        let img = image::RgbImage::from_fn(w, h, |x, y| {
+            let f = (i + 1) as f32;
+            let v = |a: f32| (127.0 + 120.0 * a.sin()) as u8;
+            image::Rgb([
+                v(x as f32 * 0.11 * f),
+                v(y as f32 * 0.07 * f + 1.0),
+                v((x + y) as f32 * 0.05),
+            ])
+        });
+        img.save(dir.join(format!("p{i}.png"))).unwrap();
+    }
+}
+
+#[test]
+fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let psf = d.join("psf.npy");
+    let mut args = vec!["psf", "simulate", "--out", s(&psf)];
+    args.extend_from_slice(SMALL_LENS);
+    ok(&args);
+    let imgs = d.join("photos");
+    photos(&imgs, 3, 96, 80);
+    let weights = d.join("w.bin");
+    let text = ok(&[
+        "restorer",
+        "train",
+        "--images",
+        s(&imgs),
+        "--val",
+        s(&imgs),
+        "--psf",
+        s(&psf),
+        "--config",
+        "tiny",
+        "--out",
+        s(&weights),
+        "--steps",
+        "2",
+        "--batch",
+        "1",
+        "--val-every",
+        "1",
+        "--val-crop",
+        "64",
+    ]);
+    assert!(
+        text.contains("trained 2 steps") && text.matches("val PSNR").count() == 2,
+        "{text}"
+    );
+    assert!(weights.exists());
+
+    // Restore one aberrated photo, with a reference to compare against.
+    let (abr, out) = (d.join("abr.png"), d.join("restored.png"));
+    ok(&[
+        "aberrate",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&imgs.join("p0.png")),
+        "--out",
+        s(&abr),
+    ]);
+    let text = ok(&[
+        "restore",
+        "--psf",
+        s(&psf),
+        "--weights",
+        s(&weights),
+        "--in",
+        s(&abr),
+        "--out",
+        s(&out),
+        "--reference",
+        s(&imgs.join("p0.png")),
+    ]);
+    assert!(
+        text.contains("restored 96x80") && text.contains("PSNR"),
+        "{text}"
+    );
+    assert_eq!(image::image_dimensions(&out).unwrap(), (96, 80));
+
+    let text = ok(&[
+        "restorer",
+        "eval",
+        "--weights",
+        s(&weights),
+        "--psf",
+        s(&psf),
+        "--val",
+        s(&imgs),
+    ]);
+    for row in [
+        "aberrated input",
+        "best single K",
+        "median MAFG",
+        "network (tiny)",
+    ] {
+        assert!(text.contains(row), "{row}: {text}");
+    }
+
+    // Weights made for one grid are refused for another, naming the weights file.
+    let other = d.join("other.npy");
+    let mut args = vec!["psf", "simulate", "--out", s(&other)];
+    args.extend(
+        SMALL_LENS
+            .iter()
+            .map(|a| if *a == "10" { "12" } else { *a }),
+    );
+    ok(&args);
+    let err = fails(&[
+        "restore",
+        "--psf",
+        s(&other),
+        "--weights",
+        s(&weights),
+        "--in",
+        s(&abr),
+        "--out",
+        s(&d.join("x.png")),
+    ]);
+    assert!(
+        err.contains("w.bin") && err.contains("trained for a 3x3 grid"),
+        "{err}"
+    );
+    assert!(!d.join("x.png").exists());
+
+    // The restorer supplies I_ac to splat training.
+    let (clean, capture) = (d.join("clean"), d.join("capture"));
+    ok(&[
+        "scene",
+        "procedural",
+        "--out",
+        s(&clean),
+        "--width",
+        "48",
+        "--height",
+        "32",
+        "--views",
+        "9",
+    ]);
+    ok(&[
+        "scene",
+        "aberrate",
+        "--scene",
+        s(&clean),
+        "--psf",
+        s(&psf),
+        "--out",
+        s(&capture),
+        "--downsample",
+        "1",
+    ]);
+    let run = d.join("run");
+    let text = ok(&[
+        "train",
+        "--scene",
+        s(&capture),
+        "--out",
+        s(&run),
+        "--mode",
+        "restored",
+        "--iters",
+        "20",
+        "--downsample",
+        "1",
+        "--spiral",
+        "2",
+        "--restorer",
+        s(&weights),
+    ]);
+    assert!(text.contains("MAFG + STAF restorer"), "{text}");
+    let metrics = std::fs::read_to_string(run.join("metrics.json")).unwrap();
+    assert!(
+        metrics.contains("MAFG + STAF restorer") && metrics.contains("w.bin"),
+        "{metrics}"
+    );
+    let err = fails(&[
+        "train",
+        "--scene",
+        s(&capture),
+        "--out",
+        s(&d.join("run2")),
+        "--mode",
+        "aware",
+        "--iters",
+        "5",
+        "--downsample",
+        "1",
+        "--restorer",
+        s(&d.join("missing.bin")),
+    ]);
+    assert!(err.contains("missing.bin"), "{err}");
+}

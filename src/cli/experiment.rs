@@ -130,7 +130,9 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
         writeln!(table, "- {mode}: {}", points.join(", "))?;
     }
     println!("\n{table}");
-    println!("(I_ac: median MAFG Wiener stand-in until the transformer restorer ships)");
+    if let Some(r) = rows.iter().find_map(|(_, s, _)| s.restorer.clone()) {
+        println!("({r})");
+    }
     std::fs::write(a.out.join("table.md"), &table)
         .with_context(|| format!("cannot write {}", a.out.join("table.md").display()))?;
     let series: Vec<Series> = rows

@@ -7,6 +7,7 @@ mod experiment;
 mod progress;
 mod psf;
 mod render;
+mod restorer;
 mod scene;
 mod train;
 
@@ -42,6 +43,11 @@ enum Command {
     /// The paper's comparison (plain, restored, aware) on a capture, with speed against error.
     #[command(subcommand)]
     Experiment(experiment::ExperimentCommand),
+    /// Train or evaluate the aberration-correcting transformer.
+    #[command(subcommand)]
+    Restorer(restorer::RestorerCommand),
+    /// Restore an aberrated image with trained weights.
+    Restore(restorer::RestoreArgs),
     /// Built-in demo: simulate the default PSF grid and aberrate a test chart.
     Demo(demo::DemoArgs),
 }
@@ -65,6 +71,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(a) => train::run(a),
         Command::Render(a) => render::run(a),
         Command::Experiment(c) => experiment::run(c),
+        Command::Restorer(c) => restorer::run(c),
+        Command::Restore(a) => restorer::run_restore(a),
         Command::Demo(a) => demo::run(a),
     }
 }

@@ -31,3 +31,13 @@ pub fn step<T>(what: &str, f: impl FnOnce() -> T) -> (T, f64) {
     pb.finish_and_clear();
     (out, secs)
 }
+
+/// Prints a line above a bar, or plainly when the bar is hidden (output not a terminal:
+/// indicatif then drops `println`).
+pub fn say(pb: &ProgressBar, line: String) {
+    if pb.is_hidden() {
+        println!("{line}");
+    } else {
+        pb.println(line);
+    }
+}

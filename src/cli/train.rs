@@ -7,7 +7,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use metasplat::outputs::{self, CHECKPOINT_FILE, RunSummary};
 use metasplat::train::config::{Mode, Recipe, TrainConfig};
-use metasplat::train::data::{self, DataOptions, Restorer};
+use metasplat::train::data::{self, DataOptions, RestorerChoice};
 use metasplat::train::{self, Event};
 
 #[derive(Args, Clone)]
@@ -33,9 +33,10 @@ pub struct TrainArgs {
     /// Splat budget; default: one per two pixels of a view.
     #[arg(long)]
     pub max_splats: Option<usize>,
-    /// Source of I_ac: only `wiener` (median MAFG Wiener) until the transformer ships.
-    #[arg(long, default_value = "wiener", value_parser = ["wiener"])]
-    pub restorer: String,
+    /// Source of I_ac: `auto` (the shipped transformer when trained for this PSF grid, else
+    /// the median MAFG Wiener image), `wiener`, or a restorer weights file.
+    #[arg(long, default_value = "auto")]
+    pub restorer: RestorerChoice,
     /// Continue from RUN/checkpoint.bin (same settings required).
     #[arg(long)]
     pub resume: bool,
@@ -73,7 +74,7 @@ impl TrainArgs {
             lambda: None,
             iters,
             max_splats: None,
-            restorer: "wiener".into(),
+            restorer: RestorerChoice::Auto,
             resume: false,
             downsample,
             llffhold: scenes::LLFFHOLD,
@@ -96,7 +97,7 @@ pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<(RunSummary, Vec<train::L
         downsample: a.downsample,
         llffhold: a.llffhold,
         psf: a.psf.clone(),
-        restorer: Restorer::MedianWiener,
+        restorer: a.restorer.clone(),
         seed: a.seed,
     };
     let data = data::load(&a.scene, a.mode, &options)
@@ -104,7 +105,7 @@ pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<(RunSummary, Vec<train::L
     let mut config = TrainConfig::new(a.mode, a.iters, data.width, data.height);
     config.lambda = a
         .lambda
-        .unwrap_or_else(|| Restorer::MedianWiener.default_lambda());
+        .unwrap_or_else(|| data.restorer.as_ref().map_or(0.75, |r| r.default_lambda()));
     config.seed = a.seed;
     config.max_sh_degree = a.max_sh_degree;
     config.recipe = Recipe::for_iters(a.iters, a.opacity_reset);
@@ -130,7 +131,10 @@ pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<(RunSummary, Vec<train::L
             a.iters,
             config.max_splats
         );
-        if let Some(r) = data.restorer {
+        if let Some(note) = &data.restorer_note {
+            println!("{note}");
+        }
+        if let Some(r) = &data.restorer {
             println!("{}", r.describe());
             if a.mode == Mode::Aware {
                 println!("lambda {} for L(render, I_ac)", config.lambda);
@@ -181,7 +185,7 @@ pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<(RunSummary, Vec<train::L
         }
         Event::Evaluated { metrics, .. } => last_test = Some(metrics.mean_psnr),
         Event::Sh { step, event } => {
-            pb.println(format!("step {step}: SH {event:?}"));
+            super::progress::say(&pb, format!("step {step}: SH {event:?}"));
         }
         _ => {}
     };

@@ -26,31 +26,100 @@ pub struct View {
     pub clean: Option<Vec<Vec3>>,
 }
 
-/// Where `I_ac` comes from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Where the user wants `I_ac` to come from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum RestorerChoice {
+    /// The shipped transformer when it was trained for the capture's PSF grid, else the
+    /// median Wiener image (and every output says which).
+    Auto,
+    /// The median filter of the 13-filter MAFG Wiener bank.
+    Wiener,
+    /// Transformer weights from a file (refused if trained for another PSF grid).
+    Weights(PathBuf),
+}
+
+impl std::str::FromStr for RestorerChoice {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        Ok(match s {
+            "auto" => Self::Auto,
+            "wiener" => Self::Wiener,
+            _ if s.is_empty() => return Err("empty restorer".into()),
+            path => Self::Weights(PathBuf::from(path)),
+        })
+    }
+}
+
+/// Where `I_ac` came from.
+#[derive(Clone, Debug, PartialEq)]
 pub enum Restorer {
-    /// The median filter of the 13-filter MAFG Wiener bank: a stand-in until the transformer
-    /// restorer ships.
+    /// The median filter of the MAFG Wiener bank (no trained weights for this PSF grid).
     MedianWiener,
+    /// The MAFG + STAF transformer: its config name and where its weights came from.
+    Network { config: String, source: String },
 }
 
 impl Restorer {
-    /// The default weight of `L(render, I_ac)` for this source of `I_ac`. The paper's 0.75
-    /// assumes its trained restorer; with the Wiener stand-in (worse than the aberrated input
-    /// at low resolution) 0.75 cost 2 dB on the demo scene (26.15 vs 28.18 dB at 0.25 or 0).
-    pub fn default_lambda(self) -> f32 {
+    /// The default weight of `L(render, I_ac)` for this source of `I_ac`: the paper's 0.75
+    /// with the transformer; with the Wiener stand-in (worse than the aberrated input at low
+    /// resolution) 0.75 cost 2 dB on the demo scene (26.15 vs 28.18 dB at 0.25 or 0).
+    pub fn default_lambda(&self) -> f32 {
         match self {
             Restorer::MedianWiener => 0.25,
+            Restorer::Network { .. } => 0.75,
         }
     }
 
-    pub fn describe(self) -> &'static str {
+    pub fn describe(&self) -> String {
         match self {
             Restorer::MedianWiener => {
-                "I_ac = median MAFG Wiener image (stand-in: the transformer restorer is not built yet)"
+                "I_ac = median MAFG Wiener image (stand-in: no trained restorer for this PSF grid)"
+                    .into()
+            }
+            Restorer::Network { config, source } => {
+                format!("I_ac = MAFG + STAF restorer, config '{config}', weights {source}")
             }
         }
     }
+}
+
+/// A loaded network and where its weights came from.
+type OpenedRestorer = (restore::Restorer, String);
+
+/// Resolves a restorer choice for the capture's PSF grid (`native`, as simulated) whose PSFs
+/// are `psf_px` wide at the capture's size. Also returns a note when `auto` passes over the
+/// shipped network, or when given weights never saw this blur scale.
+fn open_restorer(
+    choice: &RestorerChoice,
+    native: &PsfGrid,
+    psf_px: usize,
+) -> Result<(Option<OpenedRestorer>, Option<String>)> {
+    let scale_note = |r: &restore::Restorer, name: &str| {
+        let [lo, hi] = r.header.trained_psf_px.unwrap_or([0, 0]);
+        format!("{name} was trained on {lo}-{hi} px PSFs; this capture's are {psf_px} px")
+    };
+    Ok(match choice {
+        RestorerChoice::Wiener => (None, None),
+        RestorerChoice::Auto => match restore::shipped::for_psf(native)? {
+            Some(r) if r.header.fits_psf_px(psf_px) => {
+                (Some((r, restore::shipped::TINY_NAME.to_string())), None)
+            }
+            Some(r) => (
+                None,
+                Some(format!(
+                    "{}: using the median Wiener image instead",
+                    scale_note(&r, "the shipped restorer")
+                )),
+            ),
+            None => (None, None),
+        },
+        RestorerChoice::Weights(p) => {
+            let r = restore::Restorer::load(p, native)?;
+            let note = (!r.header.fits_psf_px(psf_px))
+                .then(|| format!("warning: {}", scale_note(&r, &p.display().to_string())));
+            (Some((r, p.display().to_string())), note)
+        }
+    })
 }
 
 #[derive(Clone, Debug)]
@@ -59,7 +128,7 @@ pub struct DataOptions {
     pub llffhold: usize,
     /// A PSF grid file; must agree with the capture's own `psf.npy` when it has one.
     pub psf: Option<PathBuf>,
-    pub restorer: Restorer,
+    pub restorer: RestorerChoice,
     pub seed: u64,
 }
 
@@ -69,7 +138,7 @@ impl Default for DataOptions {
             downsample: 8,
             llffhold: scenes::LLFFHOLD,
             psf: None,
-            restorer: Restorer::MedianWiener,
+            restorer: RestorerChoice::Auto,
             seed: 0,
         }
     }
@@ -84,6 +153,8 @@ pub struct Dataset {
     /// The blur the capture went through (None for a clean capture without `--psf`).
     pub imaging: Option<ImagingModel>,
     pub restorer: Option<Restorer>,
+    /// Why the restorer is not the one asked for, or a warning about it.
+    pub restorer_note: Option<String>,
     /// 3DGS scene extent (camera radius × 1.1): scales position lr and size thresholds.
     pub extent: f32,
     pub points: PointCloud,
@@ -176,16 +247,16 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
         return Err(TrainError::file(dir, "no training views after the split"));
     }
     let (width, height) = (capture.cameras[0].width, capture.cameras[0].height);
-    let imaging = match imaging_settings(dir, &capture, options.psf.as_deref())? {
+    let settings = imaging_settings(dir, &capture, options.psf.as_deref())?;
+    let imaging = match &settings {
         Some((psf, blur, sensor, noise)) => Some(
-            ImagingModel::new(&psf, width as usize, height as usize, blur, sensor, noise).map_err(
-                |e| {
+            ImagingModel::new(psf, width as usize, height as usize, *blur, *sensor, *noise)
+                .map_err(|e| {
                     TrainError::file(
                         options.psf.clone().unwrap_or(dir.join(aberrated::PSF_FILE)),
                         format!("PSF grid does not fit {width}x{height} images: {e}"),
                     )
-                },
-            )?,
+                })?,
         ),
         None => None,
     };
@@ -197,12 +268,25 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
             ),
         ));
     }
-    let restorer = mode.needs_psf().then_some(options.restorer);
+    let (network, restorer_note) = match (&settings, &imaging, mode.needs_psf()) {
+        (Some((psf, ..)), Some(model), true) => {
+            open_restorer(&options.restorer, psf, model.psf().size())?
+        }
+        _ => (None, None),
+    };
+    let restorer = mode.needs_psf().then(|| match &network {
+        Some((r, source)) => Restorer::Network {
+            config: r.config().name.clone(),
+            source: source.clone(),
+        },
+        None => Restorer::MedianWiener,
+    });
 
     let make_view = |i: usize, restore: bool| -> Result<View> {
         let observed = rgb_to_pixels(&capture.load_image(i)?);
         let clean = aberrated::load_clean_image(&capture, i)?.map(|c| rgb_to_pixels(&c));
-        let restored = match (restore, &imaging) {
+        // The network restores views one at a time below (it parallelises inside).
+        let restored = match (restore && network.is_none(), &imaging) {
             (true, Some(model)) => {
                 let blurred = pixels_to_image(&observed, width, height);
                 let mut median = wiener_bank(&blurred, model.psf())?.median().clone();
@@ -219,12 +303,19 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
             clean,
         })
     };
-    let train = capture
+    let mut train = capture
         .split
         .train
         .par_iter()
         .map(|&i| make_view(i, restorer.is_some()))
         .collect::<Result<Vec<_>>>()?;
+    if let (Some((net, _)), Some(model)) = (&network, &imaging) {
+        for v in &mut train {
+            let blurred = pixels_to_image(&v.observed, width, height);
+            let restored = net.restore(&blurred, model.psf())?;
+            v.restored = Some(image_to_pixels(&restored));
+        }
+    }
     let test = capture
         .split
         .test
@@ -242,6 +333,7 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
         test,
         imaging,
         restorer,
+        restorer_note,
         extent,
         points,
         capture,

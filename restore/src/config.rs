@@ -1,0 +1,226 @@
+//! Network sizes and ablation switches, with the analytic parameter count every model is
+//! checked against.
+
+use serde::{Deserialize, Serialize};
+
+/// How the 13 Wiener images enter the network.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Guidance {
+    /// The paper's MAFG: windowed cross-attention, query from the median image, keys and
+    /// values from each filter output.
+    CrossAttention,
+    /// Ablation: the 13 images concatenated (39 channels) straight into the 3×3 embedding.
+    Concat,
+    /// Ablation: the median Wiener image alone.
+    SingleWiener,
+}
+
+/// Sizes of the MAFG + STAF restorer. The U-shaped body follows Restormer: level `l` has
+/// `dim·2^l` channels (the first decoder level and the refinement keep `2·dim`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RestorerConfig {
+    pub name: String,
+    /// Channels at the first level.
+    pub dim: usize,
+    /// STAF blocks per encoder level 1..3 and the latent level; decoders mirror them.
+    pub blocks: [usize; 4],
+    /// Refinement blocks after the last decoder level.
+    pub refinement: usize,
+    /// Heads of the transposed channel attention per level.
+    pub heads: [usize; 4],
+    /// Dimensions per head of the spatial window attention (heads = channels / this).
+    pub window_head_dim: usize,
+    /// Query window side; keys and values come from a window grown by half of it.
+    pub window: usize,
+    /// GDFN hidden expansion.
+    pub ffn_expansion: f64,
+    /// MAFG per-filter embedding width, heads and dimensions per head.
+    pub mafg_embed: usize,
+    pub mafg_heads: usize,
+    pub mafg_head_dim: usize,
+    pub guidance: Guidance,
+    /// The bank's K follows each tile's channel intensity (`K = k·(1 − c_I)`); off is the
+    /// "no channel intensity in K" ablation (fixed K = k).
+    pub adaptive_k: bool,
+    /// Query-enhancement pooling kernels: latent level, decoder levels 3, 2, 1, refinement.
+    pub qe_latent: usize,
+    pub qe_decoder: [usize; 3],
+    pub qe_refinement: usize,
+    /// Side of the square training crops.
+    pub crop: usize,
+}
+
+impl RestorerConfig {
+    /// The paper's released configuration (≈29 M parameters).
+    pub fn paper() -> Self {
+        Self {
+            name: "paper".into(),
+            dim: 48,
+            blocks: [2, 4, 4, 4],
+            refinement: 4,
+            heads: [1, 2, 4, 8],
+            window_head_dim: 16,
+            window: 8,
+            ffn_expansion: 2.66,
+            mafg_embed: 32,
+            mafg_heads: 2,
+            mafg_head_dim: 16,
+            guidance: Guidance::CrossAttention,
+            adaptive_k: true,
+            qe_latent: 15,
+            qe_decoder: [11, 7, 3],
+            qe_refinement: 3,
+            crop: 256,
+        }
+    }
+
+    pub fn small() -> Self {
+        Self {
+            name: "small".into(),
+            dim: 32,
+            blocks: [1, 2, 2, 2],
+            refinement: 2,
+            heads: [1, 2, 4, 8],
+            mafg_embed: 16,
+            crop: 128,
+            ..Self::paper()
+        }
+    }
+
+    /// Trainable on two CPU cores.
+    pub fn tiny() -> Self {
+        Self {
+            name: "tiny".into(),
+            window: 4,
+            dim: 16,
+            blocks: [1, 1, 1, 1],
+            refinement: 1,
+            heads: [1, 1, 2, 2],
+            window_head_dim: 8,
+            mafg_embed: 8,
+            mafg_heads: 1,
+            mafg_head_dim: 8,
+            crop: 64,
+            ..Self::paper()
+        }
+    }
+
+    pub fn by_name(name: &str) -> Option<Self> {
+        match name {
+            "paper" => Some(Self::paper()),
+            "small" => Some(Self::small()),
+            "tiny" => Some(Self::tiny()),
+            _ => None,
+        }
+    }
+
+    /// Channels at level 0..3 of the encoder.
+    pub fn level_dim(&self, level: usize) -> usize {
+        self.dim << level
+    }
+
+    /// Side of the key/value windows: the query window grown by half of it (overlap 0.5).
+    pub fn key_window(&self) -> usize {
+        self.window + self.window / 2
+    }
+
+    /// Inputs are padded to a multiple of this (three 2× downsamplings, then whole windows).
+    pub fn multiple(&self) -> usize {
+        8 * self.window
+    }
+
+    /// GDFN hidden width for `c` channels.
+    pub fn ffn_hidden(&self, c: usize) -> usize {
+        (c as f64 * self.ffn_expansion) as usize
+    }
+
+    /// Checks that every size divides as the modules need.
+    pub fn validate(&self) -> Result<(), String> {
+        let fail = |m: String| Err(format!("config '{}': {m}", self.name));
+        if self.dim == 0 || self.window == 0 || !self.window.is_multiple_of(2) {
+            return fail("dim must be positive and window a positive even number".into());
+        }
+        for l in 0..4 {
+            let c = self.level_dim(l);
+            if self.heads[l] == 0 || !c.is_multiple_of(self.heads[l]) {
+                return fail(format!(
+                    "{} heads do not divide {c} channels",
+                    self.heads[l]
+                ));
+            }
+        }
+        for c in [self.dim, 2 * self.dim, 4 * self.dim, 8 * self.dim] {
+            if self.window_head_dim == 0 || c % self.window_head_dim != 0 {
+                return fail(format!(
+                    "window head dim {} does not divide {c} channels",
+                    self.window_head_dim
+                ));
+            }
+        }
+        for k in [self.qe_latent, self.qe_refinement]
+            .iter()
+            .chain(self.qe_decoder.iter())
+        {
+            if k % 2 == 0 {
+                return fail(format!("query-enhancement kernel {k} must be odd"));
+            }
+        }
+        if self.mafg_embed == 0 || self.mafg_heads * self.mafg_head_dim == 0 {
+            return fail("MAFG sizes must be positive".into());
+        }
+        if self.crop == 0 || !self.crop.is_multiple_of(self.multiple()) {
+            return fail(format!(
+                "crop {} must be a multiple of {}",
+                self.crop,
+                self.multiple()
+            ));
+        }
+        Ok(())
+    }
+
+    /// The number of trainable scalars, counted from the architecture on paper (the tests
+    /// check the built model against it).
+    pub fn analytic_params(&self) -> usize {
+        let d = self.dim;
+        let block = |c: usize, heads: usize| -> usize {
+            let h = self.ffn_hidden(c);
+            let norm = 2 * c;
+            let gdfn = 3 * h * c + 18 * h;
+            let channel_attn = 4 * c * c + 27 * c + heads;
+            let (w, wk) = (self.window, self.key_window());
+            let window_attn = 4 * c * c + 4 * c + (w + wk - 1).pow(2) * (c / self.window_head_dim);
+            let fusion = 2 * c * c + c + c * c + c;
+            4 * norm + 2 * gdfn + channel_attn + window_attn + fusion
+        };
+        let mut n = 0;
+        for l in 0..4 {
+            n += self.blocks[l] * block(d << l, self.heads[l]);
+        }
+        // Decoder levels 3, 2 at their encoder widths; level 1 and the refinement at 2·dim.
+        n += self.blocks[2] * block(4 * d, self.heads[2]);
+        n += self.blocks[1] * block(2 * d, self.heads[1]);
+        n += self.blocks[0] * block(2 * d, self.heads[0]);
+        n += self.refinement * block(2 * d, self.heads[0]);
+        // Downsampling convs (C → C/2, then unshuffle) and upsampling convs (C → 2C, shuffle).
+        for l in 0..3 {
+            let c = d << l;
+            n += 9 * c * (c / 2);
+            let up = d << (l + 1);
+            n += 9 * up * (2 * up);
+        }
+        // 1×1 channel reductions after the skip concatenations at decoder levels 3 and 2.
+        n += 8 * d * 4 * d + 4 * d * 2 * d;
+        // Output 3×3 conv 2·dim → 3.
+        n += 9 * 2 * d * 3;
+        n + match self.guidance {
+            Guidance::CrossAttention => {
+                let (e, hd) = (self.mafg_embed, self.mafg_heads * self.mafg_head_dim);
+                let (w, wk) = (self.window, self.key_window());
+                4 * e + 2 * e + 3 * (e * hd + hd) + (w * w + wk * wk) * hd + 3 * hd + 3 + 9 * 39 * d
+            }
+            Guidance::Concat => 9 * 39 * d,
+            Guidance::SingleWiener => 9 * 3 * d,
+        }
+    }
+}

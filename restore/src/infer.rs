@@ -1,0 +1,128 @@
+//! Restoring images with trained weights: the library call the splat trainer and
+//! `metasplat restore` use.
+
+use crate::config::RestorerConfig;
+use crate::data::bank_images;
+use crate::error::Result;
+use crate::net::RestorerNet;
+use crate::tiles::{Planes, round_up, tiled};
+use crate::weights::{self, Header};
+use aberration::wiener::BANK_SIZE;
+use aberration::{Image, PsfGrid};
+use burn::tensor::{Device, Tensor, TensorData};
+use std::path::Path;
+
+/// Runs the network on one padded tile of Wiener planes (39 channels).
+pub fn run_tile(net: &RestorerNet, x: &Planes, device: &Device) -> Planes {
+    let t = Tensor::<4>::from_data(TensorData::new(x.data.clone(), [1, x.c, x.h, x.w]), device);
+    let y: Vec<f32> = net
+        .forward(t)
+        .try_into_vec_as::<f32>()
+        .expect("flex tensors read back");
+    Planes {
+        c: 3,
+        h: x.h,
+        w: x.w,
+        data: y,
+    }
+}
+
+/// The 13 Wiener images as network input planes (filter-major).
+pub fn bank_planes(bank: &[Image]) -> Planes {
+    let (w, h) = (bank[0].width, bank[0].height);
+    let mut data = Vec::with_capacity(BANK_SIZE * 3 * w * h);
+    for img in bank {
+        data.extend_from_slice(&img.data);
+    }
+    Planes {
+        c: 3 * bank.len(),
+        h,
+        w,
+        data,
+    }
+}
+
+/// A frozen restorer.
+pub struct Restorer {
+    pub net: RestorerNet,
+    pub header: Header,
+    pub device: Device,
+    /// Tile side and overlap for large images (multiples of the config's padding unit).
+    pub tile: usize,
+    pub overlap: usize,
+}
+
+/// Memory a tile may take in inference.
+const TILE_BUDGET_BYTES: f64 = 1.5e9;
+
+/// The largest tile side (a multiple of the config's padding unit) whose MAFG attention fits
+/// [`TILE_BUDGET_BYTES`]: 13 filters × key-window logits per pixel, about three live copies
+/// (logits, softmax, a temporary). 512 px for `tiny`, 256 px for `paper`.
+pub fn default_tile(cfg: &RestorerConfig) -> usize {
+    let bytes_per_px = (BANK_SIZE * cfg.key_window().pow(2) * 4 * 3) as f64;
+    let side = (TILE_BUDGET_BYTES / bytes_per_px).sqrt() as usize;
+    let m = cfg.multiple();
+    (side / m * m).max(m)
+}
+
+impl Restorer {
+    pub fn new(net: RestorerNet, header: Header, device: Device) -> Self {
+        let m = header.config.multiple();
+        let tile = default_tile(&header.config);
+        Self {
+            net,
+            header,
+            device,
+            tile,
+            overlap: m,
+        }
+    }
+
+    /// Loads weights trained for `native` (the PSF grid as simulated, before mapping to an
+    /// image size); another grid is refused.
+    pub fn load(path: &Path, native: &PsfGrid) -> Result<Self> {
+        let device = Device::flex();
+        let (net, header) = weights::load(path, &device, None, Some(native))?;
+        Ok(Self::new(net, header, device))
+    }
+
+    /// [`Restorer::load`] from the bytes of a weights file (`name` names them in errors).
+    pub fn from_bytes(bytes: &[u8], name: &Path, native: &PsfGrid) -> Result<Self> {
+        let device = Device::flex();
+        let (net, header) = weights::load_bytes(bytes, name, &device, None, Some(native))?;
+        Ok(Self::new(net, header, device))
+    }
+
+    pub fn config(&self) -> &RestorerConfig {
+        &self.header.config
+    }
+
+    /// Restores 13 Wiener images of one aberrated image; output clamped to [0, 1].
+    pub fn restore_bank(&self, bank: &[Image]) -> Image {
+        let (w, h) = (bank[0].width, bank[0].height);
+        let m = self.config().multiple();
+        let x = bank_planes(bank).padded(round_up(h, m), round_up(w, m));
+        let y = tiled(&x, self.tile, self.overlap, |t| {
+            Ok::<_, std::convert::Infallible>(run_tile(&self.net, t, &self.device))
+        })
+        .unwrap_or_else(|e| match e {})
+        .cropped(h, w);
+        let mut img = Image {
+            width: w,
+            height: h,
+            data: y.data,
+        };
+        // A non-finite output (never seen; guards the splat trainer) falls back to the median.
+        if !img.is_finite() {
+            img = bank[aberration::wiener::BANK_MEDIAN].clone();
+        }
+        img.clamp01();
+        img
+    }
+
+    /// Restores an aberrated image whose PSF grid at its scale is `psf`.
+    pub fn restore(&self, blurred: &Image, psf: &PsfGrid) -> Result<Image> {
+        let bank = bank_images(blurred, psf, self.config().adaptive_k)?;
+        Ok(self.restore_bank(&bank))
+    }
+}

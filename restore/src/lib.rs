@@ -1,0 +1,22 @@
+//! The MAFG + STAF aberration-correcting transformer of Lee et al. (ICCV 2025), on burn.
+//!
+//! - [`config`]: sizes (`paper`, `small`, `tiny`), ablation switches, analytic parameter count.
+//! - [`net`]: the network and its attention modules.
+//! - [`data`]: training pairs made on the fly by the imaging model of [`aberration`].
+//! - [`train`]: the training loop; [`weights`]: the weights file; [`infer`]: restoring
+//!   images (tiled, see [`tiles`]).
+
+pub mod config;
+pub mod data;
+pub mod error;
+pub mod infer;
+pub mod net;
+pub mod shipped;
+pub mod tiles;
+pub mod train;
+pub mod weights;
+
+pub use config::{Guidance, RestorerConfig};
+pub use error::{RestoreError, Result};
+pub use infer::Restorer;
+pub use net::RestorerNet;

@@ -1,0 +1,58 @@
+//! Restormer's transposed (channel) attention: attention maps of size `C/heads × C/heads`
+//! over the whole image, so its cost is linear in the pixel count.
+
+use burn::module::{Module, Param};
+use burn::nn::conv::Conv2d;
+use burn::tensor::activation::softmax;
+use burn::tensor::{Device, Tensor};
+
+use super::layers::{conv, depthwise3, enhance_query};
+
+/// `x / max(‖x‖₂, ε)` along the last dimension.
+pub fn l2_normalise(x: Tensor<4>) -> Tensor<4> {
+    let norm = x
+        .clone()
+        .powf_scalar(2.0)
+        .sum_dim(3)
+        .sqrt()
+        .clamp_min(1e-12);
+    x / norm
+}
+
+#[derive(Module, Debug)]
+pub struct ChannelAttention {
+    pub qkv: Conv2d,
+    pub qkv_depthwise: Conv2d,
+    pub proj: Conv2d,
+    /// Learned softmax temperature per head.
+    pub temperature: Param<Tensor<1>>,
+    pub heads: usize,
+    pub qe: usize,
+}
+
+impl ChannelAttention {
+    pub fn new(c: usize, heads: usize, qe: usize, device: &Device) -> Self {
+        Self {
+            qkv: conv(c, 3 * c, 1, false, device),
+            qkv_depthwise: depthwise3(3 * c, device),
+            proj: conv(c, c, 1, false, device),
+            temperature: Param::from_tensor(Tensor::ones([heads], device)),
+            heads,
+            qe,
+        }
+    }
+
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        let [b, c, h, w] = x.dims();
+        let mut parts = self.qkv_depthwise.forward(self.qkv.forward(x)).chunk(3, 1);
+        let v = parts.pop().expect("qkv");
+        let k = parts.pop().expect("qkv");
+        let q = enhance_query(parts.pop().expect("qkv"), self.qe);
+        let d = c / self.heads;
+        let split = |t: Tensor<4>| t.reshape([b, self.heads, d, h * w]);
+        let (q, k, v) = (l2_normalise(split(q)), l2_normalise(split(k)), split(v));
+        let t = self.temperature.val().reshape([1, self.heads, 1, 1]);
+        let attn = softmax(q.matmul(k.swap_dims(2, 3)) * t, 3);
+        self.proj.forward(attn.matmul(v).reshape([b, c, h, w]))
+    }
+}

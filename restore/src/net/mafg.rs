@@ -1,0 +1,88 @@
+//! MAFG: guidance from the 13 Wiener images. Each filter output is embedded per pixel; the
+//! median image's embedding queries every filter's embedding in overlapping windows; each
+//! filter's answer is projected back to RGB, and the 13 RGB answers (39 channels) are
+//! embedded by a 3×3 conv into the body's width.
+
+use burn::module::{Module, Param};
+use burn::nn::conv::Conv2d;
+use burn::tensor::{Device, Tensor};
+
+use super::layers::{ChannelNorm, conv};
+use super::window::{attend, key_mask, key_windows, merge_windows, query_windows};
+use aberration::wiener::{BANK_MEDIAN, BANK_SIZE};
+
+#[derive(Module, Debug)]
+pub struct CrossAttentionGuide {
+    pub embed: Conv2d,
+    pub norm: ChannelNorm,
+    pub q: Conv2d,
+    pub k: Conv2d,
+    pub v: Conv2d,
+    /// Learned position embeddings of the query and key window positions.
+    pub pos_q: Param<Tensor<2>>,
+    pub pos_k: Param<Tensor<2>>,
+    pub out: Conv2d,
+    pub heads: usize,
+    pub win: usize,
+    pub kwin: usize,
+}
+
+impl CrossAttentionGuide {
+    pub fn new(
+        embed: usize,
+        heads: usize,
+        head_dim: usize,
+        win: usize,
+        kwin: usize,
+        device: &Device,
+    ) -> Self {
+        let hd = heads * head_dim;
+        let normal = burn::tensor::Distribution::Normal(0.0, 0.02);
+        Self {
+            embed: conv(3, embed, 1, true, device),
+            norm: ChannelNorm::new(embed, device),
+            q: conv(embed, hd, 1, true, device),
+            k: conv(embed, hd, 1, true, device),
+            v: conv(embed, hd, 1, true, device),
+            pos_q: Param::from_tensor(Tensor::random([win * win, hd], normal, device)),
+            pos_k: Param::from_tensor(Tensor::random([kwin * kwin, hd], normal, device)),
+            out: conv(hd, 3, 1, true, device),
+            heads,
+            win,
+            kwin,
+        }
+    }
+
+    /// `bank: [b, 39, h, w]` (filter-major) → `[b, 39, h, w]`.
+    pub fn forward(&self, bank: Tensor<4>) -> Tensor<4> {
+        let [b, _, h, w] = bank.dims();
+        let m = BANK_SIZE;
+        let feats = self
+            .norm
+            .forward(self.embed.forward(bank.reshape([b * m, 3, h, w])));
+        let e = feats.dims()[1];
+        let median = feats
+            .clone()
+            .reshape([b, m, e, h, w])
+            .narrow(1, BANK_MEDIAN, 1)
+            .reshape([b, e, h, w]);
+        let q = query_windows(self.q.forward(median), self.win)
+            + self.pos_q.val().unsqueeze_dim::<3>(0);
+        let k = key_windows(self.k.forward(feats.clone()), self.win, self.kwin)
+            + self.pos_k.val().unsqueeze_dim::<3>(0);
+        let v = key_windows(self.v.forward(feats), self.win, self.kwin);
+        // Every filter is asked the same question: repeat the median's query windows.
+        let [nq, lq, hd] = q.dims();
+        let q =
+            q.reshape([b, 1, nq / b, lq, hd])
+                .repeat_dim(1, m)
+                .reshape([b * m * (nq / b), lq, hd]);
+        let device = k.device();
+        let mask = key_mask(h, w, self.win, self.kwin, &device)
+            .unsqueeze_dim::<4>(1)
+            .repeat_dim(0, b * m);
+        let out = attend(q, k, v, self.heads, mask);
+        let rgb = self.out.forward(merge_windows(out, b * m, h, w, self.win));
+        rgb.reshape([b, 3 * m, h, w])
+    }
+}

@@ -1,0 +1,226 @@
+//! Training: random crops of on-the-fly aberrated photos, L1 loss on the restored image,
+//! AdamW with a cosine schedule, periodic validation and checkpoints.
+
+use crate::config::RestorerConfig;
+use crate::data::{Blur, Sample, TrainSet, bank_images};
+use crate::error::Result;
+use crate::infer::Restorer;
+use crate::net::RestorerNet;
+use crate::weights::{self, Header, PsfFingerprint};
+use aberration::wiener::BANK_SIZE;
+use aberration::{BlurMode, Image, ImagingModel, NoiseModel, PsfGrid};
+use burn::module::Module;
+use burn::optim::grad_clipping::GradientClippingConfig;
+use burn::optim::{AdamWConfig, GradientsParams};
+use burn::tensor::{Device, Tensor, TensorData};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use std::path::Path;
+use std::time::Instant;
+
+#[derive(Clone, Debug)]
+pub struct TrainOptions {
+    pub steps: usize,
+    pub batch: usize,
+    pub lr: f64,
+    pub weight_decay: f32,
+    /// Per-parameter gradient L2-norm clip (burn's `GradientClippingConfig::Norm`).
+    pub clip: f32,
+    pub seed: u64,
+    /// Validate (and checkpoint) every this many steps; 0: only at the end.
+    pub val_every: usize,
+    pub noise: NoiseModel,
+}
+
+impl Default for TrainOptions {
+    fn default() -> Self {
+        Self {
+            steps: 2000,
+            batch: 8,
+            lr: 3e-4,
+            weight_decay: 1e-4,
+            clip: 1.0,
+            seed: 0,
+            val_every: 250,
+            noise: NoiseModel::default(),
+        }
+    }
+}
+
+/// Learning rate at `step`: linear warm-up over 2% of training, then cosine to 1% of `lr`.
+pub fn learning_rate(lr: f64, step: usize, steps: usize) -> f64 {
+    let warm = (steps / 50).max(1);
+    if step < warm {
+        return lr * (step + 1) as f64 / warm as f64;
+    }
+    let t = (step - warm) as f64 / (steps - warm).max(1) as f64;
+    lr * (0.01 + 0.99 * 0.5 * (1.0 + (std::f64::consts::PI * t).cos()))
+}
+
+/// Validation images: each aberrated once through the whole grid with a fixed seed.
+pub struct ValSet {
+    pub names: Vec<String>,
+    pub banks: Vec<Vec<Image>>,
+    pub clean: Vec<Image>,
+}
+
+impl ValSet {
+    /// `crop`: validate on the centred `crop × crop` region (whole images when `None`); the
+    /// Wiener images are computed on the whole photo either way.
+    pub fn build(
+        photos: &[(String, Image)],
+        native: &PsfGrid,
+        cfg: &RestorerConfig,
+        noise: NoiseModel,
+        crop: Option<usize>,
+    ) -> Result<Self> {
+        let mut v = ValSet {
+            names: vec![],
+            banks: vec![],
+            clean: vec![],
+        };
+        for (i, (name, img)) in photos.iter().enumerate() {
+            let model =
+                ImagingModel::new(native, img.width, img.height, BlurMode::Tiled, None, noise)?;
+            let blurred = model.capture(img, 0x5EED_0000 + i as u64)?;
+            let bank = bank_images(&blurred, model.psf(), cfg.adaptive_k)?;
+            let (bank, clean) = match crop {
+                Some(s) if s < img.width.min(img.height) => {
+                    let (x0, y0) = ((img.width - s) / 2, (img.height - s) / 2);
+                    (
+                        bank.iter().map(|b| crop_image(b, x0, y0, s)).collect(),
+                        crop_image(img, x0, y0, s),
+                    )
+                }
+                _ => (bank, img.clone()),
+            };
+            v.names.push(name.clone());
+            v.banks.push(bank);
+            v.clean.push(clean);
+        }
+        Ok(v)
+    }
+}
+
+pub fn crop_image(img: &Image, x0: usize, y0: usize, s: usize) -> Image {
+    Image::from_fn(s, s, |x, y| {
+        std::array::from_fn(|c| img.get(x0 + x, y0 + y, c))
+    })
+}
+
+/// Mean metrics of a restorer on a validation set; `metric(a, b)` gives (PSNR, SSIM).
+pub fn validate(
+    restorer: &Restorer,
+    val: &ValSet,
+    metric: &dyn Fn(&Image, &Image) -> (f64, f64),
+) -> (f64, f64) {
+    let mut acc = (0.0, 0.0);
+    for (bank, clean) in val.banks.iter().zip(&val.clean) {
+        let (p, s) = metric(&restorer.restore_bank(bank), clean);
+        acc.0 += p;
+        acc.1 += s;
+    }
+    let n = val.banks.len().max(1) as f64;
+    (acc.0 / n, acc.1 / n)
+}
+
+/// What training reports as it goes.
+pub enum Event {
+    Step {
+        step: usize,
+        loss: f32,
+        lr: f64,
+    },
+    Val {
+        step: usize,
+        psnr: f64,
+        ssim: f64,
+        seconds: f64,
+    },
+}
+
+/// Trains a fresh network (or continues `init`) and writes it to `out` at every validation
+/// and at the end. Returns the trained network and the last validation metrics.
+#[allow(clippy::too_many_arguments)]
+pub fn train(
+    cfg: &RestorerConfig,
+    init: Option<RestorerNet>,
+    set: &TrainSet,
+    val: &ValSet,
+    native: &PsfGrid,
+    opts: &TrainOptions,
+    out: &Path,
+    provenance: &dyn Fn(usize, f64, (f64, f64)) -> serde_json::Value,
+    metric: &dyn Fn(&Image, &Image) -> (f64, f64),
+    on_event: &mut dyn FnMut(Event),
+) -> Result<(RestorerNet, (f64, f64))> {
+    let device = Device::flex().autodiff();
+    device.seed(opts.seed);
+    let mut net = init.unwrap_or_else(|| RestorerNet::new(cfg, &device));
+    let mut optim = AdamWConfig::new()
+        .with_weight_decay(opts.weight_decay)
+        .with_grad_clipping(Some(GradientClippingConfig::Norm(opts.clip)))
+        .init();
+    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
+    let s = cfg.crop;
+    let started = Instant::now();
+    let mut last = (f64::NAN, f64::NAN);
+    let checkpoint = |net: &RestorerNet, step: usize, m: (f64, f64)| -> Result<()> {
+        let header = Header {
+            config: cfg.clone(),
+            psf: PsfFingerprint::of(native),
+            trained_psf_px: Some(set.psf_px),
+            provenance: provenance(step, started.elapsed().as_secs_f64(), m),
+        };
+        weights::save(&net.valid(), &header, out)
+    };
+    for step in 0..opts.steps {
+        let (x, y) = set.batch(&mut rng, opts.batch, s);
+        let x = Tensor::<4>::from_data(
+            TensorData::new(x, [opts.batch, 3 * BANK_SIZE, s, s]),
+            &device,
+        );
+        let y = Tensor::<4>::from_data(TensorData::new(y, [opts.batch, 3, s, s]), &device);
+        let loss = (net.forward(x) - y).abs().mean();
+        let grads = GradientsParams::from_grads(loss.backward(), &net);
+        let lr = learning_rate(opts.lr, step, opts.steps);
+        net = optim.step(lr, net, grads);
+        let l: f32 = loss.into_scalar::<f32>();
+        on_event(Event::Step {
+            step: step + 1,
+            loss: l,
+            lr,
+        });
+        let done = step + 1 == opts.steps;
+        if done || (opts.val_every > 0 && (step + 1) % opts.val_every == 0) {
+            let header = Header {
+                config: cfg.clone(),
+                psf: PsfFingerprint::of(native),
+                trained_psf_px: Some(set.psf_px),
+                provenance: serde_json::Value::Null,
+            };
+            let r = Restorer::new(net.valid(), header, Device::flex());
+            last = validate(&r, val, metric);
+            on_event(Event::Val {
+                step: step + 1,
+                psnr: last.0,
+                ssim: last.1,
+                seconds: started.elapsed().as_secs_f64(),
+            });
+            checkpoint(&net, step + 1, last)?;
+        }
+    }
+    Ok((net.valid(), last))
+}
+
+/// One training sample per photo, kept for tests and tools that want a specific blur.
+pub fn sample(
+    clean: &Image,
+    native: &PsfGrid,
+    blur: Blur,
+    noise: NoiseModel,
+    cfg: &RestorerConfig,
+    seed: u64,
+) -> Result<Sample> {
+    Sample::make(clean, native, blur, noise, cfg.adaptive_k, seed)
+}

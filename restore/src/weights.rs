@@ -1,0 +1,193 @@
+//! The weights file: a short JSON header (configuration, the PSF grid the network was trained
+//! for, how it was made) followed by burn's burnpack record. One file, written atomically.
+
+use crate::config::RestorerConfig;
+use crate::error::{RestoreError, Result};
+use crate::net::RestorerNet;
+use aberration::PsfGrid;
+use burn::module::Module;
+use burn::store::ModuleRecord;
+use burn::tensor::{Bytes, Device};
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::Path;
+
+const MAGIC: &[u8] = b"METASPLAT-RESTORER 1\n";
+
+/// Which PSF grid a network was trained for: its shape and a hash of its values.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PsfFingerprint {
+    pub grid: usize,
+    pub size: usize,
+    /// FNV-1a of the f32 bit patterns, hex.
+    pub hash: String,
+}
+
+impl Header {
+    /// True when PSFs of `px` pixels are within the scales seen in training (±25%); true
+    /// when the file does not say.
+    pub fn fits_psf_px(&self, px: usize) -> bool {
+        self.trained_psf_px
+            .is_none_or(|[lo, hi]| px as f64 >= lo as f64 * 0.8 && px as f64 <= hi as f64 * 1.25)
+    }
+}
+
+impl PsfFingerprint {
+    pub fn of(psf: &PsfGrid) -> Self {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        for v in psf.planar() {
+            for b in v.to_bits().to_le_bytes() {
+                h ^= b as u64;
+                h = h.wrapping_mul(0x0100_0000_01b3);
+            }
+        }
+        Self {
+            grid: psf.grid(),
+            size: psf.size(),
+            hash: format!("{h:016x}"),
+        }
+    }
+}
+
+/// Everything the file says about the network besides its weights.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Header {
+    pub config: RestorerConfig,
+    pub psf: PsfFingerprint,
+    /// Smallest and largest PSF side (px) the grid had at the training photos' sizes: the
+    /// blur scales the network has seen.
+    #[serde(default)]
+    pub trained_psf_px: Option<[usize; 2]>,
+    /// Free-form record of how the weights were made (command, steps, seed, time, metrics).
+    pub provenance: serde_json::Value,
+}
+
+fn bad(path: &Path, message: impl Into<String>) -> RestoreError {
+    RestoreError::Weights {
+        path: path.to_path_buf(),
+        message: message.into(),
+    }
+}
+
+/// Writes `net` with its header to `path` (temporary name, then rename).
+pub fn save(net: &RestorerNet, header: &Header, path: &Path) -> Result<()> {
+    let json = serde_json::to_vec(header).map_err(|e| bad(path, e.to_string()))?;
+    let record = net
+        .clone()
+        .into_record()
+        .into_bytes()
+        .map_err(|e| bad(path, format!("cannot serialise the record: {e}")))?;
+    let mut bytes = Vec::with_capacity(MAGIC.len() + 8 + json.len() + record.len());
+    bytes.extend_from_slice(MAGIC);
+    bytes.extend_from_slice(&(json.len() as u64).to_le_bytes());
+    bytes.extend_from_slice(&json);
+    bytes.extend_from_slice(&record);
+    aberration::atomic::write_atomically(path, |w| w.write_all(&bytes))
+        .map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
+    Ok(())
+}
+
+/// Reads a weights file: its header and the record bytes.
+pub fn read(path: &Path) -> Result<(Header, Vec<u8>)> {
+    let bytes = std::fs::read(path).map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
+    parse(&bytes, path)
+}
+
+/// Splits the bytes of a weights file (`path` names it in errors) into header and record.
+pub fn parse(bytes: &[u8], path: &Path) -> Result<(Header, Vec<u8>)> {
+    if !bytes.starts_with(MAGIC) || bytes.len() < MAGIC.len() + 8 {
+        return Err(bad(path, "not a metasplat restorer weights file"));
+    }
+    let n = u64::from_le_bytes(
+        bytes[MAGIC.len()..MAGIC.len() + 8]
+            .try_into()
+            .expect("8 bytes"),
+    );
+    let start = MAGIC.len() + 8;
+    if n > (bytes.len() - start) as u64 {
+        return Err(bad(path, "truncated header"));
+    }
+    let n = n as usize;
+    let header: Header = serde_json::from_slice(&bytes[start..start + n])
+        .map_err(|e| bad(path, format!("bad header: {e}")))?;
+    header.config.validate().map_err(|e| bad(path, e))?;
+    Ok((header, bytes[start + n..].to_vec()))
+}
+
+/// Loads a network. With `expected`, a file of another configuration is refused naming both;
+/// with `psf`, weights trained for another PSF grid are refused.
+pub fn load(
+    path: &Path,
+    device: &Device,
+    expected: Option<&RestorerConfig>,
+    psf: Option<&PsfGrid>,
+) -> Result<(RestorerNet, Header)> {
+    let (header, record) = read(path)?;
+    build(header, record, path, device, expected, psf)
+}
+
+/// [`load`] from bytes already in memory (`path` names them in errors).
+pub fn load_bytes(
+    bytes: &[u8],
+    path: &Path,
+    device: &Device,
+    expected: Option<&RestorerConfig>,
+    psf: Option<&PsfGrid>,
+) -> Result<(RestorerNet, Header)> {
+    let (header, record) = parse(bytes, path)?;
+    build(header, record, path, device, expected, psf)
+}
+
+fn build(
+    header: Header,
+    record: Vec<u8>,
+    path: &Path,
+    device: &Device,
+    expected: Option<&RestorerConfig>,
+    psf: Option<&PsfGrid>,
+) -> Result<(RestorerNet, Header)> {
+    if let Some(cfg) = expected
+        && *cfg != header.config
+    {
+        return Err(bad(
+            path,
+            format!(
+                "weights are of config '{}' ({} parameters), expected '{}' ({} parameters)",
+                header.config.name,
+                header.config.analytic_params(),
+                cfg.name,
+                cfg.analytic_params()
+            ),
+        ));
+    }
+    if let Some(psf) = psf {
+        let fp = PsfFingerprint::of(psf);
+        if fp != header.psf {
+            return Err(bad(
+                path,
+                format!(
+                    "weights were trained for a {}x{} grid of {} px PSFs (hash {}), this PSF grid is {}x{} of {} px (hash {})",
+                    header.psf.grid,
+                    header.psf.grid,
+                    header.psf.size,
+                    header.psf.hash,
+                    fp.grid,
+                    fp.grid,
+                    fp.size,
+                    fp.hash
+                ),
+            ));
+        }
+    }
+    let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(record))
+        .map_err(|e| bad(path, format!("bad record: {e}")))?;
+    let net = RestorerNet::new(&header.config, device)
+        .try_load_record(record)
+        .map_err(|e| {
+            bad(
+                path,
+                format!("weights do not fit config '{}': {e}", header.config.name),
+            )
+        })?;
+    Ok((net, header))
+}

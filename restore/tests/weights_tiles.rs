@@ -1,0 +1,277 @@
+//! Weights files, tiled inference, a few training steps, input photos.
+
+use aberration::PsfGrid;
+use burn::module::Module;
+use burn::optim::{AdamWConfig, GradientsParams};
+use burn::tensor::{Device, Distribution, Tensor, TensorData};
+use restore::tiles::{Planes, round_up, tiled};
+use restore::weights::{self, Header, PsfFingerprint};
+use restore::{RestoreError, RestorerConfig, RestorerNet};
+
+fn header(cfg: &RestorerConfig, psf: &PsfGrid) -> Header {
+    Header {
+        config: cfg.clone(),
+        psf: PsfFingerprint::of(psf),
+        trained_psf_px: None,
+        provenance: serde_json::json!({"test": true}),
+    }
+}
+
+fn psf_a() -> PsfGrid {
+    PsfGrid::delta(3, 5)
+}
+
+fn psf_b() -> PsfGrid {
+    let k = [0.0f32, 0.25, 0.5, 0.25, 0.0];
+    let mut data = vec![];
+    for _ in 0..9 * 3 {
+        for y in 0..5 {
+            for x in 0..5 {
+                data.push(k[y] * k[x] * 4.0 / 4.0);
+            }
+        }
+    }
+    PsfGrid::from_planar(3, 5, data).unwrap()
+}
+
+fn outputs(net: &RestorerNet, x: &Tensor<4>) -> Vec<u32> {
+    net.forward(x.clone())
+        .try_into_vec_as::<f32>()
+        .unwrap()
+        .into_iter()
+        .map(f32::to_bits)
+        .collect()
+}
+
+#[test]
+fn save_then_load_gives_bit_identical_outputs() {
+    let device = Device::flex();
+    device.seed(11);
+    let cfg = RestorerConfig::tiny();
+    let net = RestorerNet::new(&cfg, &device);
+    let x = Tensor::<4>::random([1, 39, 32, 64], Distribution::Default, &device);
+    let before = outputs(&net, &x);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("w.bin");
+    weights::save(&net, &header(&cfg, &psf_a()), &path).unwrap();
+    let (loaded, h) = weights::load(&path, &device, Some(&cfg), Some(&psf_a())).unwrap();
+    assert_eq!(h.provenance["test"], true);
+    assert_eq!(outputs(&loaded, &x), before);
+    // A differently seeded network really differs (the comparison above can fail).
+    device.seed(12);
+    let other = RestorerNet::new(&cfg, &device);
+    assert_ne!(outputs(&other, &x), before);
+}
+
+#[test]
+fn weights_of_another_config_or_psf_grid_are_refused_naming_both() {
+    let device = Device::flex();
+    let cfg = RestorerConfig::tiny();
+    let net = RestorerNet::new(&cfg, &device);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("tiny.bin");
+    weights::save(&net, &header(&cfg, &psf_a()), &path).unwrap();
+    let small = RestorerConfig::small();
+    let e = weights::load(&path, &device, Some(&small), None)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("tiny.bin") && e.contains("'tiny'") && e.contains("'small'"),
+        "{e}"
+    );
+    let e = weights::load(&path, &device, None, Some(&psf_b()))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("tiny.bin") && e.contains("trained for a 3x3 grid"),
+        "{e}"
+    );
+    // Garbage and truncation: errors naming the file, no panic.
+    let bytes = std::fs::read(&path).unwrap();
+    for cut in [0, 10, 30, bytes.len() / 2, bytes.len() - 1] {
+        std::fs::write(&path, &bytes[..cut]).unwrap();
+        let e = weights::load(&path, &device, None, None).err().unwrap();
+        assert!(matches!(e, RestoreError::Weights { .. }), "cut {cut}: {e}");
+        assert!(e.to_string().contains("tiny.bin"));
+    }
+    // A header that claims another config than the record holds.
+    let mut h = header(&small, &psf_a());
+    h.config = small;
+    weights::save(&net, &h, &path).unwrap();
+    let e = weights::load(&path, &device, None, None)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("do not fit config 'small'"), "{e}");
+}
+
+/// A local stand-in for the network: 3×3 zero-padded box filter of the first three planes.
+fn box3(x: &Planes) -> Planes {
+    let (h, w) = (x.h, x.w);
+    let mut data = vec![0.0; 3 * h * w];
+    for c in 0..3 {
+        for y in 0..h as isize {
+            for xx in 0..w as isize {
+                let mut s = 0.0;
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let (yy, x2) = (y + dy, xx + dx);
+                        if (0..h as isize).contains(&yy) && (0..w as isize).contains(&x2) {
+                            s += x.data[(c * h + yy as usize) * w + x2 as usize];
+                        }
+                    }
+                }
+                data[(c * h + y as usize) * w + xx as usize] = s / 9.0;
+            }
+        }
+    }
+    Planes { c: 3, h, w, data }
+}
+
+#[test]
+fn tiled_inference_equals_whole_image_inference_inside_tile_interiors() {
+    let (h, w) = (70, 101);
+    let mut rng = 12345u64;
+    let data: Vec<f32> = (0..39 * h * w)
+        .map(|_| {
+            rng = rng
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (rng >> 40) as f32 / (1u64 << 24) as f32
+        })
+        .collect();
+    let x = Planes { c: 39, h, w, data }.padded(round_up(h, 32), round_up(w, 32));
+    assert_eq!((x.h, x.w), (96, 128));
+    let whole = box3(&x);
+    let (tile, overlap) = (64, 32);
+    let t = tiled(&x, tile, overlap, |p| Ok::<_, ()>(box3(p))).unwrap();
+    // Tile starts are 0 and 32 (rows) and 0, 32, 64 (columns); a pixel is interior when it
+    // is more than one pixel from every inner tile edge.
+    let inner_edges = |n: usize| -> Vec<usize> {
+        let s = restore::tiles::starts(n, tile, overlap);
+        s.iter()
+            .flat_map(|&a| [a, a + tile])
+            .filter(|&e| e > 0 && e < n)
+            .collect()
+    };
+    let (ey, ex) = (inner_edges(x.h), inner_edges(x.w));
+    let far = |p: usize, edges: &[usize]| edges.iter().all(|&e| p + 1 < e || p > e);
+    let mut worst: f32 = 0.0;
+    let mut near_edge_diff: f32 = 0.0;
+    for c in 0..3 {
+        for y in 0..x.h {
+            for xx in 0..x.w {
+                let i = (c * x.h + y) * x.w + xx;
+                let d = (t.data[i] - whole.data[i]).abs();
+                if far(y, &ey) && far(xx, &ex) {
+                    worst = worst.max(d);
+                } else {
+                    near_edge_diff = near_edge_diff.max(d);
+                }
+            }
+        }
+    }
+    assert!(worst < 1e-4, "{worst}");
+    // The stand-in does see tile edges: without blending weights these would show.
+    assert!(near_edge_diff > 0.0);
+    // Padding mirrors the image (half-sample symmetric) and keeps the original in place.
+    assert_eq!(x.cropped(h, w).data[..w], x.data[..w]);
+}
+
+#[test]
+fn a_few_training_steps_on_a_fixed_batch_reduce_the_loss() {
+    let device = Device::flex().autodiff();
+    device.seed(21);
+    let cfg = RestorerConfig::tiny();
+    let mut net = RestorerNet::new(&cfg, &device);
+    let (b, s) = (2, 32);
+    // Inputs: 13 noisy copies of a smooth target; the network must learn to undo the noise.
+    let target: Vec<f32> = (0..b * 3 * s * s)
+        .map(|i| {
+            let (x, y) = ((i % s) as f32, ((i / s) % s) as f32);
+            0.5 + 0.3 * (0.3 * x).sin() * (0.2 * y).cos()
+        })
+        .collect();
+    let mut rng = 7u64;
+    let mut noisy = Vec::with_capacity(b * 39 * s * s);
+    for bi in 0..b {
+        for _ in 0..13 {
+            for i in 0..3 * s * s {
+                rng = rng
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                noisy.push(
+                    target[bi * 3 * s * s + i]
+                        + 0.2 * ((rng >> 40) as f32 / (1u64 << 24) as f32 - 0.5),
+                );
+            }
+        }
+    }
+    let x = Tensor::<4>::from_data(TensorData::new(noisy, [b, 39, s, s]), &device);
+    let y = Tensor::<4>::from_data(TensorData::new(target, [b, 3, s, s]), &device);
+    let mut optim = AdamWConfig::new().init();
+    let mut losses = vec![];
+    for _ in 0..12 {
+        let loss = (net.forward(x.clone()) - y.clone()).abs().mean();
+        let grads = GradientsParams::from_grads(loss.backward(), &net);
+        losses.push(loss.into_scalar::<f32>());
+        net = optim.step(1e-3, net, grads);
+    }
+    let (first, last) = (losses[0], *losses.last().unwrap());
+    assert!(losses.iter().all(|l| l.is_finite()));
+    assert!(last < 0.6 * first, "{losses:?}");
+    assert!(net.valid().num_params() == cfg.analytic_params());
+}
+
+#[test]
+fn photos_with_alpha_or_16_bits_load_as_rgb_in_unit_range() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (40u32, 36u32);
+    let rgba = image::RgbaImage::from_fn(w, h, |x, y| {
+        image::Rgba([(x * 6) as u8, (y * 7) as u8, 200, (x + y) as u8])
+    });
+    let p8 = dir.path().join("alpha.png");
+    rgba.save(&p8).unwrap();
+    let rgb16 = image::ImageBuffer::<image::Rgb<u16>, Vec<u16>>::from_fn(w, h, |x, y| {
+        image::Rgb([(x * 1600) as u16, (y * 1800) as u16, 65535])
+    });
+    let p16 = dir.path().join("deep.png");
+    rgb16.save(&p16).unwrap();
+    let a = restore::data::load_photo(&p8, 32).unwrap();
+    assert_eq!((a.width, a.height), (40, 36));
+    assert!(
+        (a.get(10, 3, 0) - 60.0 / 255.0).abs() < 1e-6
+            && (a.get(10, 3, 2) - 200.0 / 255.0).abs() < 1e-6
+    );
+    let d = restore::data::load_photo(&p16, 32).unwrap();
+    assert!((d.get(10, 3, 0) - 16000.0 / 65535.0).abs() < 1e-6 && d.get(0, 0, 2) == 1.0);
+    // Smaller than a training crop: refused naming the file.
+    let e = restore::data::load_photo(&p8, 64)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("alpha.png") && e.contains("smaller than the 64px"),
+        "{e}"
+    );
+}
+
+#[test]
+fn a_header_knows_which_blur_scales_its_network_saw() {
+    let mut h = header(&RestorerConfig::tiny(), &psf_a());
+    assert!(h.fits_psf_px(19), "no record: trusted");
+    h.trained_psf_px = Some([50, 57]);
+    for (px, fits) in [
+        (57, true),
+        (45, true),
+        (40, true),
+        (39, false),
+        (19, false),
+        (71, true),
+        (72, false),
+    ] {
+        assert_eq!(h.fits_psf_px(px), fits, "{px}");
+    }
+}

@@ -1,0 +1,416 @@
+//! `metasplat restorer train|eval` and `metasplat restore`: the aberration-correcting
+//! transformer.
+
+use super::progress::{bar, say, step};
+use aberration::wiener::{BANK_MEDIAN, bank_constants};
+use aberration::{BlurMode, Image, ImagingModel, NoiseModel, PsfGrid, Regularizer, deconvolve};
+use anyhow::{Context, Result, bail};
+use clap::{Args, Subcommand};
+use metasplat::eval::compare_images;
+use restore::data::{TrainSet, list_images, load_photo};
+use restore::train::{Event, TrainOptions, ValSet, train};
+use restore::{Restorer, RestorerConfig, weights};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Subcommand)]
+pub enum RestorerCommand {
+    /// Train the MAFG + STAF restorer on clean photos aberrated on the fly.
+    Train(TrainRestorerArgs),
+    /// Validation table: best single-K Wiener, median MAFG image, the network.
+    Eval(EvalArgs),
+}
+
+#[derive(Args)]
+pub struct TrainRestorerArgs {
+    /// Folder of clean training photos.
+    #[arg(long)]
+    pub images: PathBuf,
+    /// Folder of clean validation photos.
+    #[arg(long)]
+    pub val: PathBuf,
+    #[arg(long)]
+    pub psf: PathBuf,
+    /// tiny, small or paper.
+    #[arg(long, default_value = "tiny")]
+    pub config: String,
+    /// Weights file to write (updated at every validation).
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 2000)]
+    pub steps: usize,
+    #[arg(long, default_value_t = 8)]
+    pub batch: usize,
+    #[arg(long, default_value_t = 3e-4)]
+    pub lr: f64,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[arg(long, default_value_t = 250)]
+    pub val_every: usize,
+    /// Validate on centred crops of this side during training (whole images: 0).
+    #[arg(long, default_value_t = 128)]
+    pub val_crop: usize,
+    /// Continue from these weights (same config and PSF grid).
+    #[arg(long)]
+    pub init: Option<PathBuf>,
+    /// Ablations: `concat` (no cross-attention), `single` (median Wiener image only).
+    #[arg(long)]
+    pub guidance: Option<String>,
+    /// Ablation: fixed Wiener K (no channel intensity in K).
+    #[arg(long)]
+    pub fixed_k: bool,
+    /// Compute backend; only `cpu` (burn's flex) is built in.
+    #[arg(long, default_value = "cpu")]
+    pub backend: String,
+}
+
+#[derive(Args)]
+pub struct EvalArgs {
+    #[arg(long)]
+    pub weights: PathBuf,
+    #[arg(long)]
+    pub psf: PathBuf,
+    /// Folder of clean validation photos.
+    #[arg(long)]
+    pub val: PathBuf,
+    /// Write restored images and a before/after strip per photo here.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+#[derive(Args)]
+pub struct RestoreArgs {
+    #[arg(long)]
+    pub psf: PathBuf,
+    #[arg(long)]
+    pub weights: PathBuf,
+    #[arg(long = "in")]
+    pub input: PathBuf,
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Sensor size (px) the grid was made for; default G·K.
+    #[arg(long)]
+    pub sensor_px: Option<usize>,
+    /// A clean image to report PSNR/SSIM against.
+    #[arg(long)]
+    pub reference: Option<PathBuf>,
+}
+
+pub fn run(c: RestorerCommand) -> Result<()> {
+    match c {
+        RestorerCommand::Train(a) => run_train(a),
+        RestorerCommand::Eval(a) => run_eval(a),
+    }
+}
+
+fn metric(a: &Image, b: &Image) -> (f64, f64) {
+    compare_images(a, b).unwrap_or((f64::NAN, f64::NAN))
+}
+
+fn load_folder(dir: &Path, min_side: usize) -> Result<Vec<(String, Image)>> {
+    let paths = list_images(dir)?;
+    paths
+        .iter()
+        .map(|p| {
+            let name = p
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            Ok((name, load_photo(p, min_side)?))
+        })
+        .collect()
+}
+
+fn config_from(a: &TrainRestorerArgs) -> Result<RestorerConfig> {
+    let mut cfg = RestorerConfig::by_name(&a.config)
+        .with_context(|| format!("unknown config '{}' (tiny, small, paper)", a.config))?;
+    if let Some(g) = &a.guidance {
+        cfg.guidance = match g.as_str() {
+            "cross-attention" => restore::Guidance::CrossAttention,
+            "concat" => restore::Guidance::Concat,
+            "single" => restore::Guidance::SingleWiener,
+            _ => bail!("unknown guidance '{g}' (cross-attention, concat, single)"),
+        };
+        cfg.name = format!("{}-{g}", cfg.name);
+    }
+    if a.fixed_k {
+        cfg.adaptive_k = false;
+        cfg.name = format!("{}-fixed-k", cfg.name);
+    }
+    Ok(cfg)
+}
+
+fn run_train(a: TrainRestorerArgs) -> Result<()> {
+    if a.backend != "cpu" {
+        bail!(
+            "backend '{}' is not built in; this build trains on the CPU (burn flex): use --backend cpu",
+            a.backend
+        );
+    }
+    let cfg = config_from(&a)?;
+    let native =
+        PsfGrid::load_npy(&a.psf).with_context(|| format!("cannot read {}", a.psf.display()))?;
+    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    let init = match &a.init {
+        Some(p) => {
+            let device = burn::tensor::Device::flex().autodiff();
+            Some(weights::load(p, &device, Some(&cfg), Some(&native))?.0)
+        }
+        None => None,
+    };
+    let photos: Vec<Image> = load_folder(&a.images, cfg.crop)?
+        .into_iter()
+        .map(|(_, i)| i)
+        .collect();
+    let val_photos = load_folder(&a.val, cfg.crop)?;
+    let noise = NoiseModel::default();
+    let pb = bar(2 * photos.len() as u64, "aberrating");
+    let (set, secs) = {
+        let t = Instant::now();
+        let set = TrainSet::build(&photos, &native, &cfg, noise, a.seed, &|| pb.inc(1))?;
+        (set, t.elapsed().as_secs_f64())
+    };
+    pb.finish_and_clear();
+    let crop = (a.val_crop > 0).then_some(a.val_crop);
+    let (val, vsecs) = step("validation set", || {
+        ValSet::build(&val_photos, &native, &cfg, noise, crop)
+    });
+    let val = val?;
+    println!(
+        "{} training samples from {} photos ({secs:.1} s), {} validation photos ({vsecs:.1} s); config '{}', {} parameters",
+        set.samples.len(),
+        photos.len(),
+        val.names.len(),
+        cfg.name,
+        cfg.analytic_params()
+    );
+    let opts = TrainOptions {
+        steps: a.steps,
+        batch: a.batch,
+        lr: a.lr,
+        seed: a.seed,
+        val_every: a.val_every,
+        noise,
+        ..Default::default()
+    };
+    let command: Vec<String> = std::env::args().collect();
+    let provenance = |step: usize, seconds: f64, m: (f64, f64)| {
+        serde_json::json!({
+            "command": command.join(" "),
+            "steps": step,
+            "batch": opts.batch,
+            "seed": opts.seed,
+            "seconds": seconds,
+            "threads": rayon::current_num_threads(),
+            "train_photos": photos.len(),
+            "val_psnr": m.0,
+            "val_ssim": m.1,
+            "val_crop": a.val_crop,
+        })
+    };
+    let pb = bar(a.steps as u64, "training");
+    let mut log = Vec::new();
+    let mut ema: Option<f32> = None;
+    let started = Instant::now();
+    let (_, last) = train(
+        &cfg,
+        init,
+        &set,
+        &val,
+        &native,
+        &opts,
+        &a.out,
+        &provenance,
+        &metric,
+        &mut |e| match e {
+            Event::Step { step, loss, lr } => {
+                let e = ema.map_or(loss, |m| 0.95 * m + 0.05 * loss);
+                ema = Some(e);
+                pb.set_position(step as u64);
+                pb.set_message(format!("L1 {e:.4} lr {lr:.1e}"));
+            }
+            Event::Val {
+                step,
+                psnr,
+                ssim,
+                seconds,
+            } => {
+                say(
+                    &pb,
+                    format!(
+                        "step {step:>6}  {seconds:>7.0} s  val PSNR {psnr:.2} dB  SSIM {ssim:.4}"
+                    ),
+                );
+                log.push((step, seconds, psnr, ssim));
+            }
+        },
+    )?;
+    pb.finish_and_clear();
+    let secs = started.elapsed().as_secs_f64();
+    println!(
+        "trained {} steps in {:.1} min ({:.2} steps/s); validation (centred {} px crops): PSNR {:.2} dB, SSIM {:.4}; weights: {}",
+        a.steps,
+        secs / 60.0,
+        a.steps as f64 / secs,
+        a.val_crop,
+        last.0,
+        last.1,
+        a.out.display()
+    );
+    Ok(())
+}
+
+/// Val table row: mean PSNR and SSIM of one method over the photos.
+struct Row {
+    name: String,
+    psnr: f64,
+    ssim: f64,
+}
+
+fn run_eval(a: EvalArgs) -> Result<()> {
+    let native =
+        PsfGrid::load_npy(&a.psf).with_context(|| format!("cannot read {}", a.psf.display()))?;
+    let restorer = Restorer::load(&a.weights, &native)?;
+    let photos = load_folder(&a.val, 1)?;
+    let noise = NoiseModel::default();
+    let ks = bank_constants();
+    // Single fixed K candidates: the bank's constants.
+    let mut single = vec![(0.0, 0.0); ks.len()];
+    let (mut input, mut median, mut net) = ((0.0, 0.0), (0.0, 0.0), (0.0, 0.0));
+    let mut net_secs = 0.0;
+    let pb = bar(photos.len() as u64, "evaluating");
+    for (i, (name, clean)) in photos.iter().enumerate() {
+        let model = ImagingModel::new(
+            &native,
+            clean.width,
+            clean.height,
+            BlurMode::Tiled,
+            None,
+            noise,
+        )?;
+        let blurred = model.capture(clean, 0x5EED_0000 + i as u64)?;
+        let add = |acc: &mut (f64, f64), m: (f64, f64)| {
+            acc.0 += m.0;
+            acc.1 += m.1;
+        };
+        add(&mut input, metric(&blurred, clean));
+        let bank = restore::data::bank_images(&blurred, model.psf(), restorer.config().adaptive_k)?;
+        add(&mut median, metric(&bank[BANK_MEDIAN], clean));
+        for (j, &k) in ks.iter().enumerate() {
+            let img = deconvolve(&blurred, model.psf(), Regularizer::Fixed(k))?;
+            add(&mut single[j], metric(&img, clean));
+        }
+        let t = Instant::now();
+        let restored = restorer.restore_bank(&bank);
+        net_secs += t.elapsed().as_secs_f64();
+        add(&mut net, metric(&restored, clean));
+        if let Some(dir) = &a.out {
+            std::fs::create_dir_all(dir)
+                .with_context(|| format!("cannot create {}", dir.display()))?;
+            let stem = Path::new(name)
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            strip(&[&blurred, &bank[BANK_MEDIAN], &restored, clean])
+                .save_png(&dir.join(format!("{stem}_abr_median_net_clean.png")))?;
+        }
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let n = photos.len() as f64;
+    let (jbest, best) = single
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.0.total_cmp(&b.1.0))
+        .expect("13 constants");
+    let rows = [
+        Row {
+            name: "aberrated input".into(),
+            psnr: input.0 / n,
+            ssim: input.1 / n,
+        },
+        Row {
+            name: format!("Wiener, best single K = {:.2e}", ks[jbest]),
+            psnr: best.0 / n,
+            ssim: best.1 / n,
+        },
+        Row {
+            name: "median MAFG Wiener (adaptive K 3.16e-4)".into(),
+            psnr: median.0 / n,
+            ssim: median.1 / n,
+        },
+        Row {
+            name: format!("network ({})", restorer.config().name),
+            psnr: net.0 / n,
+            ssim: net.1 / n,
+        },
+    ];
+    println!("{} validation photos, {}", photos.len(), a.val.display());
+    println!("| method | PSNR (dB) | SSIM |\n|---|---:|---:|");
+    for r in &rows {
+        println!("| {} | {:.2} | {:.4} |", r.name, r.psnr, r.ssim);
+    }
+    let mp: f64 = photos
+        .iter()
+        .map(|(_, i)| (i.width * i.height) as f64)
+        .sum::<f64>()
+        / 1e6;
+    println!(
+        "network: {:+.2} dB over the median Wiener image; inference {:.0} ms per megapixel ({} threads, tiles {} px)",
+        (net.0 - median.0) / n,
+        1000.0 * net_secs / mp,
+        rayon::current_num_threads(),
+        restorer.tile
+    );
+    Ok(())
+}
+
+/// Images side by side.
+fn strip(images: &[&Image]) -> Image {
+    let (w, h) = (images[0].width, images[0].height);
+    Image::from_fn(w * images.len(), h, |x, y| {
+        let img = images[x / w];
+        std::array::from_fn(|c| img.get(x % w, y, c))
+    })
+}
+
+pub fn run_restore(a: RestoreArgs) -> Result<()> {
+    let native =
+        PsfGrid::load_npy(&a.psf).with_context(|| format!("cannot read {}", a.psf.display()))?;
+    let restorer = Restorer::load(&a.weights, &native)?;
+    let blurred =
+        Image::load(&a.input).with_context(|| format!("cannot read {}", a.input.display()))?;
+    let psf = native.for_image(blurred.width, blurred.height, a.sensor_px);
+    let (restored, secs) = step("restoring", || restorer.restore(&blurred, &psf));
+    let restored = restored?;
+    restored
+        .save_png(&a.out)
+        .with_context(|| format!("cannot write {}", a.out.display()))?;
+    print!(
+        "restored {}x{} with '{}' in {secs:.2} s -> {}",
+        blurred.width,
+        blurred.height,
+        restorer.config().name,
+        a.out.display()
+    );
+    if let Some(r) = &a.reference {
+        let clean = Image::load(r).with_context(|| format!("cannot read {}", r.display()))?;
+        if (clean.width, clean.height) != (blurred.width, blurred.height) {
+            bail!(
+                "{}: {}x{} does not match the input's {}x{}",
+                r.display(),
+                clean.width,
+                clean.height,
+                blurred.width,
+                blurred.height
+            );
+        }
+        let (p0, s0) = metric(&blurred, &clean);
+        let (p1, s1) = metric(&restored, &clean);
+        print!("; PSNR {p0:.2} -> {p1:.2} dB, SSIM {s0:.4} -> {s1:.4}");
+    }
+    println!();
+    Ok(())
+}
