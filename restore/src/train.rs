@@ -2,7 +2,7 @@
 //! AdamW with a cosine schedule, periodic validation and checkpoints.
 
 use crate::config::RestorerConfig;
-use crate::data::{Blur, Sample, TrainSet, bank_images};
+use crate::data::{TrainSet, bank_images};
 use crate::error::Result;
 use crate::infer::Restorer;
 use crate::net::RestorerNet;
@@ -211,16 +211,4 @@ pub fn train(
         }
     }
     Ok((net.valid(), last))
-}
-
-/// One training sample per photo, kept for tests and tools that want a specific blur.
-pub fn sample(
-    clean: &Image,
-    native: &PsfGrid,
-    blur: Blur,
-    noise: NoiseModel,
-    cfg: &RestorerConfig,
-    seed: u64,
-) -> Result<Sample> {
-    Sample::make(clean, native, blur, noise, cfg.adaptive_k, seed)
 }

@@ -105,11 +105,15 @@ pub fn run(a: DemoArgs) -> Result<()> {
     }
 
     println!(
-        "\nheld-out views of the procedural scene vs the clean images (aware: lambda {}, I_ac = median MAFG Wiener stand-in):",
+        "\nheld-out views of the procedural scene vs the clean images (aware: lambda {}; {}):",
         results
             .iter()
             .find_map(|r| r.1.lambda)
-            .map_or("-".to_string(), |l| l.to_string())
+            .map_or("-".to_string(), |l| l.to_string()),
+        results
+            .iter()
+            .find_map(|r| r.1.restorer.clone())
+            .unwrap_or_default()
     );
     println!(
         "{:<22} {:>8} {:>7} {:>8} {:>9}",

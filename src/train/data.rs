@@ -73,7 +73,7 @@ impl Restorer {
     pub fn describe(&self) -> String {
         match self {
             Restorer::MedianWiener => {
-                "I_ac = median MAFG Wiener image (stand-in: no trained restorer for this PSF grid)"
+                "I_ac = median MAFG Wiener image (stand-in: no trained restorer fits this PSF grid and scale)"
                     .into()
             }
             Restorer::Network { config, source } => {
