@@ -646,6 +646,29 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
         metrics.contains("MAFG + STAF restorer") && metrics.contains("w.bin"),
         "{metrics}"
     );
+    // Resuming must not silently change where I_ac comes from.
+    let err = fails(&[
+        "train",
+        "--scene",
+        s(&capture),
+        "--out",
+        s(&run),
+        "--mode",
+        "restored",
+        "--iters",
+        "20",
+        "--downsample",
+        "1",
+        "--spiral",
+        "2",
+        "--restorer",
+        "wiener",
+        "--resume",
+    ]);
+    assert!(
+        err.contains("cannot resume") && err.contains("i_ac") && err.contains("median MAFG Wiener"),
+        "{err}"
+    );
     let err = fails(&[
         "train",
         "--scene",

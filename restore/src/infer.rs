@@ -3,7 +3,7 @@
 
 use crate::config::RestorerConfig;
 use crate::data::bank_images;
-use crate::error::Result;
+use crate::error::{RestoreError, Result};
 use crate::net::RestorerNet;
 use crate::tiles::{Planes, round_up, tiled};
 use crate::weights::{self, Header};
@@ -47,6 +47,9 @@ pub struct Restorer {
     pub net: RestorerNet,
     pub header: Header,
     pub device: Device,
+    /// FNV-1a of the weights file it was loaded from (None for a network built in memory):
+    /// lets a splat checkpoint tell whether `I_ac` would come from the same network.
+    pub weights_hash: Option<String>,
     /// Tile side and overlap for large images (multiples of the config's padding unit).
     pub tile: usize,
     pub overlap: usize,
@@ -73,6 +76,7 @@ impl Restorer {
             net,
             header,
             device,
+            weights_hash: None,
             tile,
             overlap: m,
         }
@@ -81,16 +85,17 @@ impl Restorer {
     /// Loads weights trained for `native` (the PSF grid as simulated, before mapping to an
     /// image size); another grid is refused.
     pub fn load(path: &Path, native: &PsfGrid) -> Result<Self> {
-        let device = Device::flex();
-        let (net, header) = weights::load(path, &device, None, Some(native))?;
-        Ok(Self::new(net, header, device))
+        let bytes = std::fs::read(path).map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
+        Self::from_bytes(&bytes, path, native)
     }
 
     /// [`Restorer::load`] from the bytes of a weights file (`name` names them in errors).
     pub fn from_bytes(bytes: &[u8], name: &Path, native: &PsfGrid) -> Result<Self> {
         let device = Device::flex();
         let (net, header) = weights::load_bytes(bytes, name, &device, None, Some(native))?;
-        Ok(Self::new(net, header, device))
+        let mut r = Self::new(net, header, device);
+        r.weights_hash = Some(weights::fnv1a(bytes));
+        Ok(r)
     }
 
     pub fn config(&self) -> &RestorerConfig {

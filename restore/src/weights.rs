@@ -34,19 +34,27 @@ impl Header {
 
 impl PsfFingerprint {
     pub fn of(psf: &PsfGrid) -> Self {
-        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-        for v in psf.planar() {
-            for b in v.to_bits().to_le_bytes() {
-                h ^= b as u64;
-                h = h.wrapping_mul(0x0100_0000_01b3);
-            }
-        }
+        let bytes: Vec<u8> = psf
+            .planar()
+            .iter()
+            .flat_map(|v| v.to_bits().to_le_bytes())
+            .collect();
         Self {
             grid: psf.grid(),
             size: psf.size(),
-            hash: format!("{h:016x}"),
+            hash: fnv1a(&bytes),
         }
     }
+}
+
+/// FNV-1a (64 bit) of `bytes`, hex: identifies PSF grids and weights files.
+pub fn fnv1a(bytes: &[u8]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    format!("{h:016x}")
 }
 
 /// Everything the file says about the network besides its weights.

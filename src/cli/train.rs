@@ -106,6 +106,7 @@ pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<(RunSummary, Vec<train::L
     config.lambda = a
         .lambda
         .unwrap_or_else(|| data.restorer.as_ref().map_or(0.75, |r| r.default_lambda()));
+    config.i_ac = data.restorer.as_ref().map(|r| r.identity());
     config.seed = a.seed;
     config.max_sh_degree = a.max_sh_degree;
     config.recipe = Recipe::for_iters(a.iters, a.opacity_reset);

@@ -135,6 +135,9 @@ pub struct TrainConfig {
     /// Checkpoint every this many steps (0: never).
     pub checkpoint_every: u64,
     pub recipe: Recipe,
+    /// Where `I_ac` comes from ([`crate::train::data::Restorer::identity`]); None in `plain`.
+    #[serde(default)]
+    pub i_ac: Option<String>,
 }
 
 /// Default budget: one splat per two pixels of a view (≈ 95k at 504×378), the order of
@@ -156,6 +159,7 @@ impl TrainConfig {
             eval_every: (iters / 10).max(1),
             checkpoint_every: (iters / 5).max(100),
             recipe: Recipe::for_iters(iters, false),
+            i_ac: None,
         }
     }
 }

@@ -55,8 +55,13 @@ impl std::str::FromStr for RestorerChoice {
 pub enum Restorer {
     /// The median filter of the MAFG Wiener bank (no trained weights for this PSF grid).
     MedianWiener,
-    /// The MAFG + STAF transformer: its config name and where its weights came from.
-    Network { config: String, source: String },
+    /// The MAFG + STAF transformer: its config name, where its weights came from, and a
+    /// hash of the weights file.
+    Network {
+        config: String,
+        source: String,
+        weights: String,
+    },
 }
 
 impl Restorer {
@@ -76,9 +81,20 @@ impl Restorer {
                 "I_ac = median MAFG Wiener image (stand-in: no trained restorer fits this PSF grid and scale)"
                     .into()
             }
-            Restorer::Network { config, source } => {
+            Restorer::Network { config, source, .. } => {
                 format!("I_ac = MAFG + STAF restorer, config '{config}', weights {source}")
             }
+        }
+    }
+
+    /// What makes `I_ac` what it is, independent of where the weights file lies: a resumed
+    /// run must get its `I_ac` from the same source.
+    pub fn identity(&self) -> String {
+        match self {
+            Restorer::MedianWiener => "median MAFG Wiener".into(),
+            Restorer::Network {
+                config, weights, ..
+            } => format!("{config} network, weights fnv1a {weights}"),
         }
     }
 }
@@ -278,6 +294,7 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
         Some((r, source)) => Restorer::Network {
             config: r.config().name.clone(),
             source: source.clone(),
+            weights: r.weights_hash.clone().unwrap_or_default(),
         },
         None => Restorer::MedianWiener,
     });
