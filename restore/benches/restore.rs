@@ -12,6 +12,10 @@ use restore::tiles::{Planes, tiled};
 use restore::{RestorerConfig, RestorerNet};
 use std::time::Instant;
 
+// The binary's allocator, so the numbers are what `metasplat restore` gets.
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 /// Peak resident set since the last reset (Linux; 0 elsewhere).
 fn peak_rss_mb() -> f64 {
     let s = std::fs::read_to_string("/proc/self/status").unwrap_or_default();

@@ -85,13 +85,27 @@ impl Restorer {
     /// Loads weights trained for `native` (the PSF grid as simulated, before mapping to an
     /// image size); another grid is refused.
     pub fn load(path: &Path, native: &PsfGrid) -> Result<Self> {
+        Self::load_on(path, native, Device::flex())
+    }
+
+    /// [`Restorer::load`] on a given device (see [`crate::Compute`]).
+    pub fn load_on(path: &Path, native: &PsfGrid, device: Device) -> Result<Self> {
         let bytes = std::fs::read(path).map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
-        Self::from_bytes(&bytes, path, native)
+        Self::from_bytes_on(&bytes, path, native, device)
     }
 
     /// [`Restorer::load`] from the bytes of a weights file (`name` names them in errors).
     pub fn from_bytes(bytes: &[u8], name: &Path, native: &PsfGrid) -> Result<Self> {
-        let device = Device::flex();
+        Self::from_bytes_on(bytes, name, native, Device::flex())
+    }
+
+    /// [`Restorer::from_bytes`] on a given device (see [`crate::Compute`]).
+    pub fn from_bytes_on(
+        bytes: &[u8],
+        name: &Path,
+        native: &PsfGrid,
+        device: Device,
+    ) -> Result<Self> {
         let (net, header) = weights::load_bytes(bytes, name, &device, None, Some(native))?;
         let mut r = Self::new(net, header, device);
         r.weights_hash = Some(weights::fnv1a(bytes));

@@ -6,6 +6,7 @@
 //! - [`train`]: the training loop; [`weights`]: the weights file; [`infer`]: restoring
 //!   images (tiled, see [`tiles`]).
 
+pub mod compute;
 pub mod config;
 pub mod data;
 pub mod error;
@@ -16,6 +17,7 @@ pub mod tiles;
 pub mod train;
 pub mod weights;
 
+pub use compute::Compute;
 pub use config::{Guidance, RestorerConfig};
 pub use error::{RestoreError, Result};
 pub use infer::Restorer;

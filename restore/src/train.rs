@@ -1,6 +1,7 @@
 //! Training: random crops of on-the-fly aberrated photos, L1 loss on the restored image,
 //! AdamW with a cosine schedule, periodic validation and checkpoints.
 
+use crate::compute::Compute;
 use crate::config::RestorerConfig;
 use crate::data::{TrainSet, bank_images};
 use crate::error::Result;
@@ -12,7 +13,7 @@ use aberration::{BlurMode, Image, ImagingModel, NoiseModel, PsfGrid};
 use burn::module::Module;
 use burn::optim::grad_clipping::GradientClippingConfig;
 use burn::optim::{AdamWConfig, GradientsParams};
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::{Tensor, TensorData};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::path::Path;
@@ -30,6 +31,7 @@ pub struct TrainOptions {
     /// Validate (and checkpoint) every this many steps; 0: only at the end.
     pub val_every: usize,
     pub noise: NoiseModel,
+    pub compute: Compute,
 }
 
 impl Default for TrainOptions {
@@ -43,6 +45,7 @@ impl Default for TrainOptions {
             seed: 0,
             val_every: 250,
             noise: NoiseModel::default(),
+            compute: Compute::Cpu,
         }
     }
 }
@@ -154,7 +157,8 @@ pub fn train(
     metric: &dyn Fn(&Image, &Image) -> (f64, f64),
     on_event: &mut dyn FnMut(Event),
 ) -> Result<(RestorerNet, (f64, f64))> {
-    let device = Device::flex().autodiff();
+    let inner = opts.compute.device()?;
+    let device = inner.clone().autodiff();
     device.seed(opts.seed);
     let mut net = init.unwrap_or_else(|| RestorerNet::new(cfg, &device));
     let mut optim = AdamWConfig::new()
@@ -199,7 +203,7 @@ pub fn train(
                 trained_psf_px: Some(set.psf_px),
                 provenance: serde_json::Value::Null,
             };
-            let r = Restorer::new(net.valid(), header, Device::flex());
+            let r = Restorer::new(net.valid(), header, inner.clone());
             last = validate(&r, val, metric);
             on_event(Event::Val {
                 step: step + 1,

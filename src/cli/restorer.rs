@@ -59,9 +59,9 @@ pub struct TrainRestorerArgs {
     /// Ablation: fixed Wiener K (no channel intensity in K).
     #[arg(long)]
     pub fixed_k: bool,
-    /// Compute backend; only `cpu` (burn's flex) is built in.
+    /// Where to train: `cpu` (burn flex), or `vulkan` in a build with `--features vulkan`.
     #[arg(long, default_value = "cpu")]
-    pub backend: String,
+    pub backend: restore::Compute,
 }
 
 #[derive(Args)]
@@ -76,6 +76,9 @@ pub struct EvalArgs {
     /// Write restored images and a before/after strip per photo here.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// `cpu`, or `vulkan` in a build with `--features vulkan`.
+    #[arg(long, default_value = "cpu")]
+    pub backend: restore::Compute,
 }
 
 #[derive(Args)]
@@ -94,6 +97,9 @@ pub struct RestoreArgs {
     /// A clean image to report PSNR/SSIM against.
     #[arg(long)]
     pub reference: Option<PathBuf>,
+    /// `cpu`, or `vulkan` in a build with `--features vulkan`.
+    #[arg(long, default_value = "cpu")]
+    pub backend: restore::Compute,
 }
 
 pub fn run(c: RestorerCommand) -> Result<()> {
@@ -141,12 +147,7 @@ fn config_from(a: &TrainRestorerArgs) -> Result<RestorerConfig> {
 }
 
 fn run_train(a: TrainRestorerArgs) -> Result<()> {
-    if a.backend != "cpu" {
-        bail!(
-            "backend '{}' is not built in; this build trains on the CPU (burn flex): use --backend cpu",
-            a.backend
-        );
-    }
+    let device = a.backend.device()?;
     let cfg = config_from(&a)?;
     let native =
         PsfGrid::load_npy(&a.psf).with_context(|| format!("cannot read {}", a.psf.display()))?;
@@ -155,7 +156,7 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
     }
     let init = match &a.init {
         Some(p) => {
-            let device = burn::tensor::Device::flex().autodiff();
+            let device = device.clone().autodiff();
             Some(weights::load(p, &device, Some(&cfg), Some(&native))?.0)
         }
         None => None,
@@ -193,6 +194,7 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         seed: a.seed,
         val_every: a.val_every,
         noise,
+        compute: a.backend,
         ..Default::default()
     };
     let command: Vec<String> = std::env::args().collect();
@@ -272,7 +274,7 @@ struct Row {
 fn run_eval(a: EvalArgs) -> Result<()> {
     let native =
         PsfGrid::load_npy(&a.psf).with_context(|| format!("cannot read {}", a.psf.display()))?;
-    let restorer = Restorer::load(&a.weights, &native)?;
+    let restorer = Restorer::load_on(&a.weights, &native, a.backend.device()?)?;
     let photos = load_folder(&a.val, 1)?;
     let noise = NoiseModel::default();
     let ks = bank_constants();
@@ -379,7 +381,7 @@ fn strip(images: &[&Image]) -> Image {
 pub fn run_restore(a: RestoreArgs) -> Result<()> {
     let native =
         PsfGrid::load_npy(&a.psf).with_context(|| format!("cannot read {}", a.psf.display()))?;
-    let restorer = Restorer::load(&a.weights, &native)?;
+    let restorer = Restorer::load_on(&a.weights, &native, a.backend.device()?)?;
     let blurred =
         Image::load(&a.input).with_context(|| format!("cannot read {}", a.input.display()))?;
     let psf = native.for_image(blurred.width, blurred.height, a.sensor_px);
