@@ -493,7 +493,7 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
     let imgs = d.join("photos");
     photos(&imgs, 3, 96, 80);
     let weights = d.join("w.bin");
-    let text = ok(&[
+    let train_args = [
         "restorer",
         "train",
         "--images",
@@ -507,18 +507,33 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
         "--out",
         s(&weights),
         "--steps",
-        "2",
+        "3",
         "--batch",
         "1",
         "--val-every",
         "1",
         "--val-crop",
         "64",
-    ]);
+    ];
+    // A zero-minute budget stops after one step with a checkpoint; --resume finishes the run.
+    let mut args = train_args.to_vec();
+    args.extend(["--minutes", "0"]);
+    let text = ok(&args);
     assert!(
-        text.contains("trained 2 steps") && text.matches("val PSNR").count() == 2,
+        text.contains("trained to step 1 of 3") && text.contains("stopped early"),
         "{text}"
     );
+    let mut args = train_args.to_vec();
+    args.push("--resume");
+    let text = ok(&args);
+    assert!(
+        text.contains("at step 1 of 3")
+            && text.contains("trained to step 3 of 3 (2 steps in this run)")
+            && text.matches("val PSNR").count() == 2,
+        "{text}"
+    );
+    let err = fails(&args);
+    assert!(err.contains("that run finished"), "{err}");
     assert!(weights.exists());
 
     // Restore one aberrated photo, with a reference to compare against.

@@ -3,8 +3,8 @@
 //! - [`config`]: sizes (`paper`, `small`, `tiny`), ablation switches, analytic parameter count.
 //! - [`net`]: the network and its attention modules.
 //! - [`data`]: training pairs made on the fly by the imaging model of [`aberration`].
-//! - [`train`]: the training loop; [`weights`]: the weights file; [`infer`]: restoring
-//!   images (tiled, see [`tiles`]).
+//! - [`train`]: the training loop, resumable from [`train_state`]; [`weights`]: the weights
+//!   file; [`infer`]: restoring images (tiled, see [`tiles`]).
 
 pub mod compute;
 pub mod config;
@@ -15,6 +15,7 @@ pub mod net;
 pub mod shipped;
 pub mod tiles;
 pub mod train;
+pub mod train_state;
 pub mod weights;
 
 pub use compute::Compute;

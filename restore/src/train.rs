@@ -7,12 +7,13 @@ use crate::data::{TrainSet, bank_images};
 use crate::error::Result;
 use crate::infer::Restorer;
 use crate::net::RestorerNet;
+use crate::train_state::{self, TrainState, state_path};
 use crate::weights::{self, Header, PsfFingerprint};
 use aberration::wiener::BANK_SIZE;
 use aberration::{BlurMode, Image, ImagingModel, NoiseModel, PsfGrid};
 use burn::module::Module;
 use burn::optim::grad_clipping::GradientClippingConfig;
-use burn::optim::{AdamWConfig, GradientsParams};
+use burn::optim::{AdamWConfig, GradientsParams, OptimizerRecord};
 use burn::tensor::{Tensor, TensorData};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -28,10 +29,15 @@ pub struct TrainOptions {
     /// Per-parameter gradient L2-norm clip (burn's `GradientClippingConfig::Norm`).
     pub clip: f32,
     pub seed: u64,
-    /// Validate (and checkpoint) every this many steps; 0: only at the end.
+    /// Validate (and checkpoint weights and training state) every this many steps; 0: only
+    /// at the end.
     pub val_every: usize,
     pub noise: NoiseModel,
     pub compute: Compute,
+    /// End this invocation, with a checkpoint, after this many steps of it, or at the first
+    /// step that ends past this many seconds: the run is then continued with `Start::Resume`.
+    pub stop_after_steps: Option<usize>,
+    pub stop_after_seconds: Option<f64>,
 }
 
 impl Default for TrainOptions {
@@ -46,6 +52,8 @@ impl Default for TrainOptions {
             val_every: 250,
             noise: NoiseModel::default(),
             compute: Compute::Cpu,
+            stop_after_steps: None,
+            stop_after_seconds: None,
         }
     }
 }
@@ -142,12 +150,25 @@ pub enum Event {
     },
 }
 
-/// Trains a fresh network (or continues `init`) and writes it to `out` at every validation
-/// and at the end. Returns the trained network and the last validation metrics.
+/// How a run begins.
+pub enum Start {
+    /// Fresh weights from the backend's seed.
+    Fresh,
+    /// These weights, a new optimizer and schedule.
+    Init(RestorerNet),
+    /// Continue a run exactly: its weights (loaded with their parameter ids, which key the
+    /// optimizer state) and its saved state. The schedule comes from the state, not `opts`.
+    Resume(RestorerNet, Box<TrainState>, OptimizerRecord),
+}
+
+/// Trains a network and writes it to `out` at every validation and at the end, with the
+/// training state beside it (`out.state`, see [`crate::train_state`]) so the run can be
+/// resumed. Returns the trained network, the last validation metrics and the step reached
+/// (below `opts.steps` when a `stop_after_*` ended the invocation early).
 #[allow(clippy::too_many_arguments)]
 pub fn train(
     cfg: &RestorerConfig,
-    init: Option<RestorerNet>,
+    start: Start,
     set: &TrainSet,
     val: &ValSet,
     native: &PsfGrid,
@@ -156,29 +177,49 @@ pub fn train(
     provenance: &dyn Fn(usize, f64, (f64, f64)) -> serde_json::Value,
     metric: &dyn Fn(&Image, &Image) -> (f64, f64),
     on_event: &mut dyn FnMut(Event),
-) -> Result<(RestorerNet, (f64, f64))> {
+) -> Result<(RestorerNet, (f64, f64), usize)> {
     let inner = opts.compute.device()?;
     let device = inner.clone().autodiff();
     device.seed(opts.seed);
-    let mut net = init.unwrap_or_else(|| RestorerNet::new(cfg, &device));
+    let mut opts = opts.clone();
+    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
+    let (mut net, record, first, mut seconds_before, mut val_log) = match start {
+        Start::Fresh => (RestorerNet::new(cfg, &device), None, 0, 0.0, vec![]),
+        Start::Init(net) => (net, None, 0, 0.0, vec![]),
+        Start::Resume(net, state, record) => {
+            opts.steps = state.steps;
+            opts.batch = state.batch;
+            opts.lr = state.lr;
+            opts.weight_decay = state.weight_decay;
+            opts.clip = state.clip;
+            opts.seed = state.seed;
+            rng = ChaCha8Rng::seed_from_u64(state.seed);
+            rng.set_word_pos(state.rng_word_pos.parse().map_err(|_| {
+                crate::error::RestoreError::BadInput(format!(
+                    "bad sampler position '{}'",
+                    state.rng_word_pos
+                ))
+            })?);
+            (net, Some(record), state.step, state.seconds, state.val_log)
+        }
+    };
     let mut optim = AdamWConfig::new()
         .with_weight_decay(opts.weight_decay)
         .with_grad_clipping(Some(GradientClippingConfig::Norm(opts.clip)))
         .init();
-    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
+    if let Some(record) = record {
+        optim = optim.load_record(record);
+    }
+    let opts = opts;
     let s = cfg.crop;
-    let started = Instant::now();
-    let mut last = (f64::NAN, f64::NAN);
-    let checkpoint = |net: &RestorerNet, step: usize, m: (f64, f64)| -> Result<()> {
-        let header = Header {
-            config: cfg.clone(),
-            psf: PsfFingerprint::of(native),
-            trained_psf_px: Some(set.psf_px),
-            provenance: provenance(step, started.elapsed().as_secs_f64(), m),
-        };
-        weights::save(&net.valid(), &header, out)
-    };
-    for step in 0..opts.steps {
+    let mut started = Instant::now();
+    let mut last = val_log
+        .last()
+        .map_or((f64::NAN, f64::NAN), |&(_, _, p, s)| (p, s));
+    let state_file = state_path(out);
+    let invocation = Instant::now();
+    let mut reached = first;
+    for step in first..opts.steps {
         let (x, y) = set.batch(&mut rng, opts.batch, s);
         let x = Tensor::<4>::from_data(
             TensorData::new(x, [opts.batch, 3 * BANK_SIZE, s, s]),
@@ -190,29 +231,59 @@ pub fn train(
         let lr = learning_rate(opts.lr, step, opts.steps);
         net = optim.step(lr, net, grads);
         let l: f32 = loss.into_scalar::<f32>();
+        reached = step + 1;
         on_event(Event::Step {
             step: step + 1,
             loss: l,
             lr,
         });
+        let stop = opts.stop_after_steps.is_some_and(|n| step + 1 - first >= n)
+            || opts
+                .stop_after_seconds
+                .is_some_and(|t| invocation.elapsed().as_secs_f64() >= t);
         let done = step + 1 == opts.steps;
-        if done || (opts.val_every > 0 && (step + 1) % opts.val_every == 0) {
-            let header = Header {
+        if done || stop || (opts.val_every > 0 && (step + 1) % opts.val_every == 0) {
+            let mut header = Header {
                 config: cfg.clone(),
                 psf: PsfFingerprint::of(native),
                 trained_psf_px: Some(set.psf_px),
                 provenance: serde_json::Value::Null,
             };
-            let r = Restorer::new(net.valid(), header, inner.clone());
+            let r = Restorer::new(net.valid(), header.clone(), inner.clone());
             last = validate(&r, val, metric);
+            let seconds = seconds_before + started.elapsed().as_secs_f64();
             on_event(Event::Val {
                 step: step + 1,
                 psnr: last.0,
                 ssim: last.1,
-                seconds: started.elapsed().as_secs_f64(),
+                seconds,
             });
-            checkpoint(&net, step + 1, last)?;
+            val_log.push((step + 1, seconds, last.0, last.1));
+            header.provenance = provenance(step + 1, seconds, last);
+            weights::save(&net.valid(), &header, out)?;
+            let written =
+                std::fs::read(out).map_err(|e| crate::error::RestoreError::Io(out.into(), e))?;
+            let state = TrainState {
+                step: step + 1,
+                steps: opts.steps,
+                batch: opts.batch,
+                lr: opts.lr,
+                weight_decay: opts.weight_decay,
+                clip: opts.clip,
+                seed: opts.seed,
+                rng_word_pos: rng.get_word_pos().to_string(),
+                seconds,
+                weights_hash: weights::fnv1a(&written),
+                val_log: val_log.clone(),
+            };
+            train_state::save(&state, optim.to_record(), &state_file)?;
+            // Restart the clock so `seconds` stays the sum of training time over resumes.
+            seconds_before = seconds;
+            started = Instant::now();
+        }
+        if stop {
+            break;
         }
     }
-    Ok((net.valid(), last))
+    Ok((net.valid(), last, reached))
 }

@@ -8,7 +8,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use metasplat::eval::compare_images;
 use restore::data::{TrainSet, list_images, load_photo};
-use restore::train::{Event, TrainOptions, ValSet, train};
+use restore::train::{Event, Start, TrainOptions, ValSet, train};
 use restore::{Restorer, RestorerConfig, weights};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -50,9 +50,17 @@ pub struct TrainRestorerArgs {
     /// Validate on centred crops of this side during training (whole images: 0).
     #[arg(long, default_value_t = 128)]
     pub val_crop: usize,
-    /// Continue from these weights (same config and PSF grid).
-    #[arg(long)]
+    /// Start from these weights (same config and PSF grid) with a new optimizer and schedule.
+    #[arg(long, conflicts_with = "resume")]
     pub init: Option<PathBuf>,
+    /// Continue the interrupted run that writes `--out` exactly where its last checkpoint left
+    /// it (weights, `OUT.state`: optimizer moments, schedule, sampler position); its steps,
+    /// batch, lr and seed come from the state.
+    #[arg(long)]
+    pub resume: bool,
+    /// Stop after about this many minutes with a checkpoint (continue later with --resume).
+    #[arg(long)]
+    pub minutes: Option<f64>,
     /// Ablations: `concat` (no cross-attention), `single` (median Wiener image only).
     #[arg(long)]
     pub guidance: Option<String>,
@@ -146,7 +154,7 @@ fn config_from(a: &TrainRestorerArgs) -> Result<RestorerConfig> {
     Ok(cfg)
 }
 
-fn run_train(a: TrainRestorerArgs) -> Result<()> {
+fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
     let device = a.backend.device()?;
     let cfg = config_from(&a)?;
     let native =
@@ -154,12 +162,57 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
-    let init = match &a.init {
-        Some(p) => {
-            let device = device.clone().autodiff();
-            Some(weights::load(p, &device, Some(&cfg), Some(&native))?.0)
+    let load = |p: &Path| {
+        let device = device.clone().autodiff();
+        weights::load(p, &device, Some(&cfg), Some(&native))
+    };
+    // What the weights file's provenance carries over from the weights it started from.
+    let mut earlier = serde_json::Map::new();
+    let start = if a.resume {
+        let (net, header) = load(&a.out).context("cannot resume")?;
+        let (state, record) = restore::train_state::load(&a.out).context("cannot resume")?;
+        if state.step >= state.steps {
+            bail!(
+                "{}: that run finished ({} of {} steps); continue it with --init {} and a new --out",
+                a.out.display(),
+                state.step,
+                state.steps,
+                a.out.display()
+            );
         }
-        None => None,
+        println!(
+            "resuming {} at step {} of {} (batch {}, lr {:.1e}, seed {} from the saved state)",
+            a.out.display(),
+            state.step,
+            state.steps,
+            state.batch,
+            state.lr,
+            state.seed
+        );
+        (a.steps, a.batch, a.lr, a.seed) = (state.steps, state.batch, state.lr, state.seed);
+        if let serde_json::Value::Object(mut p) = header.provenance {
+            let mut resumed = match p.remove("resumed") {
+                Some(serde_json::Value::Array(v)) => v,
+                _ => vec![],
+            };
+            resumed.push(serde_json::json!({"at_step": state.step}));
+            p.insert("resumed".into(), resumed.into());
+            for key in ["command", "init_from", "resumed"] {
+                if let Some(v) = p.remove(key) {
+                    earlier.insert(key.into(), v);
+                }
+            }
+        }
+        Start::Resume(net, Box::new(state), record)
+    } else {
+        match &a.init {
+            Some(p) => {
+                let (net, header) = load(p)?;
+                earlier.insert("init_from".into(), header.provenance);
+                Start::Init(net)
+            }
+            None => Start::Fresh,
+        }
     };
     let photos: Vec<Image> = load_folder(&a.images, cfg.crop)?
         .into_iter()
@@ -195,11 +248,12 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         val_every: a.val_every,
         noise,
         compute: a.backend,
+        stop_after_seconds: a.minutes.map(|m| m * 60.0),
         ..Default::default()
     };
     let command: Vec<String> = std::env::args().collect();
     let provenance = |step: usize, seconds: f64, m: (f64, f64)| {
-        serde_json::json!({
+        let mut p = serde_json::json!({
             "command": command.join(" "),
             "steps": step,
             "batch": opts.batch,
@@ -210,15 +264,33 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
             "val_psnr": m.0,
             "val_ssim": m.1,
             "val_crop": a.val_crop,
-        })
+        });
+        for (k, v) in &earlier {
+            // A resumed run keeps the command that started it; this one is in `resumed`.
+            if k == "resumed" {
+                let mut v = v.clone();
+                if let Some(last) = v.as_array_mut().and_then(|r| r.last_mut()) {
+                    last["command"] = command.join(" ").into();
+                }
+                p[k] = v;
+            } else {
+                p[k] = v.clone();
+            }
+        }
+        p
+    };
+    let first = match &start {
+        Start::Resume(_, state, _) => state.step,
+        _ => 0,
     };
     let pb = bar(a.steps as u64, "training");
+    pb.set_position(first as u64);
     let mut log = Vec::new();
     let mut ema: Option<f32> = None;
     let started = Instant::now();
-    let (_, last) = train(
+    let (_, last, reached) = train(
         &cfg,
-        init,
+        start,
         &set,
         &val,
         &native,
@@ -252,15 +324,22 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
     pb.finish_and_clear();
     let secs = started.elapsed().as_secs_f64();
     println!(
-        "trained {} steps in {:.1} min ({:.2} steps/s); validation (centred {} px crops): PSNR {:.2} dB, SSIM {:.4}; weights: {}",
+        "trained to step {reached} of {} ({} steps in this run) in {:.1} min ({:.2} steps/s); validation (centred {} px crops): PSNR {:.2} dB, SSIM {:.4}; weights: {}, state: {}",
         a.steps,
+        reached - first,
         secs / 60.0,
-        a.steps as f64 / secs,
+        (reached - first) as f64 / secs,
         a.val_crop,
         last.0,
         last.1,
-        a.out.display()
+        a.out.display(),
+        restore::train_state::state_path(&a.out).display()
     );
+    if reached < a.steps {
+        println!(
+            "stopped early (--minutes); continue with the same command and --resume (without --init)"
+        );
+    }
     Ok(())
 }
 

@@ -1,0 +1,117 @@
+//! What a training run needs, besides its weights, to continue exactly where it stopped: the
+//! schedule, the step reached, the batch sampler's position and AdamW's moments. Written beside
+//! the weights file (`W.state`) at every checkpoint, after the weights, with a hash of them so
+//! a pair from two different checkpoints is refused rather than silently mixed.
+
+use crate::error::{RestoreError, Result};
+use crate::weights::fnv1a;
+use burn::optim::OptimizerRecord;
+use burn::tensor::Bytes;
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+const MAGIC: &[u8] = b"METASPLAT-RESTORER-STATE 1\n";
+
+/// The schedule and position of a run; the optimizer's moments travel beside it as burnpack.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrainState {
+    /// Steps done.
+    pub step: usize,
+    pub steps: usize,
+    pub batch: usize,
+    pub lr: f64,
+    pub weight_decay: f32,
+    pub clip: f32,
+    pub seed: u64,
+    /// Word position of the batch sampler's ChaCha8 stream (u128 as decimal text: JSON
+    /// numbers would lose it).
+    pub rng_word_pos: String,
+    /// Training seconds before this checkpoint, summed over resumed runs.
+    pub seconds: f64,
+    /// FNV-1a of the weights file written at the same checkpoint.
+    pub weights_hash: String,
+    /// (step, seconds, val PSNR, val SSIM) at every validation so far.
+    pub val_log: Vec<(usize, f64, f64, f64)>,
+}
+
+/// Where the state of the run writing `weights` lives.
+pub fn state_path(weights: &Path) -> PathBuf {
+    let mut s = weights.as_os_str().to_owned();
+    s.push(".state");
+    PathBuf::from(s)
+}
+
+fn bad(path: &Path, message: impl Into<String>) -> RestoreError {
+    RestoreError::Weights {
+        path: path.to_path_buf(),
+        message: message.into(),
+    }
+}
+
+/// Writes the state and the optimizer record to `path` (temporary name, then rename).
+pub fn save(state: &TrainState, optim: OptimizerRecord, path: &Path) -> Result<()> {
+    let json = serde_json::to_vec(state).map_err(|e| bad(path, e.to_string()))?;
+    let record = optim
+        .into_bytes()
+        .map_err(|e| bad(path, format!("cannot serialise the optimizer state: {e}")))?;
+    aberration::atomic::write_atomically(path, |w| {
+        w.write_all(MAGIC)?;
+        w.write_all(&(json.len() as u64).to_le_bytes())?;
+        w.write_all(&json)?;
+        w.write_all(&record)
+    })
+    .map_err(|e| RestoreError::Io(path.to_path_buf(), e))
+}
+
+/// Reads the state of the run whose weights are at `weights`, and checks that the two files
+/// were written at the same checkpoint.
+pub fn load(weights: &Path) -> Result<(TrainState, OptimizerRecord)> {
+    let path = state_path(weights);
+    let bytes = std::fs::read(&path).map_err(|e| {
+        RestoreError::Io(
+            path.clone(),
+            std::io::Error::new(
+                e.kind(),
+                format!("{e} (no training state: was this run started by this version?)"),
+            ),
+        )
+    })?;
+    if !bytes.starts_with(MAGIC) || bytes.len() < MAGIC.len() + 8 {
+        return Err(bad(&path, "not a metasplat restorer training state"));
+    }
+    let start = MAGIC.len() + 8;
+    let n = u64::from_le_bytes(bytes[MAGIC.len()..start].try_into().expect("8 bytes"));
+    if n > (bytes.len() - start) as u64 {
+        return Err(bad(&path, "truncated header"));
+    }
+    let n = n as usize;
+    let state: TrainState = serde_json::from_slice(&bytes[start..start + n])
+        .map_err(|e| bad(&path, format!("bad header: {e}")))?;
+    if state.step > state.steps || state.rng_word_pos.parse::<u128>().is_err() {
+        return Err(bad(
+            &path,
+            format!(
+                "inconsistent state: step {} of {}, sampler position '{}'",
+                state.step, state.steps, state.rng_word_pos
+            ),
+        ));
+    }
+    let weights_bytes =
+        std::fs::read(weights).map_err(|e| RestoreError::Io(weights.to_path_buf(), e))?;
+    let hash = fnv1a(&weights_bytes);
+    if hash != state.weights_hash {
+        return Err(bad(
+            &path,
+            format!(
+                "written at another checkpoint than {} (weights hash {hash}, state expects {}); \
+                 the run was interrupted between the two writes: start again with --init",
+                weights.display(),
+                state.weights_hash
+            ),
+        ));
+    }
+    let optim = OptimizerRecord::from_bytes(Bytes::from_bytes_vec(bytes[start + n..].to_vec()))
+        .map_err(|e| bad(&path, format!("bad optimizer state: {e}")))?;
+    Ok((state, optim))
+}
