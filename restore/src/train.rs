@@ -38,6 +38,28 @@ pub struct TrainOptions {
     /// step that ends past this many seconds: the run is then continued with `Start::Resume`.
     pub stop_after_steps: Option<usize>,
     pub stop_after_seconds: Option<f64>,
+    /// Re-aberrate the photos (new noise, new random PSF positions) every this many steps;
+    /// 0: one set for the whole run.
+    pub refresh_every: usize,
+}
+
+/// Seed of the training pairs of refresh round `round` (round 0: the run's seed).
+pub fn round_seed(seed: u64, round: usize) -> u64 {
+    if round == 0 {
+        return seed;
+    }
+    // splitmix64 of the round, so neighbouring rounds get unrelated streams.
+    let mut z = (round as u64).wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    seed ^ z ^ (z >> 31)
+}
+
+impl TrainOptions {
+    /// The refresh round `step` falls in.
+    pub fn round(&self, step: usize) -> usize {
+        step.checked_div(self.refresh_every).unwrap_or(0)
+    }
 }
 
 impl Default for TrainOptions {
@@ -54,6 +76,7 @@ impl Default for TrainOptions {
             compute: Compute::Cpu,
             stop_after_steps: None,
             stop_after_seconds: None,
+            refresh_every: 200,
         }
     }
 }
@@ -137,6 +160,12 @@ pub fn validate(
 
 /// What training reports as it goes.
 pub enum Event {
+    /// Training pairs made for a refresh round.
+    Pairs {
+        round: usize,
+        samples: usize,
+        seconds: f64,
+    },
     Step {
         step: usize,
         loss: f32,
@@ -162,14 +191,16 @@ pub enum Start {
 }
 
 /// Trains a network and writes it to `out` at every validation and at the end, with the
-/// training state beside it (`out.state`, see [`crate::train_state`]) so the run can be
+/// training state beside it. `pairs(round)` makes the training pairs of a refresh round
+/// ([`TrainOptions::round`]; seed them with [`round_seed`]): the round of the first step,
+/// then each later one. (`out.state`, see [`crate::train_state`]) so the run can be
 /// resumed. Returns the trained network, the last validation metrics and the step reached
 /// (below `opts.steps` when a `stop_after_*` ended the invocation early).
 #[allow(clippy::too_many_arguments)]
 pub fn train(
     cfg: &RestorerConfig,
     start: Start,
-    set: &TrainSet,
+    pairs: &dyn Fn(usize) -> Result<TrainSet>,
     val: &ValSet,
     native: &PsfGrid,
     opts: &TrainOptions,
@@ -193,6 +224,7 @@ pub fn train(
             opts.weight_decay = state.weight_decay;
             opts.clip = state.clip;
             opts.seed = state.seed;
+            opts.refresh_every = state.refresh_every;
             rng = ChaCha8Rng::seed_from_u64(state.seed);
             rng.set_word_pos(state.rng_word_pos.parse().map_err(|_| {
                 crate::error::RestoreError::BadInput(format!(
@@ -211,6 +243,17 @@ pub fn train(
         optim = optim.load_record(record);
     }
     let opts = opts;
+    let make = |round: usize, on_event: &mut dyn FnMut(Event)| -> Result<TrainSet> {
+        let t = Instant::now();
+        let set = pairs(round)?;
+        on_event(Event::Pairs {
+            round,
+            samples: set.samples.len(),
+            seconds: t.elapsed().as_secs_f64(),
+        });
+        Ok(set)
+    };
+    let mut set = make(opts.round(first), on_event)?;
     let s = cfg.crop;
     let mut started = Instant::now();
     let mut last = val_log
@@ -220,6 +263,9 @@ pub fn train(
     let invocation = Instant::now();
     let mut reached = first;
     for step in first..opts.steps {
+        if step != first && opts.round(step) != opts.round(step - 1) {
+            set = make(opts.round(step), on_event)?;
+        }
         let (x, y) = set.batch(&mut rng, opts.batch, s);
         let x = Tensor::<4>::from_data(
             TensorData::new(x, [opts.batch, 3 * BANK_SIZE, s, s]),
@@ -271,6 +317,7 @@ pub fn train(
                 weight_decay: opts.weight_decay,
                 clip: opts.clip,
                 seed: opts.seed,
+                refresh_every: opts.refresh_every,
                 rng_word_pos: rng.get_word_pos().to_string(),
                 seconds,
                 weights_hash: weights::fnv1a(&written),

@@ -24,6 +24,9 @@ pub struct TrainState {
     pub weight_decay: f32,
     pub clip: f32,
     pub seed: u64,
+    /// Steps between re-aberrations of the training photos (0: never).
+    #[serde(default)]
+    pub refresh_every: usize,
     /// Word position of the batch sampler's ChaCha8 stream (u128 as decimal text: JSON
     /// numbers would lose it).
     pub rng_word_pos: String,

@@ -5,7 +5,7 @@ use aberration::{Image, NoiseModel, PsfGrid};
 use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};
 use restore::data::TrainSet;
-use restore::train::{Start, TrainOptions, ValSet, train};
+use restore::train::{Start, TrainOptions, ValSet, round_seed, train};
 use restore::train_state::{self, state_path};
 use restore::{RestoreError, RestorerConfig, RestorerNet, weights};
 use std::path::Path;
@@ -57,7 +57,8 @@ fn a_resumed_run_ends_where_the_uninterrupted_run_ends() {
     let psf = blur_grid();
     let noise = NoiseModel::default();
     let photos = [photo(0.0), photo(1.3)];
-    let set = TrainSet::build(&photos, &psf, &cfg, noise, 5, &|| {}).unwrap();
+    let make =
+        |round: usize| TrainSet::build(&photos, &psf, &cfg, noise, round_seed(5, round), &|| {});
     let val = ValSet::build(&[("v".into(), photo(2.1))], &psf, &cfg, noise, Some(32)).unwrap();
     let device = Device::flex().autodiff();
     device.seed(11);
@@ -68,6 +69,9 @@ fn a_resumed_run_ends_where_the_uninterrupted_run_ends() {
         lr: 2e-3,
         seed: 3,
         val_every: 0,
+        // A new round of training pairs at step 3: after the resume point, so the resumed run
+        // must make the same pairs as the straight one.
+        refresh_every: 3,
         ..Default::default()
     };
     let metric = |a: &Image, b: &Image| {
@@ -86,7 +90,7 @@ fn a_resumed_run_ends_where_the_uninterrupted_run_ends() {
         train(
             &cfg,
             start,
-            &set,
+            &make,
             &val,
             &psf,
             opts,
@@ -111,7 +115,10 @@ fn a_resumed_run_ends_where_the_uninterrupted_run_ends() {
     let (_, _, reached) = run(Start::Init(init.clone()), &first_half, &cut);
     assert_eq!(reached, 2);
     let (state, record) = train_state::load(&cut).unwrap();
-    assert_eq!((state.step, state.steps, state.seed), (2, 4, 3));
+    assert_eq!(
+        (state.step, state.steps, state.seed, state.refresh_every),
+        (2, 4, 3, 3)
+    );
     assert_eq!(state.val_log.len(), 1);
     let (net, _) = weights::load(&cut, &device, Some(&cfg), Some(&psf)).unwrap();
     let halfway = outputs(&net.valid());
@@ -121,6 +128,7 @@ fn a_resumed_run_ends_where_the_uninterrupted_run_ends() {
         steps: 50,
         lr: 1.0,
         seed: 99,
+        refresh_every: 1,
         ..opts.clone()
     };
     let (resumed, _, reached) = run(
@@ -168,6 +176,7 @@ fn a_state_from_another_checkpoint_is_refused_naming_the_file() {
         weight_decay: 1e-4,
         clip: 1.0,
         seed: 0,
+        refresh_every: 0,
         rng_word_pos: "123".into(),
         seconds: 1.0,
         weights_hash: weights::fnv1a(b"weights at step 10"),
@@ -196,4 +205,32 @@ fn a_state_from_another_checkpoint_is_refused_naming_the_file() {
     let bytes = std::fs::read(state_path(&missing)).unwrap();
     std::fs::write(state_path(&missing), &bytes[..bytes.len() / 3]).unwrap();
     assert!(train_state::load(&missing).is_err());
+}
+
+#[test]
+fn each_refresh_round_aberrates_the_photos_anew_and_reproducibly() {
+    let cfg = RestorerConfig::tiny();
+    let (psf, noise) = (blur_grid(), NoiseModel::default());
+    let photos = [photo(0.4)];
+    let pairs = |round| TrainSet::build(&photos, &psf, &cfg, noise, round_seed(8, round), &|| {});
+    let crops = |set: TrainSet| {
+        let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(1);
+        set.batch(&mut rng, 2, 32)
+    };
+    let (a, again, next) = (
+        crops(pairs(0).unwrap()),
+        crops(pairs(0).unwrap()),
+        crops(pairs(1).unwrap()),
+    );
+    assert_eq!(a, again);
+    // Same crops and clean targets; new noise (and PSF position) in the inputs.
+    assert_eq!(a.1, next.1);
+    let changed = a.0.iter().zip(&next.0).filter(|(x, y)| x != y).count();
+    assert!(
+        changed > a.0.len() / 2,
+        "{changed} of {} inputs changed",
+        a.0.len()
+    );
+    assert_eq!(round_seed(8, 0), 8);
+    assert_ne!(round_seed(8, 1), round_seed(8, 2));
 }

@@ -8,7 +8,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use metasplat::eval::compare_images;
 use restore::data::{TrainSet, list_images, load_photo};
-use restore::train::{Event, Start, TrainOptions, ValSet, train};
+use restore::train::{Event, Start, TrainOptions, ValSet, round_seed, train};
 use restore::{Restorer, RestorerConfig, weights};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -61,6 +61,10 @@ pub struct TrainRestorerArgs {
     /// Stop after about this many minutes with a checkpoint (continue later with --resume).
     #[arg(long)]
     pub minutes: Option<f64>,
+    /// Re-aberrate the training photos (new noise, new random PSF positions) every N steps;
+    /// 0: never.
+    #[arg(long, default_value_t = 200)]
+    pub refresh_every: usize,
     /// Ablations: `concat` (no cross-attention), `single` (median Wiener image only).
     #[arg(long)]
     pub guidance: Option<String>,
@@ -190,6 +194,7 @@ fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
             state.seed
         );
         (a.steps, a.batch, a.lr, a.seed) = (state.steps, state.batch, state.lr, state.seed);
+        a.refresh_every = state.refresh_every;
         if let serde_json::Value::Object(mut p) = header.provenance {
             let mut resumed = match p.remove("resumed") {
                 Some(serde_json::Value::Array(v)) => v,
@@ -220,26 +225,10 @@ fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
         .collect();
     let val_photos = load_folder(&a.val, cfg.crop)?;
     let noise = NoiseModel::default();
-    let pb = bar(2 * photos.len() as u64, "aberrating");
-    let (set, secs) = {
-        let t = Instant::now();
-        let set = TrainSet::build(&photos, &native, &cfg, noise, a.seed, &|| pb.inc(1))?;
-        (set, t.elapsed().as_secs_f64())
+    let first = match &start {
+        Start::Resume(_, state, _) => state.step,
+        _ => 0,
     };
-    pb.finish_and_clear();
-    let crop = (a.val_crop > 0).then_some(a.val_crop);
-    let (val, vsecs) = step("validation set", || {
-        ValSet::build(&val_photos, &native, &cfg, noise, crop)
-    });
-    let val = val?;
-    println!(
-        "{} training samples from {} photos ({secs:.1} s), {} validation photos ({vsecs:.1} s); config '{}', {} parameters",
-        set.samples.len(),
-        photos.len(),
-        val.names.len(),
-        cfg.name,
-        cfg.analytic_params()
-    );
     let opts = TrainOptions {
         steps: a.steps,
         batch: a.batch,
@@ -249,8 +238,36 @@ fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
         noise,
         compute: a.backend,
         stop_after_seconds: a.minutes.map(|m| m * 60.0),
+        refresh_every: a.refresh_every,
         ..Default::default()
     };
+    let make_set = |round: usize| {
+        TrainSet::build(
+            &photos,
+            &native,
+            &cfg,
+            noise,
+            round_seed(a.seed, round),
+            &|| {},
+        )
+    };
+    let crop = (a.val_crop > 0).then_some(a.val_crop);
+    let (val, vsecs) = step("validation set", || {
+        ValSet::build(&val_photos, &native, &cfg, noise, crop)
+    });
+    let val = val?;
+    println!(
+        "{} training photos, aberrated {}; {} validation photos ({vsecs:.1} s); config '{}', {} parameters",
+        photos.len(),
+        if a.refresh_every > 0 {
+            format!("again every {} steps", a.refresh_every)
+        } else {
+            "once for the whole run".into()
+        },
+        val.names.len(),
+        cfg.name,
+        cfg.analytic_params()
+    );
     let command: Vec<String> = std::env::args().collect();
     let provenance = |step: usize, seconds: f64, m: (f64, f64)| {
         let mut p = serde_json::json!({
@@ -279,19 +296,16 @@ fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
         }
         p
     };
-    let first = match &start {
-        Start::Resume(_, state, _) => state.step,
-        _ => 0,
-    };
     let pb = bar(a.steps as u64, "training");
     pb.set_position(first as u64);
+    pb.set_message("aberrating the training photos");
     let mut log = Vec::new();
     let mut ema: Option<f32> = None;
     let started = Instant::now();
     let (_, last, reached) = train(
         &cfg,
         start,
-        &set,
+        &make_set,
         &val,
         &native,
         &opts,
@@ -299,6 +313,14 @@ fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
         &provenance,
         &metric,
         &mut |e| match e {
+            Event::Pairs {
+                round,
+                samples,
+                seconds,
+            } => say(
+                &pb,
+                format!("round {round}: {samples} training pairs ({seconds:.1} s)"),
+            ),
             Event::Step { step, loss, lr } => {
                 let e = ema.map_or(loss, |m| 0.95 * m + 0.05 * loss);
                 ema = Some(e);
