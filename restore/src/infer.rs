@@ -116,6 +116,22 @@ impl Restorer {
         &self.header.config
     }
 
+    /// Sets the tile side and overlap: the tile a positive multiple of the config's padding
+    /// unit, the overlap below half a tile.
+    pub fn with_tiling(mut self, tile: usize, overlap: usize) -> Result<Self> {
+        let m = self.config().multiple();
+        if tile == 0 || !tile.is_multiple_of(m) || 2 * overlap >= tile {
+            return Err(RestoreError::BadInput(format!(
+                "tile {tile} px with overlap {overlap} px: config '{}' needs a tile that is a \
+                 positive multiple of {m} px and an overlap under half of it",
+                self.config().name
+            )));
+        }
+        self.tile = tile;
+        self.overlap = overlap;
+        Ok(self)
+    }
+
     /// Restores 13 Wiener images of one aberrated image; output clamped to [0, 1].
     pub fn restore_bank(&self, bank: &[Image]) -> Image {
         let (w, h) = (bank[0].width, bank[0].height);

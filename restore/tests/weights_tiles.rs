@@ -228,3 +228,26 @@ fn a_header_knows_which_blur_scales_its_network_saw() {
         assert_eq!(h.fits_psf_px(px), fits, "{px}");
     }
 }
+
+#[test]
+fn tiling_that_the_network_cannot_take_is_refused() {
+    let cfg = RestorerConfig::tiny();
+    let device = Device::flex();
+    let m = cfg.multiple();
+    let r = || {
+        restore::Restorer::new(
+            RestorerNet::new(&cfg, &device),
+            header(&cfg, &psf_a()),
+            device.clone(),
+        )
+    };
+    for (tile, overlap) in [(m + 1, 0), (0, 0), (2 * m, m)] {
+        let err = r().with_tiling(tile, overlap).err().expect("refused");
+        assert!(
+            err.to_string().contains(&format!("multiple of {m}")),
+            "{err}"
+        );
+    }
+    let ok = r().with_tiling(2 * m, m / 2).unwrap();
+    assert_eq!((ok.tile, ok.overlap), (2 * m, m / 2));
+}

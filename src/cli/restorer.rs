@@ -76,6 +76,28 @@ pub struct TrainRestorerArgs {
     pub backend: restore::Compute,
 }
 
+/// How large images are cut for the network.
+#[derive(Args)]
+pub struct Tiling {
+    /// Tile side in px (a multiple of the config's padding unit); default: the largest that
+    /// fits the memory budget (512 for `tiny`).
+    #[arg(long)]
+    pub tile: Option<usize>,
+    /// Overlap of neighbouring tiles in px, blended by linear ramps.
+    #[arg(long)]
+    pub overlap: Option<usize>,
+}
+
+impl Tiling {
+    fn apply(&self, r: Restorer) -> Result<Restorer> {
+        let (tile, overlap) = (
+            self.tile.unwrap_or(r.tile),
+            self.overlap.unwrap_or(r.overlap),
+        );
+        Ok(r.with_tiling(tile, overlap)?)
+    }
+}
+
 #[derive(Args)]
 pub struct EvalArgs {
     #[arg(long)]
@@ -91,6 +113,8 @@ pub struct EvalArgs {
     /// `cpu`, or `vulkan` in a build with `--features vulkan`.
     #[arg(long, default_value = "cpu")]
     pub backend: restore::Compute,
+    #[command(flatten)]
+    pub tiling: Tiling,
 }
 
 #[derive(Args)]
@@ -112,6 +136,8 @@ pub struct RestoreArgs {
     /// `cpu`, or `vulkan` in a build with `--features vulkan`.
     #[arg(long, default_value = "cpu")]
     pub backend: restore::Compute,
+    #[command(flatten)]
+    pub tiling: Tiling,
 }
 
 pub fn run(c: RestorerCommand) -> Result<()> {
@@ -375,7 +401,9 @@ struct Row {
 fn run_eval(a: EvalArgs) -> Result<()> {
     let native =
         PsfGrid::load_npy(&a.psf).with_context(|| format!("cannot read {}", a.psf.display()))?;
-    let restorer = Restorer::load_on(&a.weights, &native, a.backend.device()?)?;
+    let restorer = a
+        .tiling
+        .apply(Restorer::load_on(&a.weights, &native, a.backend.device()?)?)?;
     let photos = load_folder(&a.val, 1)?;
     let noise = NoiseModel::default();
     let ks = bank_constants();
@@ -482,7 +510,9 @@ fn strip(images: &[&Image]) -> Image {
 pub fn run_restore(a: RestoreArgs) -> Result<()> {
     let native =
         PsfGrid::load_npy(&a.psf).with_context(|| format!("cannot read {}", a.psf.display()))?;
-    let restorer = Restorer::load_on(&a.weights, &native, a.backend.device()?)?;
+    let restorer = a
+        .tiling
+        .apply(Restorer::load_on(&a.weights, &native, a.backend.device()?)?)?;
     let blurred =
         Image::load(&a.input).with_context(|| format!("cannot read {}", a.input.display()))?;
     let psf = native.for_image(blurred.width, blurred.height, a.sensor_px);
