@@ -191,10 +191,10 @@ pub enum Start {
 }
 
 /// Trains a network and writes it to `out` at every validation and at the end, with the
-/// training state beside it. `pairs(round)` makes the training pairs of a refresh round
+/// training state beside it (`out.state`, see [`crate::train_state`]) so the run can be
+/// resumed. `pairs(round)` makes the training pairs of a refresh round
 /// ([`TrainOptions::round`]; seed them with [`round_seed`]): the round of the first step,
-/// then each later one. (`out.state`, see [`crate::train_state`]) so the run can be
-/// resumed. Returns the trained network, the last validation metrics and the step reached
+/// then each later one. Returns the trained network, the last validation metrics and the step reached
 /// (below `opts.steps` when a `stop_after_*` ended the invocation early).
 #[allow(clippy::too_many_arguments)]
 pub fn train(
@@ -214,7 +214,7 @@ pub fn train(
     device.seed(opts.seed);
     let mut opts = opts.clone();
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
-    let (mut net, record, first, mut seconds_before, mut val_log) = match start {
+    let (mut net, record, first, seconds_before, mut val_log) = match start {
         Start::Fresh => (RestorerNet::new(cfg, &device), None, 0, 0.0, vec![]),
         Start::Init(net) => (net, None, 0, 0.0, vec![]),
         Start::Resume(net, state, record) => {
@@ -255,7 +255,6 @@ pub fn train(
     };
     let mut set = make(opts.round(first), on_event)?;
     let s = cfg.crop;
-    let mut started = Instant::now();
     let mut last = val_log
         .last()
         .map_or((f64::NAN, f64::NAN), |&(_, _, p, s)| (p, s));
@@ -297,7 +296,7 @@ pub fn train(
             };
             let r = Restorer::new(net.valid(), header.clone(), inner.clone());
             last = validate(&r, val, metric);
-            let seconds = seconds_before + started.elapsed().as_secs_f64();
+            let seconds = seconds_before + invocation.elapsed().as_secs_f64();
             on_event(Event::Val {
                 step: step + 1,
                 psnr: last.0,
@@ -306,9 +305,7 @@ pub fn train(
             });
             val_log.push((step + 1, seconds, last.0, last.1));
             header.provenance = provenance(step + 1, seconds, last);
-            weights::save(&net.valid(), &header, out)?;
-            let written =
-                std::fs::read(out).map_err(|e| crate::error::RestoreError::Io(out.into(), e))?;
+            let weights_hash = weights::save(&net.valid(), &header, out)?;
             let state = TrainState {
                 step: step + 1,
                 steps: opts.steps,
@@ -320,13 +317,10 @@ pub fn train(
                 refresh_every: opts.refresh_every,
                 rng_word_pos: rng.get_word_pos().to_string(),
                 seconds,
-                weights_hash: weights::fnv1a(&written),
+                weights_hash,
                 val_log: val_log.clone(),
             };
             train_state::save(&state, optim.to_record(), &state_file)?;
-            // Restart the clock so `seconds` stays the sum of training time over resumes.
-            seconds_before = seconds;
-            started = Instant::now();
         }
         if stop {
             break;

@@ -77,8 +77,9 @@ fn bad(path: &Path, message: impl Into<String>) -> RestoreError {
     }
 }
 
-/// Writes `net` with its header to `path` (temporary name, then rename).
-pub fn save(net: &RestorerNet, header: &Header, path: &Path) -> Result<()> {
+/// Writes `net` with its header to `path` (temporary name, then rename); returns the
+/// [`fnv1a`] of the bytes written, the hash a training state records.
+pub fn save(net: &RestorerNet, header: &Header, path: &Path) -> Result<String> {
     let json = serde_json::to_vec(header).map_err(|e| bad(path, e.to_string()))?;
     let record = net
         .clone()
@@ -92,7 +93,7 @@ pub fn save(net: &RestorerNet, header: &Header, path: &Path) -> Result<()> {
     bytes.extend_from_slice(&record);
     aberration::atomic::write_atomically(path, |w| w.write_all(&bytes))
         .map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
-    Ok(())
+    Ok(fnv1a(&bytes))
 }
 
 /// Reads a weights file: its header and the record bytes.
