@@ -17,11 +17,14 @@ use burn::optim::{AdamWConfig, GradientsParams, OptimizerRecord};
 use burn::tensor::{Tensor, TensorData};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
 
-#[derive(Clone, Debug)]
-pub struct TrainOptions {
+/// What defines a run's optimisation, saved with its state so `--resume` continues the same
+/// schedule whatever the command line of the resuming call says.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Schedule {
     pub steps: usize,
     pub batch: usize,
     pub lr: f64,
@@ -29,6 +32,15 @@ pub struct TrainOptions {
     /// Per-parameter gradient L2-norm clip (burn's `GradientClippingConfig::Norm`).
     pub clip: f32,
     pub seed: u64,
+    /// Re-aberrate the photos (new noise, new random PSF positions) every this many steps;
+    /// 0: one set for the whole run. (States written before it existed did not refresh.)
+    #[serde(default)]
+    pub refresh_every: usize,
+}
+
+#[derive(Clone, Debug)]
+pub struct TrainOptions {
+    pub schedule: Schedule,
     /// Validate (and checkpoint weights and training state) every this many steps; 0: only
     /// at the end.
     pub val_every: usize,
@@ -38,9 +50,6 @@ pub struct TrainOptions {
     /// step that ends past this many seconds: the run is then continued with `Start::Resume`.
     pub stop_after_steps: Option<usize>,
     pub stop_after_seconds: Option<f64>,
-    /// Re-aberrate the photos (new noise, new random PSF positions) every this many steps;
-    /// 0: one set for the whole run.
-    pub refresh_every: usize,
 }
 
 /// Seed of the training pairs of refresh round `round` (round 0: the run's seed).
@@ -55,14 +64,14 @@ pub fn round_seed(seed: u64, round: usize) -> u64 {
     seed ^ z ^ (z >> 31)
 }
 
-impl TrainOptions {
+impl Schedule {
     /// The refresh round `step` falls in.
     pub fn round(&self, step: usize) -> usize {
         step.checked_div(self.refresh_every).unwrap_or(0)
     }
 }
 
-impl Default for TrainOptions {
+impl Default for Schedule {
     fn default() -> Self {
         Self {
             steps: 2000,
@@ -71,12 +80,20 @@ impl Default for TrainOptions {
             weight_decay: 1e-4,
             clip: 1.0,
             seed: 0,
+            refresh_every: 200,
+        }
+    }
+}
+
+impl Default for TrainOptions {
+    fn default() -> Self {
+        Self {
+            schedule: Schedule::default(),
             val_every: 250,
             noise: NoiseModel::default(),
             compute: Compute::Cpu,
             stop_after_steps: None,
             stop_after_seconds: None,
-            refresh_every: 200,
         }
     }
 }
@@ -193,9 +210,9 @@ pub enum Start {
 /// Trains a network and writes it to `out` at every validation and at the end, with the
 /// training state beside it (`out.state`, see [`crate::train_state`]) so the run can be
 /// resumed. `pairs(round)` makes the training pairs of a refresh round
-/// ([`TrainOptions::round`]; seed them with [`round_seed`]): the round of the first step,
+/// ([`Schedule::round`]; seed them with [`round_seed`]): the round of the first step,
 /// then each later one. Returns the trained network, the last validation metrics and the step reached
-/// (below `opts.steps` when a `stop_after_*` ended the invocation early).
+/// (below the schedule's steps when a `stop_after_*` ended the invocation early).
 #[allow(clippy::too_many_arguments)]
 pub fn train(
     cfg: &RestorerConfig,
@@ -211,21 +228,15 @@ pub fn train(
 ) -> Result<(RestorerNet, (f64, f64), usize)> {
     let inner = opts.compute.device()?;
     let device = inner.clone().autodiff();
-    device.seed(opts.seed);
-    let mut opts = opts.clone();
-    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
+    let mut sched = opts.schedule.clone();
+    device.seed(sched.seed);
+    let mut rng = ChaCha8Rng::seed_from_u64(sched.seed);
     let (mut net, record, first, seconds_before, mut val_log) = match start {
         Start::Fresh => (RestorerNet::new(cfg, &device), None, 0, 0.0, vec![]),
         Start::Init(net) => (net, None, 0, 0.0, vec![]),
         Start::Resume(net, state, record) => {
-            opts.steps = state.steps;
-            opts.batch = state.batch;
-            opts.lr = state.lr;
-            opts.weight_decay = state.weight_decay;
-            opts.clip = state.clip;
-            opts.seed = state.seed;
-            opts.refresh_every = state.refresh_every;
-            rng = ChaCha8Rng::seed_from_u64(state.seed);
+            sched = state.schedule.clone();
+            rng = ChaCha8Rng::seed_from_u64(sched.seed);
             rng.set_word_pos(state.rng_word_pos.parse().map_err(|_| {
                 crate::error::RestoreError::BadInput(format!(
                     "bad sampler position '{}'",
@@ -236,13 +247,13 @@ pub fn train(
         }
     };
     let mut optim = AdamWConfig::new()
-        .with_weight_decay(opts.weight_decay)
-        .with_grad_clipping(Some(GradientClippingConfig::Norm(opts.clip)))
+        .with_weight_decay(sched.weight_decay)
+        .with_grad_clipping(Some(GradientClippingConfig::Norm(sched.clip)))
         .init();
     if let Some(record) = record {
         optim = optim.load_record(record);
     }
-    let opts = opts;
+    let sched = sched;
     let make = |round: usize, on_event: &mut dyn FnMut(Event)| -> Result<TrainSet> {
         let t = Instant::now();
         let set = pairs(round)?;
@@ -253,7 +264,7 @@ pub fn train(
         });
         Ok(set)
     };
-    let mut set = make(opts.round(first), on_event)?;
+    let mut set = make(sched.round(first), on_event)?;
     let s = cfg.crop;
     let mut last = val_log
         .last()
@@ -261,19 +272,19 @@ pub fn train(
     let state_file = state_path(out);
     let invocation = Instant::now();
     let mut reached = first;
-    for step in first..opts.steps {
-        if step != first && opts.round(step) != opts.round(step - 1) {
-            set = make(opts.round(step), on_event)?;
+    for step in first..sched.steps {
+        if step != first && sched.round(step) != sched.round(step - 1) {
+            set = make(sched.round(step), on_event)?;
         }
-        let (x, y) = set.batch(&mut rng, opts.batch, s);
+        let (x, y) = set.batch(&mut rng, sched.batch, s);
         let x = Tensor::<4>::from_data(
-            TensorData::new(x, [opts.batch, 3 * BANK_SIZE, s, s]),
+            TensorData::new(x, [sched.batch, 3 * BANK_SIZE, s, s]),
             &device,
         );
-        let y = Tensor::<4>::from_data(TensorData::new(y, [opts.batch, 3, s, s]), &device);
+        let y = Tensor::<4>::from_data(TensorData::new(y, [sched.batch, 3, s, s]), &device);
         let loss = (net.forward(x) - y).abs().mean();
         let grads = GradientsParams::from_grads(loss.backward(), &net);
-        let lr = learning_rate(opts.lr, step, opts.steps);
+        let lr = learning_rate(sched.lr, step, sched.steps);
         net = optim.step(lr, net, grads);
         let l: f32 = loss.into_scalar::<f32>();
         reached = step + 1;
@@ -286,7 +297,7 @@ pub fn train(
             || opts
                 .stop_after_seconds
                 .is_some_and(|t| invocation.elapsed().as_secs_f64() >= t);
-        let done = step + 1 == opts.steps;
+        let done = step + 1 == sched.steps;
         if done || stop || (opts.val_every > 0 && (step + 1) % opts.val_every == 0) {
             let mut header = Header {
                 config: cfg.clone(),
@@ -308,13 +319,7 @@ pub fn train(
             let weights_hash = weights::save(&net.valid(), &header, out)?;
             let state = TrainState {
                 step: step + 1,
-                steps: opts.steps,
-                batch: opts.batch,
-                lr: opts.lr,
-                weight_decay: opts.weight_decay,
-                clip: opts.clip,
-                seed: opts.seed,
-                refresh_every: opts.refresh_every,
+                schedule: sched.clone(),
                 rng_word_pos: rng.get_word_pos().to_string(),
                 seconds,
                 weights_hash,

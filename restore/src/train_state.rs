@@ -4,6 +4,7 @@
 //! a pair from two different checkpoints is refused rather than silently mixed.
 
 use crate::error::{RestoreError, Result};
+use crate::train::Schedule;
 use crate::weights::fnv1a;
 use burn::optim::OptimizerRecord;
 use burn::tensor::Bytes;
@@ -18,15 +19,9 @@ const MAGIC: &[u8] = b"METASPLAT-RESTORER-STATE 1\n";
 pub struct TrainState {
     /// Steps done.
     pub step: usize,
-    pub steps: usize,
-    pub batch: usize,
-    pub lr: f64,
-    pub weight_decay: f32,
-    pub clip: f32,
-    pub seed: u64,
-    /// Steps between re-aberrations of the training photos (0: never).
-    #[serde(default)]
-    pub refresh_every: usize,
+    /// Flattened: the state file's JSON keeps one flat object.
+    #[serde(flatten)]
+    pub schedule: Schedule,
     /// Word position of the batch sampler's ChaCha8 stream (u128 as decimal text: JSON
     /// numbers would lose it).
     pub rng_word_pos: String,
@@ -91,12 +86,12 @@ pub fn load(weights: &Path) -> Result<(TrainState, OptimizerRecord)> {
     let n = n as usize;
     let state: TrainState = serde_json::from_slice(&bytes[start..start + n])
         .map_err(|e| bad(&path, format!("bad header: {e}")))?;
-    if state.step > state.steps || state.rng_word_pos.parse::<u128>().is_err() {
+    if state.step > state.schedule.steps || state.rng_word_pos.parse::<u128>().is_err() {
         return Err(bad(
             &path,
             format!(
                 "inconsistent state: step {} of {}, sampler position '{}'",
-                state.step, state.steps, state.rng_word_pos
+                state.step, state.schedule.steps, state.rng_word_pos
             ),
         ));
     }
@@ -117,4 +112,36 @@ pub fn load(weights: &Path) -> Result<(TrainState, OptimizerRecord)> {
     let optim = OptimizerRecord::from_bytes(Bytes::from_bytes_vec(bytes[start + n..].to_vec()))
         .map_err(|e| bad(&path, format!("bad optimizer state: {e}")))?;
     Ok((state, optim))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_state_json_is_one_flat_object_and_older_states_read_without_refresh() {
+        let state = TrainState {
+            step: 7,
+            schedule: Schedule {
+                steps: 9,
+                refresh_every: 3,
+                ..Default::default()
+            },
+            rng_word_pos: "340282366920938463463374607431768211455".into(),
+            seconds: 2.5,
+            weights_hash: "00ff".into(),
+            val_log: vec![(7, 2.5, 20.0, 0.5)],
+        };
+        let json = serde_json::to_value(&state).unwrap();
+        assert_eq!(json["steps"], 9);
+        assert_eq!(json["refresh_every"], 3);
+        assert!(json.get("schedule").is_none(), "{json}");
+        let back: TrainState = serde_json::from_value(json.clone()).unwrap();
+        assert_eq!(back, state);
+        // Written before `refresh_every` existed: those runs made their pairs once.
+        let mut old = json;
+        old.as_object_mut().unwrap().remove("refresh_every");
+        let back: TrainState = serde_json::from_value(old).unwrap();
+        assert_eq!(back.schedule.refresh_every, 0);
+    }
 }

@@ -5,7 +5,7 @@ use aberration::{Image, NoiseModel, PsfGrid};
 use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};
 use restore::data::TrainSet;
-use restore::train::{Start, TrainOptions, ValSet, round_seed, train};
+use restore::train::{Schedule, Start, TrainOptions, ValSet, round_seed, train};
 use restore::train_state::{self, state_path};
 use restore::{RestoreError, RestorerConfig, RestorerNet, weights};
 use std::path::Path;
@@ -64,14 +64,17 @@ fn a_resumed_run_ends_where_the_uninterrupted_run_ends() {
     device.seed(11);
     let init = RestorerNet::new(&cfg, &device);
     let opts = TrainOptions {
-        steps: 4,
-        batch: 1,
-        lr: 2e-3,
-        seed: 3,
+        schedule: Schedule {
+            steps: 4,
+            batch: 1,
+            lr: 2e-3,
+            seed: 3,
+            // A new round of training pairs at step 3: after the resume point, so the resumed
+            // run must make the same pairs as the straight one.
+            refresh_every: 3,
+            ..Default::default()
+        },
         val_every: 0,
-        // A new round of training pairs at step 3: after the resume point, so the resumed run
-        // must make the same pairs as the straight one.
-        refresh_every: 3,
         ..Default::default()
     };
     let metric = |a: &Image, b: &Image| {
@@ -115,20 +118,20 @@ fn a_resumed_run_ends_where_the_uninterrupted_run_ends() {
     let (_, _, reached) = run(Start::Init(init.clone()), &first_half, &cut);
     assert_eq!(reached, 2);
     let (state, record) = train_state::load(&cut).unwrap();
-    assert_eq!(
-        (state.step, state.steps, state.seed, state.refresh_every),
-        (2, 4, 3, 3)
-    );
+    assert_eq!((state.step, &state.schedule), (2, &opts.schedule));
     assert_eq!(state.val_log.len(), 1);
     let (net, _) = weights::load(&cut, &device, Some(&cfg), Some(&psf)).unwrap();
     let halfway = outputs(&net.valid());
 
     // Resumed: the options passed now are overridden by the saved schedule.
     let other = TrainOptions {
-        steps: 50,
-        lr: 1.0,
-        seed: 99,
-        refresh_every: 1,
+        schedule: Schedule {
+            steps: 50,
+            lr: 1.0,
+            seed: 99,
+            refresh_every: 1,
+            ..opts.schedule.clone()
+        },
         ..opts.clone()
     };
     let (resumed, _, reached) = run(
@@ -149,7 +152,10 @@ fn a_resumed_run_ends_where_the_uninterrupted_run_ends() {
     // Weights alone (fresh AdamW, restarted schedule and sampler) do not get there: the test
     // can tell a real resume from a restart.
     let restart = TrainOptions {
-        steps: 2,
+        schedule: Schedule {
+            steps: 2,
+            ..opts.schedule.clone()
+        },
         ..opts.clone()
     };
     let (restarted, _, _) = run(Start::Init(net), &restart, &dir.path().join("restart.bin"));
@@ -170,13 +176,13 @@ fn a_state_from_another_checkpoint_is_refused_naming_the_file() {
     std::fs::write(&missing, b"weights at step 20").unwrap();
     let state = train_state::TrainState {
         step: 10,
-        steps: 40,
-        batch: 1,
-        lr: 1e-3,
-        weight_decay: 1e-4,
-        clip: 1.0,
-        seed: 0,
-        refresh_every: 0,
+        schedule: Schedule {
+            steps: 40,
+            batch: 1,
+            lr: 1e-3,
+            refresh_every: 0,
+            ..Default::default()
+        },
         rng_word_pos: "123".into(),
         seconds: 1.0,
         weights_hash: weights::fnv1a(b"weights at step 10"),

@@ -8,7 +8,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use metasplat::eval::compare_images;
 use restore::data::{TrainSet, list_images, load_photo};
-use restore::train::{Event, Start, TrainOptions, ValSet, round_seed, train};
+use restore::train::{Event, Schedule, Start, TrainOptions, ValSet, round_seed, train};
 use restore::{Restorer, RestorerConfig, weights};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -184,7 +184,7 @@ fn config_from(a: &TrainRestorerArgs) -> Result<RestorerConfig> {
     Ok(cfg)
 }
 
-fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
+fn run_train(a: TrainRestorerArgs) -> Result<()> {
     let device = a.backend.device()?;
     let cfg = config_from(&a)?;
     let native =
@@ -196,17 +196,27 @@ fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
         let device = device.clone().autodiff();
         weights::load(p, &device, Some(&cfg), Some(&native))
     };
+    let mut schedule = Schedule {
+        steps: a.steps,
+        batch: a.batch,
+        lr: a.lr,
+        seed: a.seed,
+        refresh_every: a.refresh_every,
+        ..Default::default()
+    };
     // What the weights file's provenance carries over from the weights it started from.
     let mut earlier = serde_json::Map::new();
     let start = if a.resume {
         let (net, header) = load(&a.out).context("cannot resume")?;
         let (state, record) = restore::train_state::load(&a.out).context("cannot resume")?;
-        if state.step >= state.steps {
+        schedule = state.schedule.clone();
+        let s = &schedule;
+        if state.step >= s.steps {
             bail!(
                 "{}: that run finished ({} of {} steps); continue it with --init {} and a new --out",
                 a.out.display(),
                 state.step,
-                state.steps,
+                s.steps,
                 a.out.display()
             );
         }
@@ -214,13 +224,11 @@ fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
             "resuming {} at step {} of {} (batch {}, lr {:.1e}, seed {} from the saved state)",
             a.out.display(),
             state.step,
-            state.steps,
-            state.batch,
-            state.lr,
-            state.seed
+            s.steps,
+            s.batch,
+            s.lr,
+            s.seed
         );
-        (a.steps, a.batch, a.lr, a.seed) = (state.steps, state.batch, state.lr, state.seed);
-        a.refresh_every = state.refresh_every;
         if let serde_json::Value::Object(mut p) = header.provenance {
             let mut resumed = match p.remove("resumed") {
                 Some(serde_json::Value::Array(v)) => v,
@@ -256,24 +264,21 @@ fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
         _ => 0,
     };
     let opts = TrainOptions {
-        steps: a.steps,
-        batch: a.batch,
-        lr: a.lr,
-        seed: a.seed,
+        schedule: schedule.clone(),
         val_every: a.val_every,
         noise,
         compute: a.backend,
         stop_after_seconds: a.minutes.map(|m| m * 60.0),
-        refresh_every: a.refresh_every,
         ..Default::default()
     };
+    let s = &schedule;
     let make_set = |round: usize| {
         TrainSet::build(
             &photos,
             &native,
             &cfg,
             noise,
-            round_seed(a.seed, round),
+            round_seed(s.seed, round),
             &|| {},
         )
     };
@@ -285,8 +290,8 @@ fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
     println!(
         "{} training photos, aberrated {}; {} validation photos ({vsecs:.1} s); config '{}', {} parameters",
         photos.len(),
-        if a.refresh_every > 0 {
-            format!("again every {} steps", a.refresh_every)
+        if s.refresh_every > 0 {
+            format!("again every {} steps", s.refresh_every)
         } else {
             "once for the whole run".into()
         },
@@ -299,8 +304,8 @@ fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
         let mut p = serde_json::json!({
             "command": command.join(" "),
             "steps": step,
-            "batch": opts.batch,
-            "seed": opts.seed,
+            "batch": s.batch,
+            "seed": s.seed,
             "seconds": seconds,
             "threads": rayon::current_num_threads(),
             "train_photos": photos.len(),
@@ -322,7 +327,7 @@ fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
         }
         p
     };
-    let pb = bar(a.steps as u64, "training");
+    let pb = bar(s.steps as u64, "training");
     pb.set_position(first as u64);
     pb.set_message("aberrating the training photos");
     let mut log = Vec::new();
@@ -373,7 +378,7 @@ fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
     let secs = started.elapsed().as_secs_f64();
     println!(
         "trained to step {reached} of {} ({} steps in this run) in {:.1} min ({:.2} steps/s); validation (centred {} px crops): PSNR {:.2} dB, SSIM {:.4}; weights: {}, state: {}",
-        a.steps,
+        s.steps,
         reached - first,
         secs / 60.0,
         (reached - first) as f64 / secs,
@@ -383,7 +388,7 @@ fn run_train(mut a: TrainRestorerArgs) -> Result<()> {
         a.out.display(),
         restore::train_state::state_path(&a.out).display()
     );
-    if reached < a.steps {
+    if reached < s.steps {
         println!(
             "stopped early (--minutes); continue with the same command and --resume (without --init)"
         );
