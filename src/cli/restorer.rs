@@ -264,14 +264,15 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         _ => 0,
     };
     let opts = TrainOptions {
-        schedule: schedule.clone(),
+        schedule,
         val_every: a.val_every,
         noise,
         compute: a.backend,
         stop_after_seconds: a.minutes.map(|m| m * 60.0),
         ..Default::default()
     };
-    let s = &schedule;
+    // After a resume, the saved schedule (train() takes it from the state too).
+    let s = &opts.schedule;
     let make_set = |round: usize| {
         TrainSet::build(
             &photos,
