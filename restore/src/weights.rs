@@ -156,7 +156,7 @@ fn build(
     psf: Option<&PsfGrid>,
 ) -> Result<(RestorerNet, Header)> {
     if let Some(cfg) = expected
-        && *cfg != header.config
+        && !cfg.same_network(&header.config)
     {
         return Err(bad(
             path,

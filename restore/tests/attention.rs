@@ -270,7 +270,7 @@ fn mafg_cross_attention_matches_per_filter_masked_attention() {
     let device = Device::flex();
     device.seed(7);
     let (e, heads, hdim, win, kwin, h, w) = (4, 2, 3, 8, 12, 16, 16);
-    let m = CrossAttentionGuide::new(e, heads, hdim, win, kwin, &device);
+    let m = CrossAttentionGuide::new(e, heads, hdim, win, kwin, false, &device);
     let bank = Tensor::<4>::random([1, 39, h, w], Distribution::Default, &device);
     let got = vec4(m.forward(bank.clone())).0;
     let c = heads * hdim;

@@ -15,6 +15,7 @@ fn parameter_count_matches_the_analytic_count_for_every_config_and_ablation() {
         cfg.validate().unwrap();
         for guidance in [
             Guidance::CrossAttention,
+            Guidance::CrossAttentionResidual,
             Guidance::Concat,
             Guidance::SingleWiener,
         ] {
@@ -53,6 +54,25 @@ fn tiny_forward_keeps_shape_and_is_finite() {
         let v: Vec<f32> = y.try_into_vec_as::<f32>().unwrap();
         assert!(v.iter().all(|x| x.is_finite()));
     }
+}
+
+#[test]
+fn residual_guide_adds_each_filters_own_image_to_its_answer() {
+    use restore::net::mafg::CrossAttentionGuide;
+    let device = Device::flex();
+    device.seed(2);
+    let plain = CrossAttentionGuide::new(8, 1, 8, 4, 6, false, &device);
+    let residual = CrossAttentionGuide {
+        residual: true,
+        ..plain.clone()
+    };
+    let bank = Tensor::<4>::random([1, 39, 16, 24], Distribution::Default, &device);
+    let diff = residual.forward(bank.clone()) - plain.forward(bank.clone());
+    let err: f32 = (diff - bank).abs().max().into_scalar();
+    assert!(
+        err < 1e-5,
+        "residual - plain differs from the bank by {err}"
+    );
 }
 
 #[test]

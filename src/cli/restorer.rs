@@ -65,12 +65,18 @@ pub struct TrainRestorerArgs {
     /// 0: never.
     #[arg(long, default_value_t = 200)]
     pub refresh_every: usize,
-    /// Ablations: `concat` (no cross-attention), `single` (median Wiener image only).
+    /// `residual` (default: MAFG cross-attention answers added to each filter's image);
+    /// ablations: `cross-attention` (the paper's, no skip), `concat` (the 13 images straight
+    /// in), `single` (median Wiener image only).
     #[arg(long)]
     pub guidance: Option<String>,
     /// Ablation: fixed Wiener K (no channel intensity in K).
     #[arg(long)]
     pub fixed_k: bool,
+    /// The bank filter the network's output is added to (0: K = 1e-2, the default; 6: the
+    /// median, as in the paper's layout).
+    #[arg(long)]
+    pub residual_base: Option<usize>,
     /// Where to train: `cpu` (burn flex), or `vulkan` in a build with `--features vulkan`.
     #[arg(long, default_value = "cpu")]
     pub backend: restore::Compute,
@@ -98,18 +104,16 @@ impl Tiling {
     }
 }
 
+/// A trained restorer and the PSF grid it restores through, as `restorer eval` and `restore`
+/// load them.
 #[derive(Args)]
-pub struct EvalArgs {
+pub struct Inference {
+    /// Restorer weights (`restore/weights/tiny.bin` is the shipped network).
     #[arg(long)]
     pub weights: PathBuf,
+    /// PSF grid (`.npy`, from `psf simulate`) the images were aberrated with.
     #[arg(long)]
     pub psf: PathBuf,
-    /// Folder of clean validation photos.
-    #[arg(long)]
-    pub val: PathBuf,
-    /// Write restored images and a before/after strip per photo here.
-    #[arg(long)]
-    pub out: Option<PathBuf>,
     /// `cpu`, or `vulkan` in a build with `--features vulkan`.
     #[arg(long, default_value = "cpu")]
     pub backend: restore::Compute,
@@ -117,12 +121,32 @@ pub struct EvalArgs {
     pub tiling: Tiling,
 }
 
+impl Inference {
+    /// The native PSF grid and the restorer loaded on the chosen backend with its tiling.
+    fn load(&self) -> Result<(PsfGrid, Restorer)> {
+        let native = PsfGrid::load_npy(&self.psf)
+            .with_context(|| format!("cannot read {}", self.psf.display()))?;
+        let net = Restorer::load_on(&self.weights, &native, self.backend.device()?)?;
+        Ok((native, self.tiling.apply(net)?))
+    }
+}
+
+#[derive(Args)]
+pub struct EvalArgs {
+    #[command(flatten)]
+    pub net: Inference,
+    /// Folder of clean validation photos.
+    #[arg(long)]
+    pub val: PathBuf,
+    /// Write per photo here: aberrated, residual-base Wiener, restored and clean side by side.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
 #[derive(Args)]
 pub struct RestoreArgs {
-    #[arg(long)]
-    pub psf: PathBuf,
-    #[arg(long)]
-    pub weights: PathBuf,
+    #[command(flatten)]
+    pub net: Inference,
     #[arg(long = "in")]
     pub input: PathBuf,
     #[arg(long)]
@@ -133,11 +157,6 @@ pub struct RestoreArgs {
     /// A clean image to report PSNR/SSIM against.
     #[arg(long)]
     pub reference: Option<PathBuf>,
-    /// `cpu`, or `vulkan` in a build with `--features vulkan`.
-    #[arg(long, default_value = "cpu")]
-    pub backend: restore::Compute,
-    #[command(flatten)]
-    pub tiling: Tiling,
 }
 
 pub fn run(c: RestorerCommand) -> Result<()> {
@@ -169,18 +188,27 @@ fn config_from(a: &TrainRestorerArgs) -> Result<RestorerConfig> {
     let mut cfg = RestorerConfig::by_name(&a.config)
         .with_context(|| format!("unknown config '{}' (tiny, small, paper)", a.config))?;
     if let Some(g) = &a.guidance {
-        cfg.guidance = match g.as_str() {
+        let guidance = match g.as_str() {
+            "residual" => restore::Guidance::CrossAttentionResidual,
             "cross-attention" => restore::Guidance::CrossAttention,
             "concat" => restore::Guidance::Concat,
             "single" => restore::Guidance::SingleWiener,
-            _ => bail!("unknown guidance '{g}' (cross-attention, concat, single)"),
+            _ => bail!("unknown guidance '{g}' (residual, cross-attention, concat, single)"),
         };
-        cfg.name = format!("{}-{g}", cfg.name);
+        if guidance != cfg.guidance {
+            cfg.guidance = guidance;
+            cfg.name = format!("{}-{g}", cfg.name);
+        }
     }
     if a.fixed_k {
         cfg.adaptive_k = false;
         cfg.name = format!("{}-fixed-k", cfg.name);
     }
+    if let Some(m) = a.residual_base.filter(|&m| m != cfg.residual_base) {
+        cfg.residual_base = m;
+        cfg.name = format!("{}-base{m}", cfg.name);
+    }
+    cfg.validate().map_err(anyhow::Error::msg)?;
     Ok(cfg)
 }
 
@@ -405,17 +433,15 @@ struct Row {
 }
 
 fn run_eval(a: EvalArgs) -> Result<()> {
-    let native =
-        PsfGrid::load_npy(&a.psf).with_context(|| format!("cannot read {}", a.psf.display()))?;
-    let restorer = a
-        .tiling
-        .apply(Restorer::load_on(&a.weights, &native, a.backend.device()?)?)?;
+    let (native, restorer) = a.net.load()?;
     let photos = load_folder(&a.val, 1)?;
     let noise = NoiseModel::default();
     let ks = bank_constants();
     // Single fixed K candidates: the bank's constants.
     let mut single = vec![(0.0, 0.0); ks.len()];
     let (mut input, mut median, mut net) = ((0.0, 0.0), (0.0, 0.0), (0.0, 0.0));
+    let base_filter = restorer.config().residual_base;
+    let mut base = (0.0, 0.0);
     let mut net_secs = 0.0;
     let pb = bar(photos.len() as u64, "evaluating");
     for (i, (name, clean)) in photos.iter().enumerate() {
@@ -435,6 +461,7 @@ fn run_eval(a: EvalArgs) -> Result<()> {
         add(&mut input, metric(&blurred, clean));
         let bank = restore::data::bank_images(&blurred, model.psf(), restorer.config().adaptive_k)?;
         add(&mut median, metric(&bank[BANK_MEDIAN], clean));
+        add(&mut base, metric(&bank[base_filter], clean));
         for (j, &k) in ks.iter().enumerate() {
             let img = deconvolve(&blurred, model.psf(), Regularizer::Fixed(k))?;
             add(&mut single[j], metric(&img, clean));
@@ -450,8 +477,8 @@ fn run_eval(a: EvalArgs) -> Result<()> {
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default();
-            strip(&[&blurred, &bank[BANK_MEDIAN], &restored, clean])
-                .save_png(&dir.join(format!("{stem}_abr_median_net_clean.png")))?;
+            strip(&[&blurred, &bank[base_filter], &restored, clean])
+                .save_png(&dir.join(format!("{stem}_abr_base_net_clean.png")))?;
         }
         pb.inc(1);
     }
@@ -462,7 +489,7 @@ fn run_eval(a: EvalArgs) -> Result<()> {
         .enumerate()
         .max_by(|a, b| a.1.0.total_cmp(&b.1.0))
         .expect("13 constants");
-    let rows = [
+    let mut rows = vec![
         Row {
             name: "aberrated input".into(),
             psnr: input.0 / n,
@@ -484,6 +511,19 @@ fn run_eval(a: EvalArgs) -> Result<()> {
             ssim: net.1 / n,
         },
     ];
+    if base_filter != BANK_MEDIAN {
+        rows.insert(
+            3,
+            Row {
+                name: format!(
+                    "MAFG Wiener filter {base_filter}, the network's residual base (adaptive K {:.2e})",
+                    ks[base_filter]
+                ),
+                psnr: base.0 / n,
+                ssim: base.1 / n,
+            },
+        );
+    }
     println!("{} validation photos, {}", photos.len(), a.val.display());
     println!("| method | PSNR (dB) | SSIM |\n|---|---:|---:|");
     for r in &rows {
@@ -495,8 +535,9 @@ fn run_eval(a: EvalArgs) -> Result<()> {
         .sum::<f64>()
         / 1e6;
     println!(
-        "network: {:+.2} dB over the median Wiener image; inference {:.0} ms per megapixel ({} threads, tiles {} px)",
+        "network: {:+.2} dB over the median Wiener image, {:+.2} dB over its residual base (filter {base_filter}); inference {:.0} ms per megapixel ({} threads, tiles {} px)",
         (net.0 - median.0) / n,
+        (net.0 - base.0) / n,
         1000.0 * net_secs / mp,
         rayon::current_num_threads(),
         restorer.tile
@@ -514,11 +555,7 @@ fn strip(images: &[&Image]) -> Image {
 }
 
 pub fn run_restore(a: RestoreArgs) -> Result<()> {
-    let native =
-        PsfGrid::load_npy(&a.psf).with_context(|| format!("cannot read {}", a.psf.display()))?;
-    let restorer = a
-        .tiling
-        .apply(Restorer::load_on(&a.weights, &native, a.backend.device()?)?)?;
+    let (native, restorer) = a.net.load()?;
     let blurred =
         Image::load(&a.input).with_context(|| format!("cannot read {}", a.input.display()))?;
     let psf = native.for_image(blurred.width, blurred.height, a.sensor_px);

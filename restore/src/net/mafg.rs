@@ -25,6 +25,8 @@ pub struct CrossAttentionGuide {
     pub heads: usize,
     pub win: usize,
     pub kwin: usize,
+    /// Add each filter's image to its answer (the guide learns a correction to the bank).
+    pub residual: bool,
 }
 
 impl CrossAttentionGuide {
@@ -34,6 +36,7 @@ impl CrossAttentionGuide {
         head_dim: usize,
         win: usize,
         kwin: usize,
+        residual: bool,
         device: &Device,
     ) -> Self {
         let hd = heads * head_dim;
@@ -50,12 +53,14 @@ impl CrossAttentionGuide {
             heads,
             win,
             kwin,
+            residual,
         }
     }
 
     /// `bank: [b, 39, h, w]` (filter-major) → `[b, 39, h, w]`.
     pub fn forward(&self, bank: Tensor<4>) -> Tensor<4> {
         let [b, _, h, w] = bank.dims();
+        let input = self.residual.then(|| bank.clone());
         let m = BANK_SIZE;
         let feats = self
             .norm
@@ -83,6 +88,10 @@ impl CrossAttentionGuide {
             .repeat_dim(0, b * m);
         let out = attend(q, k, v, self.heads, mask);
         let rgb = self.out.forward(merge_windows(out, b * m, h, w, self.win));
-        rgb.reshape([b, 3 * m, h, w])
+        let rgb = rgb.reshape([b, 3 * m, h, w]);
+        match input {
+            Some(bank) => rgb + bank,
+            None => rgb,
+        }
     }
 }

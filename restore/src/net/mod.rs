@@ -1,5 +1,5 @@
 //! The network: MAFG guidance, a U-shaped body of STAF blocks (Restormer layout), a residual
-//! added to the median Wiener image.
+//! added to one Wiener image of the bank (`RestorerConfig::residual_base`).
 
 pub mod channel;
 pub mod layers;
@@ -85,6 +85,7 @@ pub struct RestorerNet {
     pub refinement: Stage,
     pub output: Conv2d,
     pub single_wiener: bool,
+    pub residual_base: usize,
 }
 
 fn stage(
@@ -121,13 +122,16 @@ impl RestorerNet {
     /// A freshly initialised network (seed the device first for reproducible weights).
     pub fn new(cfg: &RestorerConfig, device: &Device) -> Self {
         let d = cfg.dim;
-        let guide = (cfg.guidance == Guidance::CrossAttention).then(|| {
+        let residual = cfg.guidance == Guidance::CrossAttentionResidual;
+        let attended = cfg.guidance == Guidance::CrossAttention || residual;
+        let guide = attended.then(|| {
             CrossAttentionGuide::new(
                 cfg.mafg_embed,
                 cfg.mafg_heads,
                 cfg.mafg_head_dim,
                 cfg.window,
                 cfg.key_window(),
+                residual,
                 device,
             )
         });
@@ -217,16 +221,17 @@ impl RestorerNet {
             refinement,
             output: conv(2 * d, 3, 3, false, device),
             single_wiener: cfg.guidance == Guidance::SingleWiener,
+            residual_base: cfg.residual_base,
         }
     }
 
     /// `bank: [b, 39, h, w]` (13 Wiener images, filter-major; `h`, `w` multiples of
     /// [`RestorerConfig::multiple`]) → restored `[b, 3, h, w]` (not clamped).
     pub fn forward(&self, bank: Tensor<4>) -> Tensor<4> {
-        let median = bank.clone().narrow(1, 3 * BANK_MEDIAN, 3);
+        let base = bank.clone().narrow(1, 3 * self.residual_base, 3);
         let guided = match (&self.guide, self.single_wiener) {
             (Some(g), _) => g.forward(bank),
-            (None, true) => median.clone(),
+            (None, true) => bank.narrow(1, 3 * BANK_MEDIAN, 3),
             (None, false) => bank,
         };
         let x = self.embed.forward(guided);
@@ -247,6 +252,6 @@ impl RestorerNet {
             x = dec.forward(x);
         }
         let x = self.refinement.forward(x);
-        self.output.forward(x) + median
+        self.output.forward(x) + base
     }
 }
