@@ -65,16 +65,16 @@ pub struct TrainRestorerArgs {
     /// 0: never.
     #[arg(long, default_value_t = 200)]
     pub refresh_every: usize,
-    /// `residual` (default: MAFG cross-attention answers added to each filter's image);
-    /// ablations: `cross-attention` (the paper's, no skip), `concat` (the 13 images straight
-    /// in), `single` (median Wiener image only).
+    /// `residual` (MAFG cross-attention answers added to each filter's image; tiny, small),
+    /// `cross-attention` (no skip; paper); ablations: `concat` (the 13 images straight in),
+    /// `single` (median Wiener image only). Default: the config's.
     #[arg(long)]
     pub guidance: Option<String>,
     /// Ablation: fixed Wiener K (no channel intensity in K).
     #[arg(long)]
     pub fixed_k: bool,
-    /// The bank filter the network's output is added to (0: K = 1e-2, the default; 6: the
-    /// median, as in the paper's layout).
+    /// The bank filter the network's output is added to (0: K = 1e-2, tiny and small; 6: the
+    /// median, paper). Default: the config's.
     #[arg(long)]
     pub residual_base: Option<usize>,
     /// Where to train: `cpu` (burn flex), or `vulkan` in a build with `--features vulkan`.
