@@ -489,6 +489,11 @@ fn run_eval(a: EvalArgs) -> Result<()> {
         .enumerate()
         .max_by(|a, b| a.1.0.total_cmp(&b.1.0))
         .expect("13 constants");
+    let kind = if restorer.config().adaptive_k {
+        "adaptive"
+    } else {
+        "fixed"
+    };
     let mut rows = vec![
         Row {
             name: "aberrated input".into(),
@@ -501,7 +506,7 @@ fn run_eval(a: EvalArgs) -> Result<()> {
             ssim: best.1 / n,
         },
         Row {
-            name: "median MAFG Wiener (adaptive K 3.16e-4)".into(),
+            name: format!("median MAFG Wiener ({kind} K {:.2e})", ks[BANK_MEDIAN]),
             psnr: median.0 / n,
             ssim: median.1 / n,
         },
@@ -516,7 +521,7 @@ fn run_eval(a: EvalArgs) -> Result<()> {
             3,
             Row {
                 name: format!(
-                    "MAFG Wiener filter {base_filter}, the network's residual base (adaptive K {:.2e})",
+                    "MAFG Wiener filter {base_filter}, the network's residual base ({kind} K {:.2e})",
                     ks[base_filter]
                 ),
                 psnr: base.0 / n,
