@@ -461,7 +461,9 @@ fn run_eval(a: EvalArgs) -> Result<()> {
         add(&mut input, metric(&blurred, clean));
         let bank = restore::data::bank_images(&blurred, model.psf(), restorer.config().adaptive_k)?;
         add(&mut median, metric(&bank[BANK_MEDIAN], clean));
-        add(&mut base, metric(&bank[base_filter], clean));
+        if base_filter != BANK_MEDIAN {
+            add(&mut base, metric(&bank[base_filter], clean));
+        }
         for (j, &k) in ks.iter().enumerate() {
             let img = deconvolve(&blurred, model.psf(), Regularizer::Fixed(k))?;
             add(&mut single[j], metric(&img, clean));
@@ -483,6 +485,9 @@ fn run_eval(a: EvalArgs) -> Result<()> {
         pb.inc(1);
     }
     pb.finish_and_clear();
+    if base_filter == BANK_MEDIAN {
+        base = median;
+    }
     let n = photos.len() as f64;
     let (jbest, best) = single
         .iter()
