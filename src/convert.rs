@@ -1,9 +1,11 @@
-//! Conversions between the crates' image and camera types. `splat` renders row-major
-//! `Vec<Vec3>`, `aberration` works on planar `Image`s, `scenes` decodes interleaved RGB.
+//! Conversions between the crates' image and camera types, made once per view when a capture
+//! is loaded or an output is saved, never per training step: `splat` renders row-major
+//! `Vec<Vec3>` (which the blur and its adjoint also take), `scenes` decodes interleaved
+//! `Photo`s, and the Wiener bank and the restorer work on planar `aberration::Image`s.
 
 use aberration::Image;
 use glam::{Mat3, Vec3};
-use scenes::RgbImage;
+use scenes::Photo;
 
 /// Camera-space depths the renderer accepts; LLFF bounds are not used as clip planes because
 /// splats may legitimately sit in front of the nearest SfM point.
@@ -28,15 +30,15 @@ pub fn splat_camera(c: &scenes::Camera) -> splat::Camera {
     }
 }
 
-pub fn rgb_to_pixels(img: &RgbImage) -> Vec<Vec3> {
+pub fn rgb_to_pixels(img: &Photo) -> Vec<Vec3> {
     img.data
         .chunks_exact(3)
         .map(|p| Vec3::new(p[0], p[1], p[2]))
         .collect()
 }
 
-pub fn pixels_to_rgb(pixels: &[Vec3], width: u32, height: u32) -> RgbImage {
-    RgbImage {
+pub fn pixels_to_rgb(pixels: &[Vec3], width: u32, height: u32) -> Photo {
+    Photo {
         width,
         height,
         data: pixels.iter().flat_map(|p| p.to_array()).collect(),
@@ -58,24 +60,6 @@ pub fn image_to_pixels(img: &Image) -> Vec<Vec3> {
     (0..img.plane_len())
         .map(|i| Vec3::new(r[i], g[i], b[i]))
         .collect()
-}
-
-/// PSNR in dB of `a` against `b` (data range 1); 100 dB for identical images.
-pub fn psnr(a: &[Vec3], b: &[Vec3]) -> f64 {
-    let se: f64 = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| {
-            let d = *x - *y;
-            (d.x as f64).powi(2) + (d.y as f64).powi(2) + (d.z as f64).powi(2)
-        })
-        .sum();
-    let mse = se / (3 * a.len().max(1)) as f64;
-    if mse <= 1e-10 {
-        100.0
-    } else {
-        -10.0 * mse.log10()
-    }
 }
 
 /// Writes pixels as an 8-bit PNG (atomically), clamped to [0, 1].

@@ -12,6 +12,8 @@ pub enum TrainError {
     Restore(#[from] restore::RestoreError),
     #[error(transparent)]
     Splat(#[from] splat::SplatError),
+    #[error(transparent)]
+    Metric(#[from] base::BaseError),
     #[error("{}: {source}", path.display())]
     Io {
         path: PathBuf,

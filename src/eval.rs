@@ -5,7 +5,6 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use splat::{Gaussians, RenderSettings};
 
-use crate::convert::psnr;
 use crate::error::Result;
 use crate::train::data::View;
 
@@ -37,8 +36,10 @@ pub fn compare(image: &[Vec3], reference: &[Vec3], width: u32, height: u32) -> R
         .iter()
         .map(|p| p.clamp(Vec3::ZERO, Vec3::ONE))
         .collect();
-    let s = splat::loss::ssim(&clamped, reference, width, height)?;
-    Ok((psnr(&clamped, reference), s.value as f64))
+    Ok((
+        base::psnr_rgb(&clamped, reference)?,
+        base::ssim_value(&clamped, reference, width, height)?,
+    ))
 }
 
 /// Metrics of `model` on `views` against their clean images; `None` when a view has none.
@@ -69,17 +70,4 @@ pub fn evaluate(
         mean_ssim: per_view.iter().map(|v| v.ssim).sum::<f64>() / n,
         views: per_view,
     }))
-}
-
-/// PSNR and SSIM of two images of the same size (`image` clamped to [0, 1]).
-pub fn compare_images(
-    image: &aberration::Image,
-    reference: &aberration::Image,
-) -> Result<(f64, f64)> {
-    compare(
-        &crate::convert::image_to_pixels(image),
-        &crate::convert::image_to_pixels(reference),
-        image.width as u32,
-        image.height as u32,
-    )
 }

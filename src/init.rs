@@ -9,8 +9,6 @@ use splat::Gaussians;
 use splat::model::logit;
 use std::collections::HashMap;
 
-/// SH band-0 constant: colour = C0·dc + 0.5.
-pub const SH_C0: f32 = 0.282_094_8;
 pub const INITIAL_OPACITY: f32 = 0.1;
 /// Shells searched around a point before falling back to a linear scan.
 const MAX_RING: i32 = 8;
@@ -109,7 +107,7 @@ pub fn from_points(cloud: &PointCloud, sh_degree: u32) -> Gaussians {
             Vec3::splat(log_s),
             [1.0, 0.0, 0.0, 0.0],
             logit(INITIAL_OPACITY),
-            (c - 0.5) / SH_C0,
+            splat::sh::rgb_to_sh_dc(c),
             &rest,
         );
     }
@@ -139,7 +137,7 @@ mod tests {
 
     #[test]
     fn grid_knn_matches_brute_force() {
-        let mut rng = splat::rng::SplitMix64::new(4);
+        let mut rng = base::SplitMix64::new(4);
         // Clustered, flat and spread-out points: the grid must not miss far neighbours.
         let mut pts: Vec<Vec3> = (0..600)
             .map(|_| {

@@ -5,8 +5,8 @@ mod cli;
 use clap::Parser;
 
 // The restorer's tensors are large and short-lived: glibc returns each to the kernel (mmap /
-// munmap), and the page faults of zeroing them again took half of inference time (kodim05,
-// 500×500, tiny: 14.4 s with glibc, 7.8 s when memory is reused).
+// munmap), and the page faults of zeroing them again dominate inference; mimalloc reuses the
+// memory (the measurement is in RESULTS.md).
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 

@@ -1,10 +1,8 @@
 //! Everything a finished run leaves in its folder: the PLY, metrics, the log, test-view
 //! renders beside their clean and aberrated images, and the spiral frames.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use aberration::atomic::write_atomically;
 use aberration::image::save_rgb8_png;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -35,7 +33,7 @@ pub fn prepare_run_dir(dir: &Path) -> Result<()> {
 pub fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
     let text =
         serde_json::to_string_pretty(value).map_err(|e| TrainError::file(path, e.to_string()))?;
-    write_atomically(path, |f| f.write_all((text + "\n").as_bytes()))
+    base::write_bytes_atomically(path, (text + "\n").as_bytes())
         .map_err(|e| TrainError::io(path, e))
 }
 
@@ -56,7 +54,7 @@ pub fn write_log_csv(path: &Path, log: &[LogRow]) -> Result<()> {
             r.sh_degree
         );
     }
-    write_atomically(path, |f| f.write_all(text.as_bytes())).map_err(|e| TrainError::io(path, e))
+    base::write_bytes_atomically(path, text.as_bytes()).map_err(|e| TrainError::io(path, e))
 }
 
 /// `metrics.json`.
@@ -145,13 +143,16 @@ pub fn write_run(
         render_frames(model, &outcome.settings, &path, &spiral_dir)?;
     }
 
-    let observed_psnr = metrics.as_ref().map(|_| {
-        data.test
-            .iter()
-            .map(|v| crate::convert::psnr(&v.observed, v.clean.as_deref().expect("evaluated")))
-            .sum::<f64>()
-            / data.test.len() as f64
-    });
+    let observed_psnr = match &metrics {
+        Some(_) => {
+            let mut sum = 0.0;
+            for v in &data.test {
+                sum += base::psnr_rgb(&v.observed, v.clean.as_deref().expect("evaluated"))?;
+            }
+            Some(sum / data.test.len() as f64)
+        }
+        None => None,
+    };
     let summary = RunSummary {
         mode: config.mode.to_string(),
         iters: config.iters,

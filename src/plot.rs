@@ -6,7 +6,6 @@
 //! Without any of them the plot is still written, with lines, grid and frame but no text at all
 //! (no title, axis labels, tick labels, legend or "no data" note); that is not an error.
 
-use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
@@ -344,29 +343,21 @@ fn write_png_atomic(path: &Path, rgb: &[u8]) -> Result<(), PlotError> {
         path: path.to_path_buf(),
         source,
     };
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let mut builder = tempfile::Builder::new();
-    builder.prefix(".partial-").suffix(".png");
-    // Same mode as `File::create` (0o666 less the umask), not tempfile's private 0o600.
-    #[cfg(unix)]
-    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
-    let mut tmp = builder.tempfile_in(dir).map_err(io)?;
-    {
-        let mut w = BufWriter::new(tmp.as_file_mut());
-        image::codecs::png::PngEncoder::new(&mut w)
-            .write_image(rgb, WIDTH, HEIGHT, ExtendedColorType::Rgb8)
-            .map_err(|source| PlotError::Encode {
-                path: path.to_path_buf(),
-                source,
-            })?;
-        w.flush().map_err(io)?;
-    }
-    tmp.as_file().sync_all().map_err(io)?;
-    tmp.persist(path).map_err(|e| io(e.error))?;
-    Ok(())
+    base::write_atomically_with(path, |w| {
+        image::codecs::png::PngEncoder::new(w).write_image(
+            rgb,
+            WIDTH,
+            HEIGHT,
+            ExtendedColorType::Rgb8,
+        )
+    })
+    .map_err(|e| match e {
+        base::WriteError::Io(e) => io(e),
+        base::WriteError::Body(source) => PlotError::Encode {
+            path: path.to_path_buf(),
+            source,
+        },
+    })
 }
 
 #[cfg(test)]

@@ -4,17 +4,16 @@
 
 use std::path::{Path, PathBuf};
 
+use base::SplitMix64;
 use glam::{DMat3, DVec3, Vec3};
 use rayon::prelude::*;
 use scenes::colmap::{ColmapPoint, text::write_points3d};
 use scenes::{BitDepth, Bounds, Camera, LlffWriter, Rigid};
 use splat::model::logit;
-use splat::rng::SplitMix64;
 use splat::{Gaussians, RenderSettings};
 
 use crate::convert::{pixels_to_rgb, splat_camera};
 use crate::error::{Result, TrainError};
-use crate::init::SH_C0;
 
 #[derive(Clone, Debug)]
 pub struct ProceduralOptions {
@@ -41,7 +40,7 @@ fn push_flat(g: &mut Gaussians, at: Vec3, half: f32, color: Vec3) {
         Vec3::new(half, half, half * 0.05).ln(),
         [1.0, 0.0, 0.0, 0.0],
         logit(0.95),
-        (color - 0.5) / SH_C0,
+        splat::sh::rgb_to_sh_dc(color),
         &[],
     );
 }
@@ -98,7 +97,7 @@ pub fn ground_truth(seed: u64) -> Gaussians {
                 Vec3::splat(radius * 0.08).ln(),
                 [1.0, 0.0, 0.0, 0.0],
                 logit(0.9),
-                (color * shade - 0.5) / SH_C0,
+                splat::sh::rgb_to_sh_dc(color * shade),
                 &[],
             );
         }
@@ -186,7 +185,7 @@ pub fn write_capture(dest: &Path, o: &ProceduralOptions) -> Result<PathBuf> {
         .enumerate()
         .map(|(k, i)| {
             let jitter = DVec3::new(rng.normal(), rng.normal(), rng.normal()) * 0.05;
-            let c = (truth.sh_dc[i] * SH_C0 + 0.5).clamp(Vec3::ZERO, Vec3::ONE);
+            let c = splat::sh::sh_dc_to_rgb(truth.sh_dc[i]).clamp(Vec3::ZERO, Vec3::ONE);
             ColmapPoint {
                 id: k as u64 + 1,
                 xyz: truth.means[i].as_dvec3() + jitter,

@@ -102,7 +102,7 @@ fn simulate_show_aberrate_and_deconvolve() {
         let blurred = aberration::Image::load(&out).unwrap();
         assert_eq!((blurred.width, blurred.height), (80, 50));
         assert!(
-            aberration::psnr(&blurred, &clean) < 60.0,
+            aberration::psnr(&blurred, &clean).unwrap() < 60.0,
             "the blur changed nothing"
         );
         // Same seed, same bytes.
@@ -223,6 +223,46 @@ fn bad_inputs_name_the_file_and_leave_no_output() {
     assert_eq!(names.len(), 3, "unexpected files left behind: {names:?}");
 }
 
+/// Every file under `dir` has the mode `File::create` gives there (0666 less the umask): no
+/// output is private to its owner, whichever writer made it (PLY, npy, PNG, JSON, CSV,
+/// checkpoint).
+fn assert_ordinary_modes(dir: &Path, kinds_expected: &[&str]) {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+        let probe = dir.join("mode-probe");
+        std::fs::File::create(&probe).unwrap();
+        let ordinary = mode(&probe);
+        std::fs::remove_file(&probe).unwrap();
+        let mut stack = vec![dir.to_path_buf()];
+        let mut kinds = std::collections::BTreeSet::new();
+        while let Some(d) = stack.pop() {
+            for e in std::fs::read_dir(&d).unwrap() {
+                let p = e.unwrap().path();
+                if p.is_dir() {
+                    stack.push(p);
+                    continue;
+                }
+                assert_eq!(
+                    mode(&p),
+                    ordinary,
+                    "{} has mode {:o}",
+                    p.display(),
+                    mode(&p)
+                );
+                kinds.insert(p.extension().map(|x| x.to_string_lossy().into_owned()));
+            }
+        }
+        for ext in kinds_expected {
+            assert!(
+                kinds.contains(&Some(ext.to_string())),
+                "no .{ext} output checked: {kinds:?}"
+            );
+        }
+    }
+}
+
 #[test]
 fn quick_demo_trains_plain_and_aware_and_reports_both() {
     let dir = tempfile::tempdir().unwrap();
@@ -242,6 +282,7 @@ fn quick_demo_trains_plain_and_aware_and_reports_both() {
     ] {
         assert!(out.join(f).exists(), "demo did not write {f}");
     }
+    assert_ordinary_modes(&out, &["ply", "npy", "png", "json", "csv"]);
     let psnr = |row: &str| -> f64 {
         let line = text
             .lines()
@@ -399,6 +440,8 @@ fn train_then_render_and_clear_errors() {
         log.lines().count() >= 2 && log.starts_with("step,seconds"),
         "{log}"
     );
+    assert_ordinary_modes(&run, &["ply", "png", "json", "csv", "bin"]);
+    assert_ordinary_modes(&abr, &["npy", "png", "json"]);
 
     let frames = d.join("frames");
     let text = ok(&[

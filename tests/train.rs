@@ -10,7 +10,7 @@ use metasplat::train::config::{Mode, TrainConfig};
 use metasplat::train::data::{self, DataOptions, Dataset};
 use metasplat::train::objective::Objective;
 use metasplat::train::{self, Event};
-use splat::{RenderSettings, render, render_backward};
+use splat::{RenderSettings, render, render_backward, render_for_backward};
 
 struct Fixture {
     _dir: tempfile::TempDir,
@@ -92,14 +92,14 @@ fn mean_psnr(mode: Mode, iters: u64, lambda: f32) -> f64 {
 #[test]
 fn aware_beats_plain_on_held_out_views() {
     let plain = mean_psnr(Mode::Plain, 600, 0.0);
-    // λ = 0: at 64×48 the median-Wiener stand-in for I_ac is worse than the blurred input
-    // (8.5 vs 13.5 dB), so this checks the physics term L_abr on its own.
+    // λ = 0: at 64×48 the median-Wiener stand-in for I_ac is worse than the blurred input,
+    // so this checks the physics term L_abr on its own.
     let aware = mean_psnr(Mode::Aware, 600, 0.0);
     let data = data::load(&fixture().aberrated, Mode::Plain, &options()).unwrap();
     let observed: f64 = data
         .test
         .iter()
-        .map(|v| metasplat::convert::psnr(&v.observed, v.clean.as_ref().unwrap()))
+        .map(|v| base::psnr_rgb(&v.observed, v.clean.as_ref().unwrap()).unwrap())
         .sum::<f64>()
         / data.test.len() as f64;
     eprintln!("observed {observed:.2} dB, plain {plain:.2} dB, aware {aware:.2} dB");
@@ -158,7 +158,7 @@ fn l_abr_gradient_through_the_blur_adjoint_matches_finite_differences() {
     // A few opaque-ish splats well inside the view, away from the renderer's thresholds
     // (1/255 alpha cut, 0.99 cap) that finite differences cannot straddle.
     let mut model = splat::Gaussians::new(1);
-    let mut rng = splat::rng::SplitMix64::new(9);
+    let mut rng = base::SplitMix64::new(9);
     let cam = &view.camera;
     for _ in 0..8 {
         let depth = rng.uniform(5.0, 8.0) as f32;
@@ -214,9 +214,9 @@ fn l_abr_gradient_through_the_blur_adjoint_matches_finite_differences() {
             let out = render(m, &view.camera, &settings).unwrap();
             objective.evaluate(&out.color, view).unwrap().0.total as f64
         };
-        let out = render(&model, &view.camera, &settings).unwrap();
+        let (out, saved) = render_for_backward(&model, &view.camera, &settings).unwrap();
         let (_, v) = objective.evaluate(&out.color, view).unwrap();
-        let g = render_backward(&model, &view.camera, &settings, &out, &v, None, None).unwrap();
+        let g = render_backward(&model, &saved, &v, None, None).unwrap();
         // The Gaussians with the largest mean gradients: well above f32 noise.
         let mut order: Vec<usize> = (0..model.len()).collect();
         order.sort_by(|a, b| {

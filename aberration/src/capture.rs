@@ -5,6 +5,7 @@ use crate::error::Result;
 use crate::image::Image;
 use crate::noise::NoiseModel;
 use crate::psf_grid::PsfGrid;
+use glam::Vec3;
 
 /// `I_abr = PSF ⊛ I_c + n` for images of one size, planned once.
 pub struct ImagingModel {
@@ -41,6 +42,11 @@ impl ImagingModel {
     /// Blur only.
     pub fn blur(&self, clean: &Image) -> Result<Image> {
         self.plan.apply(clean)
+    }
+
+    /// Blur only, on row-major RGB pixels (the renderer's layout).
+    pub fn blur_pixels(&self, clean: &[Vec3]) -> Result<Vec<Vec3>> {
+        self.plan.apply_pixels(clean)
     }
 
     /// Blur, then seeded sensor noise, clipped to [0, 1].

@@ -132,33 +132,39 @@ pub fn save_rgb8_png(img: &image::RgbImage, path: &Path) -> Result<()> {
         path: path.to_path_buf(),
         problem,
     };
-    crate::atomic::write_atomically(path, |file| {
-        let mut buf = std::io::BufWriter::new(file);
-        img.write_to(&mut buf, image::ImageFormat::Png)
-            .map_err(|e| std::io::Error::other(e.to_string()))?;
-        use std::io::Write;
-        buf.flush()
+    base::write_atomically(path, |w| {
+        img.write_to(w, image::ImageFormat::Png)
+            .map_err(|e| std::io::Error::other(e.to_string()))
     })
     .map_err(|e| err(e.to_string()))
 }
 
-/// Peak signal-to-noise ratio in dB for signals in [0,1]; identical images give +inf is
-/// avoided by flooring the MSE at 1e-20 (200 dB).
-pub fn psnr(a: &Image, b: &Image) -> f64 {
-    assert_eq!(
-        a.data.len(),
-        b.data.len(),
-        "psnr of images of different sizes"
-    );
-    let mse = a
-        .data
-        .iter()
-        .zip(&b.data)
-        .map(|(x, y)| {
-            let d = *x as f64 - *y as f64;
-            d * d
-        })
-        .sum::<f64>()
-        / a.data.len().max(1) as f64;
-    -10.0 * mse.max(1e-20).log10()
+fn same_size(a: &Image, b: &Image) -> Result<()> {
+    if (a.width, a.height) != (b.width, b.height) {
+        return Err(AberrationError::BadParameter(format!(
+            "cannot compare a {}x{} image with a {}x{} one",
+            a.width, a.height, b.width, b.height
+        )));
+    }
+    Ok(())
+}
+
+/// PSNR in dB of `a` against `b` (the one convention of [`base::metrics`]).
+pub fn psnr(a: &Image, b: &Image) -> Result<f64> {
+    same_size(a, b)?;
+    base::psnr(&a.data, &b.data).map_err(|e| AberrationError::BadParameter(e.to_string()))
+}
+
+/// PSNR and SSIM of `image`, clamped to [0, 1] as a saved picture would be, against
+/// `reference` ([`base::metrics`]' conventions, as every evaluation in metasplat).
+pub fn compare(image: &Image, reference: &Image) -> Result<(f64, f64)> {
+    same_size(image, reference)?;
+    let mut clamped = image.clone();
+    clamped.clamp01();
+    let (w, h) = (image.width as u32, image.height as u32);
+    let bad = |e: base::BaseError| AberrationError::BadParameter(e.to_string());
+    Ok((
+        base::psnr(&clamped.data, &reference.data).map_err(bad)?,
+        base::ssim_planar(&clamped.data, &reference.data, w, h).map_err(bad)?,
+    ))
 }

@@ -7,7 +7,6 @@
 //! - [`noise`]: Poisson + Gaussian sensor noise.
 //! - [`wiener`]: tile-wise Wiener deconvolution and the 13-filter MAFG bank.
 
-pub mod atomic;
 pub mod blur;
 pub mod capture;
 pub mod error;
@@ -18,13 +17,12 @@ pub mod optics;
 pub mod picture;
 pub mod psf_grid;
 pub mod resample;
-pub mod testchart;
 pub mod wiener;
 
 pub use blur::{BlurMode, BlurPlan};
 pub use capture::ImagingModel;
 pub use error::{AberrationError, Result};
-pub use image::{Image, psnr};
+pub use image::{Image, compare, psnr};
 pub use noise::NoiseModel;
 pub use psf_grid::PsfGrid;
 pub use wiener::{Regularizer, WienerBank, deconvolve, wiener_bank};

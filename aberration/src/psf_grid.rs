@@ -196,17 +196,14 @@ impl PsfGrid {
             3,
         ];
         let values = self.to_interleaved();
-        crate::atomic::write_atomically(path, |file| {
-            let mut buf = std::io::BufWriter::new(file);
+        base::write_atomically(path, |buf| {
             let mut w = npyz::WriteOptions::new()
                 .default_dtype()
                 .shape(&shape)
-                .writer(&mut buf)
+                .writer(buf)
                 .begin_nd()?;
             w.extend(values.iter().copied())?;
-            w.finish()?;
-            use std::io::Write;
-            buf.flush()
+            w.finish()
         })
         .map_err(|e| AberrationError::io(path, e))
     }

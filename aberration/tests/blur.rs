@@ -227,3 +227,35 @@ fn result_is_bit_identical_for_any_thread_count() {
         );
     }
 }
+
+#[test]
+fn pixel_layout_gives_the_planar_results_bit_for_bit() {
+    use glam::Vec3;
+    let (w, h) = (45, 31);
+    let psf = random_psf(3, 7, 11);
+    let to_pixels = |img: &Image| -> Vec<Vec3> {
+        (0..w * h)
+            .map(|i| {
+                Vec3::new(
+                    img.get(i % w, i / w, 0),
+                    img.get(i % w, i / w, 1),
+                    img.get(i % w, i / w, 2),
+                )
+            })
+            .collect()
+    };
+    for mode in [BlurMode::Tiled, BlurMode::Blend] {
+        let plan = BlurPlan::new(&psf, w, h, mode).unwrap();
+        let x = random_image(w, h, 5);
+        let y = random_image(w, h, 6);
+        assert_eq!(
+            plan.apply_pixels(&to_pixels(&x)).unwrap(),
+            to_pixels(&plan.apply(&x).unwrap())
+        );
+        assert_eq!(
+            plan.adjoint_pixels(&to_pixels(&y)).unwrap(),
+            to_pixels(&plan.adjoint(&y).unwrap())
+        );
+        assert!(plan.apply_pixels(&to_pixels(&x)[1..]).is_err());
+    }
+}

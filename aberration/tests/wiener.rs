@@ -42,9 +42,9 @@ fn tiny_k_recovers_a_band_limited_image() {
         .unwrap()
         .apply(&x)
         .unwrap();
-    let blurred_db = psnr(&y, &x);
+    let blurred_db = psnr(&y, &x).unwrap();
     let restored = deconvolve(&y, &psf, Regularizer::Fixed(1e-7)).unwrap();
-    let restored_db = psnr(&restored, &x);
+    let restored_db = psnr(&restored, &x).unwrap();
     assert!(
         restored_db >= 40.0,
         "Wiener recovered only {restored_db:.1} dB (blurred {blurred_db:.1} dB)"

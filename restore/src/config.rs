@@ -64,7 +64,7 @@ fn median_filter() -> usize {
 }
 
 impl RestorerConfig {
-    /// The paper's released configuration (≈29 M parameters), layout as the issue gives it:
+    /// The paper's released configuration (≈29 M parameters), in the paper's layout as we read it:
     /// MAFG cross-attention without a skip, the residual on the median Wiener image.
     pub fn paper() -> Self {
         Self {
@@ -102,12 +102,11 @@ impl RestorerConfig {
         }
     }
 
-    /// The layout `small` and `tiny` use: a skip around the MAFG cross-attention (it starts
-    /// as a window blur of the bank otherwise) and the residual on Wiener filter 0 (K = 1e-2),
-    /// the bank's best single image on natural photos (26.3 dB against the median's 17.1 on
-    /// Kodak), which leaves the network detail to add instead of noise to remove. At an equal
-    /// 280-step budget `tiny` reaches 28.44 dB on whole Kodak photos in this layout; in the
-    /// paper's it is still at the median image, 17.1 dB (restore/README.md).
+    /// The layout `small` and `tiny` use: a skip around the MAFG cross-attention (without it
+    /// the guide starts as a window blur of the bank and learns slowly) and the residual on
+    /// Wiener filter 0 (K = 1e-2), the bank's best single image on natural photos, which
+    /// leaves the network detail to add instead of noise to remove. The ablations behind
+    /// this choice are in restore/README.md.
     pub fn trainable_layout(self) -> Self {
         Self {
             guidance: Guidance::CrossAttentionResidual,

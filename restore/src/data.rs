@@ -181,7 +181,7 @@ impl TrainSet {
             .enumerate()
             .flat_map(|(i, _)| {
                 let mut rng = ChaCha8Rng::seed_from_u64(
-                    seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+                    seed ^ (i as u64).wrapping_mul(base::rng::GOLDEN_GAMMA),
                 );
                 let g = rng.random_range(0..positions);
                 [

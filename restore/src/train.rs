@@ -57,11 +57,8 @@ pub fn round_seed(seed: u64, round: usize) -> u64 {
     if round == 0 {
         return seed;
     }
-    // splitmix64 of the round, so neighbouring rounds get unrelated streams.
-    let mut z = (round as u64).wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    seed ^ z ^ (z >> 31)
+    // Mixed, so neighbouring rounds get unrelated streams.
+    seed ^ base::mix64((round as u64).wrapping_add(base::rng::GOLDEN_GAMMA))
 }
 
 impl Schedule {
@@ -159,20 +156,16 @@ pub fn crop_image(img: &Image, x0: usize, y0: usize, s: usize) -> Image {
     })
 }
 
-/// Mean metrics of a restorer on a validation set; `metric(a, b)` gives (PSNR, SSIM).
-pub fn validate(
-    restorer: &Restorer,
-    val: &ValSet,
-    metric: &dyn Fn(&Image, &Image) -> (f64, f64),
-) -> (f64, f64) {
+/// Mean PSNR and SSIM ([`aberration::compare`]) of a restorer on a validation set.
+pub fn validate(restorer: &Restorer, val: &ValSet) -> Result<(f64, f64)> {
     let mut acc = (0.0, 0.0);
     for (bank, clean) in val.banks.iter().zip(&val.clean) {
-        let (p, s) = metric(&restorer.restore_bank(bank), clean);
+        let (p, s) = aberration::compare(&restorer.restore_bank(bank), clean)?;
         acc.0 += p;
         acc.1 += s;
     }
     let n = val.banks.len().max(1) as f64;
-    (acc.0 / n, acc.1 / n)
+    Ok((acc.0 / n, acc.1 / n))
 }
 
 /// What training reports as it goes.
@@ -223,7 +216,6 @@ pub fn train(
     opts: &TrainOptions,
     out: &Path,
     provenance: &dyn Fn(usize, f64, (f64, f64)) -> serde_json::Value,
-    metric: &dyn Fn(&Image, &Image) -> (f64, f64),
     on_event: &mut dyn FnMut(Event),
 ) -> Result<(RestorerNet, (f64, f64), usize)> {
     let inner = opts.compute.device()?;
@@ -306,7 +298,7 @@ pub fn train(
                 provenance: serde_json::Value::Null,
             };
             let r = Restorer::new(net.valid(), header.clone(), inner.clone());
-            last = validate(&r, val, metric);
+            last = validate(&r, val)?;
             let seconds = seconds_before + invocation.elapsed().as_secs_f64();
             on_event(Event::Val {
                 step: step + 1,

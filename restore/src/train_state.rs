@@ -53,7 +53,7 @@ pub fn save(state: &TrainState, optim: OptimizerRecord, path: &Path) -> Result<(
     let record = optim
         .into_bytes()
         .map_err(|e| bad(path, format!("cannot serialise the optimizer state: {e}")))?;
-    aberration::atomic::write_atomically(path, |w| {
+    base::write_atomically(path, |w| {
         w.write_all(MAGIC)?;
         w.write_all(&(json.len() as u64).to_le_bytes())?;
         w.write_all(&json)?;

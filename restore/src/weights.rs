@@ -9,7 +9,6 @@ use burn::module::Module;
 use burn::store::ModuleRecord;
 use burn::tensor::{Bytes, Device};
 use serde::{Deserialize, Serialize};
-use std::io::Write;
 use std::path::Path;
 
 const MAGIC: &[u8] = b"METASPLAT-RESTORER 1\n";
@@ -91,7 +90,7 @@ pub fn save(net: &RestorerNet, header: &Header, path: &Path) -> Result<String> {
     bytes.extend_from_slice(&(json.len() as u64).to_le_bytes());
     bytes.extend_from_slice(&json);
     bytes.extend_from_slice(&record);
-    aberration::atomic::write_atomically(path, |w| w.write_all(&bytes))
+    base::write_bytes_atomically(path, &bytes)
         .map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
     Ok(fnv1a(&bytes))
 }

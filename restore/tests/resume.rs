@@ -77,16 +77,6 @@ fn a_resumed_run_ends_where_the_uninterrupted_run_ends() {
         val_every: 0,
         ..Default::default()
     };
-    let metric = |a: &Image, b: &Image| {
-        let mse = a
-            .data
-            .iter()
-            .zip(&b.data)
-            .map(|(x, y)| ((x - y) as f64).powi(2))
-            .sum::<f64>()
-            / a.data.len() as f64;
-        (-10.0 * mse.log10(), 0.0)
-    };
     let provenance = |_: usize, _: f64, _: (f64, f64)| serde_json::Value::Null;
     let dir = tempfile::tempdir().unwrap();
     let run = |start: Start, opts: &TrainOptions, out: &Path| {
@@ -99,7 +89,6 @@ fn a_resumed_run_ends_where_the_uninterrupted_run_ends() {
             opts,
             out,
             &provenance,
-            &metric,
             &mut |_| {},
         )
         .unwrap()

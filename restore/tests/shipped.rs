@@ -44,9 +44,9 @@ fn shipped_weights_fit_the_default_grid_and_beat_the_median_wiener_image() {
     assert!(restored.is_finite());
     let base = restorer.config().residual_base;
     let (p_net, p_med, p_base) = (
-        psnr(&restored, &clean),
-        psnr(&bank[BANK_MEDIAN], &clean),
-        psnr(&bank[base], &clean),
+        psnr(&restored, &clean).unwrap(),
+        psnr(&bank[BANK_MEDIAN], &clean).unwrap(),
+        psnr(&bank[base], &clean).unwrap(),
     );
     println!(
         "kodim05: median Wiener {p_med:.2} dB, filter {base} (the network's base) {p_base:.2} dB, shipped network {p_net:.2} dB"

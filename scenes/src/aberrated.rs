@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 use crate::capture::Capture;
 use crate::colmap;
 use crate::error::{Result, SceneError};
-use crate::images::{self, BitDepth, RgbImage};
+use crate::images::{self, BitDepth, Photo};
 use crate::llff::LlffWriter;
 
 pub const CLEAN_DIR: &str = "clean";
@@ -117,7 +117,7 @@ pub struct AberrateReport {
 }
 
 /// Interleaved RGB (scenes) to planar (aberration).
-pub fn to_planar(img: &RgbImage) -> Image {
+pub fn to_planar(img: &Photo) -> Image {
     let (w, h) = (img.width as usize, img.height as usize);
     Image::from_fn(w, h, |x, y| {
         let i = (y * w + x) * 3;
@@ -126,7 +126,7 @@ pub fn to_planar(img: &RgbImage) -> Image {
 }
 
 /// Planar (aberration) to interleaved RGB (scenes).
-pub fn from_planar(img: &Image) -> RgbImage {
+pub fn from_planar(img: &Image) -> Photo {
     let n = img.plane_len();
     let mut data = vec![0.0f32; n * 3];
     for c in 0..3 {
@@ -134,7 +134,7 @@ pub fn from_planar(img: &Image) -> RgbImage {
             data[i * 3 + c] = *v;
         }
     }
-    RgbImage {
+    Photo {
         width: img.width as u32,
         height: img.height as u32,
         data,
@@ -143,13 +143,11 @@ pub fn from_planar(img: &Image) -> RgbImage {
 
 /// Noise seed of image `index`: distinct, well-mixed streams from one user seed.
 pub fn image_seed(seed: u64, index: usize) -> u64 {
-    let mut z = seed
-        ^ (index as u64)
+    base::mix64(
+        seed ^ (index as u64)
             .wrapping_add(1)
-            .wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
+            .wrapping_mul(base::rng::GOLDEN_GAMMA),
+    )
 }
 
 /// The path of the clean image for camera `index` of an aberrated capture, if it exists.
@@ -160,7 +158,7 @@ pub fn clean_image_path(capture: &Capture, index: usize) -> Option<PathBuf> {
 }
 
 /// Loads the clean image of camera `index`; `Ok(None)` when the capture has no `clean/` copy.
-pub fn load_clean_image(capture: &Capture, index: usize) -> Result<Option<RgbImage>> {
+pub fn load_clean_image(capture: &Capture, index: usize) -> Result<Option<Photo>> {
     let Some(path) = clean_image_path(capture, index) else {
         return Ok(None);
     };
@@ -212,15 +210,18 @@ pub fn make_aberrated(
     std::fs::create_dir(&clean_dir).map_err(|e| SceneError::io(&clean_dir, e))?;
 
     // Images are independent: aberrate in parallel, then hand them to the writer in order.
-    let made: Vec<Result<(RgbImage, RgbImage, f64)>> = (0..capture.len())
+    let made: Vec<Result<(Photo, Photo, f64)>> = (0..capture.len())
         .into_par_iter()
         .map(|i| {
             let clean = capture.load_image(i)?;
             let planar = to_planar(&clean);
+            let bad = |e: aberration::AberrationError| {
+                SceneError::invalid(&capture.image_paths[i], e.to_string())
+            };
             let abr = model
                 .capture(&planar, image_seed(options.seed, i))
-                .map_err(|e| SceneError::invalid(&capture.image_paths[i], e.to_string()))?;
-            let psnr = aberration::psnr(&abr, &planar);
+                .map_err(bad)?;
+            let psnr = aberration::psnr(&abr, &planar).map_err(bad)?;
             on_image();
             Ok((clean, from_planar(&abr), psnr))
         })

@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use crate::camera::{Bounds, Camera};
 use crate::colmap::{self, ColmapModel, ModelFormat};
 use crate::error::{Result, SceneError};
-use crate::images::{self, RgbImage};
+use crate::images::{self, Photo};
 use crate::llff::{self, POSES_BOUNDS};
 use crate::points::{self, Normalization, PointCloud};
 use crate::split::{self, Split};
@@ -102,7 +102,7 @@ impl Capture {
     }
 
     /// Decodes image `index`, checking it still has its camera's size.
-    pub fn load_image(&self, index: usize) -> Result<RgbImage> {
+    pub fn load_image(&self, index: usize) -> Result<Photo> {
         let (Some(path), Some(camera)) = (self.image_paths.get(index), self.cameras.get(index))
         else {
             return Err(SceneError::invalid(
@@ -124,7 +124,7 @@ impl Capture {
     }
 
     /// Decodes several images in parallel, in the order given.
-    pub fn load_images(&self, indices: &[usize]) -> Result<Vec<RgbImage>> {
+    pub fn load_images(&self, indices: &[usize]) -> Result<Vec<Photo>> {
         indices.par_iter().map(|&i| self.load_image(i)).collect()
     }
 

@@ -13,13 +13,13 @@ use crate::error::{Result, SceneError};
 
 /// An RGB image with f32 samples in `[0, 1]`, interleaved and row-major.
 #[derive(Clone, Debug, PartialEq)]
-pub struct RgbImage {
+pub struct Photo {
     pub width: u32,
     pub height: u32,
     pub data: Vec<f32>,
 }
 
-impl RgbImage {
+impl Photo {
     pub fn pixel(&self, x: u32, y: u32) -> [f32; 3] {
         let i = (y as usize * self.width as usize + x as usize) * 3;
         [self.data[i], self.data[i + 1], self.data[i + 2]]
@@ -96,13 +96,13 @@ pub fn common_size(paths: &[PathBuf]) -> Result<(u32, u32)> {
     Ok(expected)
 }
 
-pub fn load_rgb(path: &Path) -> Result<RgbImage> {
+pub fn load_rgb(path: &Path) -> Result<Photo> {
     let decoded = image::open(path).map_err(|source| SceneError::Image {
         path: path.to_path_buf(),
         source,
     })?;
     let rgb = decoded.to_rgb32f();
-    Ok(RgbImage {
+    Ok(Photo {
         width: rgb.width(),
         height: rgb.height(),
         data: rgb.into_raw(),
@@ -111,7 +111,7 @@ pub fn load_rgb(path: &Path) -> Result<RgbImage> {
 
 /// Writes a PNG under a temporary name and renames it; samples are clamped to `[0, 1]` and
 /// rounded to the nearest code.
-pub fn write_png(path: &Path, image: &RgbImage, depth: BitDepth) -> Result<()> {
+pub fn write_png(path: &Path, image: &Photo, depth: BitDepth) -> Result<()> {
     let expected = image.width as usize * image.height as usize * 3;
     if image.data.len() != expected {
         return Err(SceneError::invalid(

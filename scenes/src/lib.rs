@@ -22,7 +22,7 @@ pub use aberrated::{AberrateOptions, AberrateReport, AberrationRecord, make_aber
 pub use camera::{Bounds, Camera, CameraModel, Distortion, Projection, Rigid};
 pub use capture::{Capture, CaptureFormat, OpenOptions, PointSource, Resolution, open};
 pub use error::{Result, SceneError};
-pub use images::{BitDepth, RgbImage};
+pub use images::{BitDepth, Photo};
 pub use llff::{LlffPose, LlffWriter, write_llff};
 pub use points::{Normalization, PointCloud, random_in_frusta};
 pub use split::{LLFFHOLD, Split, split};

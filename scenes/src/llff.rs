@@ -26,7 +26,7 @@ use npyz::WriterBuilder;
 use crate::atomic;
 use crate::camera::{Bounds, Camera, Rigid};
 use crate::error::{Result, SceneError};
-use crate::images::{self, BitDepth, RgbImage};
+use crate::images::{self, BitDepth, Photo};
 
 pub const POSES_BOUNDS: &str = "poses_bounds.npy";
 
@@ -309,7 +309,7 @@ impl LlffWriter {
     }
 
     /// Writes `image` as `<camera.name>.png` and records its pose.
-    pub fn add(&mut self, camera: &Camera, bounds: Bounds, image: &RgbImage) -> Result<()> {
+    pub fn add(&mut self, camera: &Camera, bounds: Bounds, image: &Photo) -> Result<()> {
         let path = self
             .staging
             .path()
@@ -358,7 +358,7 @@ pub fn write_llff(
     dest: &Path,
     cameras: &[Camera],
     bounds: &[Bounds],
-    images: &[RgbImage],
+    images: &[Photo],
     downsample: u32,
     depth: BitDepth,
 ) -> Result<PathBuf> {

@@ -11,7 +11,7 @@ use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use glam::Vec3;
 use splat::ply::{read_ply, write_ply};
 use splat::synthetic::{benchmark_camera, random_box_scene};
-use splat::{Gaussians, RenderSettings, render, render_backward};
+use splat::{Gaussians, RenderSettings, render, render_backward, render_for_backward};
 
 /// Global allocator that forwards to the system allocator and keeps the live heap bytes and
 /// their high-water mark in atomics.
@@ -122,7 +122,7 @@ fn bench(c: &mut Criterion) {
         let g = random_box_scene(0, n, 3);
         let out = render(&g, &cam, &settings).unwrap();
         let visible = out.visible.iter().filter(|v| **v).count() as f64;
-        let blended = out.num_blended() as f64;
+        let blended = out.num_blended as f64;
         let fwd = visible * FWD_PER_GAUSSIAN + blended * FWD_PER_BLEND;
         let bwd = visible * BWD_PER_GAUSSIAN + blended * BWD_PER_BLEND;
         eprintln!(
@@ -141,9 +141,8 @@ fn bench(c: &mut Criterion) {
             let forward = || pool.install(|| render(black_box(&g), &cam, &settings).unwrap());
             let forward_backward = || {
                 pool.install(|| {
-                    let out = render(black_box(&g), &cam, &settings).unwrap();
-                    let grads =
-                        render_backward(&g, &cam, &settings, &out, &v_color, None, None).unwrap();
+                    let (out, saved) = render_for_backward(black_box(&g), &cam, &settings).unwrap();
+                    let grads = render_backward(&g, &saved, &v_color, None, None).unwrap();
                     (out, grads)
                 })
             };

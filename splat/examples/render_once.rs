@@ -6,7 +6,7 @@
 use std::time::Instant;
 
 use splat::synthetic::{benchmark_camera, random_box_scene};
-use splat::{RenderSettings, render, render_backward};
+use splat::{RenderSettings, render_backward, render_for_backward};
 
 /// On-CPU nanoseconds of all threads of this process (Linux `schedstat`); 0 elsewhere.
 fn cpu_ns() -> u64 {
@@ -36,12 +36,12 @@ fn main() {
     let mut out = None;
     for _ in 0..repeats {
         let (t, c) = (Instant::now(), cpu_ns());
-        let o = render(&g, &cam, &s).expect("render");
+        let (o, saved) = render_for_backward(&g, &cam, &s).expect("render");
         fwd_wall += t.elapsed().as_secs_f64();
         fwd_cpu += (cpu_ns() - c) as f64 * 1e-9;
         if backward {
             let (t, c) = (Instant::now(), cpu_ns());
-            let gr = render_backward(&g, &cam, &s, &o, &v, None, None).expect("backward");
+            let gr = render_backward(&g, &saved, &v, None, None).expect("backward");
             bwd_wall += t.elapsed().as_secs_f64();
             bwd_cpu += (cpu_ns() - c) as f64 * 1e-9;
             checksum = gr.params.logit_opacities.iter().sum::<f32>();
@@ -53,8 +53,8 @@ fn main() {
     println!(
         "n={n} visible={} tile_pairs={} blended_pairs={} forward: wall {:.1} ms cpu {:.1} ms",
         out.visible.iter().filter(|v| **v).count(),
-        out.num_intersections(),
-        out.num_blended(),
+        out.num_intersections,
+        out.num_blended,
         fwd_wall / r,
         fwd_cpu / r
     );

@@ -60,6 +60,23 @@ impl Camera {
         }
     }
 
+    /// The same pose seeing the same vertical field of view at another image size (a resized
+    /// window, a lower-resolution render): focal lengths scale with the height, so pixels stay
+    /// the shape they were, and the principal point keeps its relative position. For the
+    /// same aspect ratio this is a plain rescale of the image.
+    pub fn resized(&self, width: u32, height: u32) -> Self {
+        let s = height as f32 / self.height as f32;
+        Self {
+            fx: self.fx * s,
+            fy: self.fy * s,
+            cx: self.cx * width as f32 / self.width as f32,
+            cy: self.cy * s,
+            width,
+            height,
+            ..self.clone()
+        }
+    }
+
     /// Camera centre in world space.
     pub fn position(&self) -> Vec3 {
         -(self.rotation.transpose() * self.translation)

@@ -9,7 +9,7 @@ use crate::error::SplatError;
 use crate::model::{Gaussians, logit, sigmoid};
 use crate::project::quat_to_rotmat;
 use crate::render::{Gradients, RenderOutput};
-use crate::rng::SplitMix64;
+use base::SplitMix64;
 
 fn check_mask(g: &Gaussians, mask: &[bool]) -> Result<(), SplatError> {
     if mask.len() == g.len() {

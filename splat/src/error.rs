@@ -17,6 +17,8 @@ pub enum SplatError {
         expected: usize,
         got: usize,
     },
+    #[error(transparent)]
+    Image(#[from] base::BaseError),
     #[error("{}: {problem}", path.display())]
     Ply { path: PathBuf, problem: String },
     #[error("{}: {source}", path.display())]

@@ -1,24 +1,38 @@
-//! Differentiable Gaussian-splat rasterizer (CPU, rayon), the numerical reference for every
-//! other renderer in metasplat. Conventions follow gsplat; see each module's docs:
-//! [`camera`] (OpenCV pinhole), [`project`] (EWA projection, radius), [`tiles`] (16×16 tiles,
-//! sort key), [`raster`] (blending rules), [`sh`] (basis constants).
+//! Differentiable Gaussian-splat rasterizer. The CPU implementation here (rayon) is the
+//! numerical reference for every other renderer in metasplat; all of them implement
+//! [`Rasterizer`] and share the numbers in [`conventions`]. Conventions follow gsplat; see
+//! each module's docs: [`camera`] (OpenCV pinhole), [`project`] (EWA projection, radius),
+//! [`tiles`] (16×16 tiles, sort key), [`raster`] (blending rules), [`sh`] (basis constants).
+//! [`reference`] is the brute-force float64 renderer every implementation is tested against.
 
 pub mod camera;
+pub mod conventions;
 pub mod densify;
 pub mod error;
 pub mod loss;
 pub mod model;
 pub mod optim;
 pub mod ply;
-pub mod project;
-pub mod raster;
+pub mod rasterizer;
+#[doc(hidden)]
+pub mod reference;
 pub mod render;
-pub mod rng;
 pub mod sh;
 pub mod synthetic;
+
+// The CPU kernels: documented for whoever ports them, but not API.
+#[doc(hidden)]
+pub mod project;
+#[doc(hidden)]
+pub mod raster;
+#[doc(hidden)]
 pub mod tiles;
 
 pub use camera::Camera;
 pub use error::SplatError;
 pub use model::{Gaussians, MAX_SH_DEGREE, sh_rest_count};
-pub use render::{Gradients, RenderOutput, RenderSettings, render, render_backward};
+pub use rasterizer::{CpuRasterizer, PixelGradients, Rasterizer};
+pub use render::{
+    ForwardState, Gradients, RenderOutput, RenderSettings, render, render_backward,
+    render_for_backward,
+};

@@ -26,13 +26,13 @@
 //!   which vertex, and rejects ASCII vertex lines with more values than declared (which
 //!   `ply-rs-bw` ignores);
 //! - it runs the parser under `catch_unwind`, so even an unforeseen panic in the dependency
-//!   becomes an error (no malformed input is known to make `ply-rs-bw` 4.0.1 panic: a
-//!   3-million-input mutation fuzz of its reader found none).
+//!   becomes an error (no malformed input is known to make `ply-rs-bw` panic; the fuzzing is
+//!   described in splat/README.md).
 
 use std::fs::File;
-use std::io::{self, BufRead, BufReader, BufWriter, Read, Write};
+use std::io::{self, BufRead, BufReader, Read};
 use std::panic::{AssertUnwindSafe, catch_unwind};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use glam::Vec3;
 use ply_rs_bw::parser::{Parser, Reader};
@@ -575,7 +575,7 @@ pub fn write_ply(path: impl AsRef<Path>, g: &Gaussians) -> Result<(), SplatError
     }
     let header = header_for(g);
     let k = g.rest_count();
-    write_atomically(path, |out| {
+    base::write_atomically(path, |out| {
         let writer = Writer::<Row>::new();
         writer.write_header(out, &header)?;
         let vertex = &header.elements["vertex"];
@@ -596,29 +596,8 @@ pub fn write_ply(path: impl AsRef<Path>, g: &Gaussians) -> Result<(), SplatError
         }
         Ok(())
     })
-}
-
-/// Streams `body` into a temporary file next to `path`, syncs it and renames it into place;
-/// on any error the temporary file is removed and `path` is untouched.
-fn write_atomically(
-    path: &Path,
-    body: impl FnOnce(&mut BufWriter<&File>) -> io::Result<()>,
-) -> Result<(), SplatError> {
-    let io = |source| SplatError::Io {
+    .map_err(|source| SplatError::Io {
         path: path.to_path_buf(),
         source,
-    };
-    let dir: PathBuf = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let tmp = tempfile::NamedTempFile::new_in(&dir).map_err(io)?;
-    {
-        let mut out = BufWriter::with_capacity(1 << 20, tmp.as_file());
-        body(&mut out).map_err(io)?;
-        out.flush().map_err(io)?;
-    }
-    tmp.as_file().sync_all().map_err(io)?;
-    tmp.persist(path).map_err(|e| io(e.error))?;
-    Ok(())
+    })
 }

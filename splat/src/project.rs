@@ -23,13 +23,7 @@ use crate::camera::Camera;
 use crate::model::{Gaussians, sigmoid};
 use crate::sh;
 
-/// Low-pass added to the screen-space covariance diagonal (pixels²).
-pub const COV2D_BLUR: f32 = 0.3;
-/// Smallest alpha that contributes to a pixel.
-pub const ALPHA_THRESHOLD: f32 = 1.0 / 255.0;
-/// Cap on the extent in standard deviations (≥ `sqrt(2 ln 255)`, so never the binding limit
-/// for opacities ≤ 1).
-pub const MAX_EXTENT_SIGMAS: f32 = 3.33;
+use crate::conventions::{ALPHA_THRESHOLD, COV2D_BLUR, JACOBIAN_CLAMP_MARGIN, MAX_EXTENT_SIGMAS};
 
 /// What the rasterizer needs for one visible Gaussian.
 #[derive(Clone, Copy, Debug, Default)]
@@ -108,10 +102,10 @@ fn clamp_limits(cam: &Camera) -> [f32; 4] {
     let tan_fovx = 0.5 * cam.width as f32 / cam.fx;
     let tan_fovy = 0.5 * cam.height as f32 / cam.fy;
     [
-        cam.cx / cam.fx + 0.3 * tan_fovx,
-        (cam.width as f32 - cam.cx) / cam.fx + 0.3 * tan_fovx,
-        cam.cy / cam.fy + 0.3 * tan_fovy,
-        (cam.height as f32 - cam.cy) / cam.fy + 0.3 * tan_fovy,
+        cam.cx / cam.fx + JACOBIAN_CLAMP_MARGIN * tan_fovx,
+        (cam.width as f32 - cam.cx) / cam.fx + JACOBIAN_CLAMP_MARGIN * tan_fovx,
+        cam.cy / cam.fy + JACOBIAN_CLAMP_MARGIN * tan_fovy,
+        (cam.height as f32 - cam.cy) / cam.fy + JACOBIAN_CLAMP_MARGIN * tan_fovy,
     ]
 }
 
@@ -224,7 +218,7 @@ pub fn project_one(
         return None;
     }
     let color = if sh_degree == 0 {
-        (g.sh_dc[i] * sh::SH_C0 + Vec3::splat(0.5)).max(Vec3::ZERO)
+        sh::sh_dc_to_rgb(g.sh_dc[i]).max(Vec3::ZERO)
     } else {
         let dir = (g.means[i] - cam_pos).normalize_or_zero();
         sh::eval(sh_degree, g.sh_dc[i], g.sh_rest_of(i), dir).max(Vec3::ZERO)
@@ -380,7 +374,7 @@ pub fn project_backward_one(
     let len = raw.length();
     let dir = if len > 0.0 { raw / len } else { Vec3::ZERO };
     let pre = if sh_degree == 0 {
-        g.sh_dc[i] * sh::SH_C0 + Vec3::splat(0.5)
+        sh::sh_dc_to_rgb(g.sh_dc[i])
     } else {
         sh::eval(sh_degree, g.sh_dc[i], g.sh_rest_of(i), dir)
     };

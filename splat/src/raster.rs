@@ -10,11 +10,9 @@
 
 use glam::{Vec2, Vec3};
 
-use crate::project::{ALPHA_THRESHOLD, Projected};
-use crate::tiles::{TILE_SIZE, TileBins};
-
-pub const MAX_ALPHA: f32 = 0.99;
-pub const TRANSMITTANCE_MIN: f32 = 1e-4;
+use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TILE_SIZE, TRANSMITTANCE_MIN};
+use crate::project::Projected;
+use crate::tiles::TileBins;
 
 /// Raster-ready form of a projected Gaussian, precomputed once per Gaussian so the per-tile
 /// gather is a plain copy (its loads are random; keeping them free of math lets them overlap).

@@ -1,4 +1,6 @@
-//! Public rendering API: [`render`] (forward) and [`render_backward`].
+//! The CPU rasterizer's entry points: [`render`] (forward only), [`render_for_backward`]
+//! (forward that keeps its state) and [`render_backward`]. [`crate::CpuRasterizer`] puts them
+//! behind the [`crate::Rasterizer`] interface.
 //!
 //! Parallelism is over Gaussians (projection, parameter gradients) and over tiles (blending);
 //! every output value is produced by exactly one task and cross-tile sums are reduced per
@@ -46,32 +48,33 @@ pub struct RenderOutput {
     pub radii: Vec<[i32; 2]>,
     /// Per-Gaussian: survived culling (touches the image, in front, opacity ≥ 1/255).
     pub visible: Vec<bool>,
-    state: ForwardState,
+    /// Number of (tile, Gaussian) pairs blended over; the work measure used by the benchmarks.
+    pub num_intersections: usize,
+    /// Number of (pixel, Gaussian) pairs actually blended: the irreducible work of the pass.
+    pub num_blended: u64,
 }
 
+/// What the CPU forward pass keeps for [`render_backward`]: the per-pixel end state and the
+/// sorted tile lists. Only [`render_for_backward`] makes one; plain renders drop it.
 #[derive(Clone, Debug)]
-struct ForwardState {
+pub struct ForwardState {
     camera: Camera,
     settings: RenderSettings,
     num_gaussians: usize,
     splats: Vec<Splat>,
     bins: TileBins,
-    /// Copy of the depth output (the public field may be edited by callers).
     depth: Vec<f32>,
     final_t: Vec<f32>,
     n_contrib: Vec<u32>,
-    blended: u64,
 }
 
-impl RenderOutput {
-    /// Number of (tile, Gaussian) pairs blended over; the work measure used by the benchmarks.
-    pub fn num_intersections(&self) -> usize {
-        self.state.bins.ids.len()
+impl ForwardState {
+    pub fn camera(&self) -> &Camera {
+        &self.camera
     }
 
-    /// Number of (pixel, Gaussian) pairs actually blended: the irreducible work of the pass.
-    pub fn num_blended(&self) -> u64 {
-        self.state.blended
+    pub fn settings(&self) -> &RenderSettings {
+        &self.settings
     }
 }
 
@@ -90,12 +93,32 @@ fn check_inputs(g: &Gaussians, cam: &Camera, s: &RenderSettings) -> Result<(), S
     Ok(())
 }
 
-/// Renders `g` from `cam`. Gaussians with non-finite parameters are treated as culled.
+/// Renders `g` from `cam` for looking at (evaluation, novel views, a viewer): nothing is kept
+/// for a backward pass. Gaussians with non-finite parameters are treated as culled.
 pub fn render(
     g: &Gaussians,
     cam: &Camera,
     settings: &RenderSettings,
 ) -> Result<RenderOutput, SplatError> {
+    forward(g, cam, settings, false).map(|(out, _)| out)
+}
+
+/// Renders `g` from `cam` and keeps what [`render_backward`] needs.
+pub fn render_for_backward(
+    g: &Gaussians,
+    cam: &Camera,
+    settings: &RenderSettings,
+) -> Result<(RenderOutput, ForwardState), SplatError> {
+    let (out, state) = forward(g, cam, settings, true)?;
+    Ok((out, state.expect("requested")))
+}
+
+fn forward(
+    g: &Gaussians,
+    cam: &Camera,
+    settings: &RenderSettings,
+    keep: bool,
+) -> Result<(RenderOutput, Option<ForwardState>), SplatError> {
     check_inputs(g, cam, settings)?;
     let cam_pos = cam.position();
     let projected: Vec<Projected> = (0..g.len())
@@ -117,8 +140,11 @@ pub fn render(
     let mut color = vec![Vec3::ZERO; n_pix];
     let mut alpha = vec![0.0; n_pix];
     let mut depth = vec![0.0; n_pix];
-    let mut final_t = vec![1.0; n_pix];
-    let mut n_contrib = vec![0; n_pix];
+    let (mut final_t, mut n_contrib) = if keep {
+        (vec![1.0; n_pix], vec![0; n_pix])
+    } else {
+        (Vec::new(), Vec::new())
+    };
     for (t, out) in tile_out.iter().enumerate() {
         let (x0, y0, tw, th) = raster::tile_pixels(&bins, t, w, h);
         for ly in 0..th {
@@ -128,8 +154,10 @@ pub fn render(
             color[dst.clone()].copy_from_slice(&out.color[src.clone()]);
             alpha[dst.clone()].copy_from_slice(&out.alpha[src.clone()]);
             depth[dst.clone()].copy_from_slice(&out.depth[src.clone()]);
-            final_t[dst.clone()].copy_from_slice(&out.final_t[src.clone()]);
-            n_contrib[dst].copy_from_slice(&out.n_contrib[src]);
+            if keep {
+                final_t[dst.clone()].copy_from_slice(&out.final_t[src.clone()]);
+                n_contrib[dst].copy_from_slice(&out.n_contrib[src]);
+            }
         }
     }
     let radii = projected.iter().map(|p| p.radius).collect();
@@ -137,8 +165,18 @@ pub fn render(
         .iter()
         .map(|p| p.radius[0] > 0 || p.radius[1] > 0)
         .collect();
-    let depth_copy = depth.clone();
-    Ok(RenderOutput {
+    let state = keep.then(|| ForwardState {
+        camera: cam.clone(),
+        settings: settings.clone(),
+        num_gaussians: g.len(),
+        splats,
+        bins: bins.clone(),
+        // The backward reads its own copy: callers may edit the public depth buffer.
+        depth: depth.clone(),
+        final_t,
+        n_contrib,
+    });
+    let out = RenderOutput {
         width: w,
         height: h,
         color,
@@ -146,18 +184,10 @@ pub fn render(
         depth,
         radii,
         visible,
-        state: ForwardState {
-            camera: cam.clone(),
-            settings: settings.clone(),
-            num_gaussians: g.len(),
-            splats,
-            bins,
-            depth: depth_copy,
-            final_t,
-            n_contrib,
-            blended: tile_out.iter().map(|t| t.blended).sum(),
-        },
-    })
+        num_intersections: bins.ids.len(),
+        num_blended: tile_out.iter().map(|t| t.blended).sum(),
+    };
+    Ok((out, state))
 }
 
 /// Gradients of a scalar loss with respect to every parameter, in the model's layout, plus the
@@ -173,23 +203,22 @@ pub struct Gradients {
 }
 
 /// Backward pass for the loss gradients `v_color` (and optionally `v_alpha`, `v_depth`) of the
-/// images of `fwd`, which must come from [`render`] with the same model, camera and settings.
+/// images of the forward pass that made `st` ([`render_for_backward`] of the same model).
 pub fn render_backward(
     g: &Gaussians,
-    cam: &Camera,
-    settings: &RenderSettings,
-    fwd: &RenderOutput,
+    st: &ForwardState,
     v_color: &[Vec3],
     v_alpha: Option<&[f32]>,
     v_depth: Option<&[f32]>,
 ) -> Result<Gradients, SplatError> {
+    let (cam, settings) = (&st.camera, &st.settings);
     check_inputs(g, cam, settings)?;
-    let st = &fwd.state;
-    if st.camera != *cam || st.settings != *settings || st.num_gaussians != g.len() {
-        return Err(SplatError::InvalidInput(
-            "render_backward called with a camera, settings or model other than the forward's"
-                .into(),
-        ));
+    if st.num_gaussians != g.len() {
+        return Err(SplatError::InvalidInput(format!(
+            "render_backward called with {} Gaussians, the forward pass rendered {}",
+            g.len(),
+            st.num_gaussians
+        )));
     }
     let n_pix = cam.num_pixels();
     let size = |what, got: usize| {

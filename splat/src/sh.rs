@@ -19,16 +19,27 @@ use glam::Vec3;
 
 pub const SH_C0: f32 = 0.282_094_8;
 pub const SH_C1: f32 = 0.488_602_52;
-const C2_XY: f32 = 1.092_548_4;
-const C2_ZZ: f32 = 0.946_174_7;
-const C2_ZZ0: f32 = 0.315_391_57;
-const C2_XX: f32 = 0.546_274_2;
-const C3_A: f32 = -0.590_043_6;
-const C3_B: f32 = 1.445_305_7;
-const C3_C: f32 = -2.285_229;
-const C3_C0: f32 = 0.457_045_8;
-const C3_D: f32 = 1.865_881_7;
-const C3_D0: f32 = 1.119_529;
+pub const SH_C2_XY: f32 = 1.092_548_4;
+pub const SH_C2_ZZ: f32 = 0.946_174_7;
+pub const SH_C2_ZZ0: f32 = 0.315_391_57;
+pub const SH_C2_XX: f32 = 0.546_274_2;
+pub const SH_C3_A: f32 = -0.590_043_6;
+pub const SH_C3_B: f32 = 1.445_305_7;
+pub const SH_C3_C: f32 = -2.285_229;
+pub const SH_C3_C0: f32 = 0.457_045_8;
+pub const SH_C3_D: f32 = 1.865_881_7;
+pub const SH_C3_D0: f32 = 1.119_529;
+
+/// The DC coefficient whose view-independent colour is `rgb` (the inverse of
+/// [`sh_dc_to_rgb`] where that does not clamp).
+pub fn rgb_to_sh_dc(rgb: Vec3) -> Vec3 {
+    (rgb - Vec3::splat(crate::conventions::SH_COLOR_OFFSET)) / SH_C0
+}
+
+/// The colour a splat with only its DC coefficient shows, before the clamp at 0.
+pub fn sh_dc_to_rgb(dc: Vec3) -> Vec3 {
+    dc * SH_C0 + Vec3::splat(crate::conventions::SH_COLOR_OFFSET)
+}
 
 /// Number of basis functions for `degree`.
 pub const fn num_bases(degree: u32) -> usize {
@@ -51,22 +62,22 @@ pub fn basis(degree: u32, d: Vec3, out: &mut [f32; 16]) {
         return;
     }
     let (xx, yy, zz) = (x * x, y * y, z * z);
-    out[4] = C2_XY * x * y;
-    out[5] = -C2_XY * y * z;
-    out[6] = C2_ZZ * zz - C2_ZZ0;
-    out[7] = -C2_XY * x * z;
-    out[8] = C2_XX * (xx - yy);
+    out[4] = SH_C2_XY * x * y;
+    out[5] = -SH_C2_XY * y * z;
+    out[6] = SH_C2_ZZ * zz - SH_C2_ZZ0;
+    out[7] = -SH_C2_XY * x * z;
+    out[8] = SH_C2_XX * (xx - yy);
     if degree < 3 {
         return;
     }
-    let a = C3_C * zz + C3_C0;
-    out[9] = C3_A * (3.0 * xx * y - yy * y);
-    out[10] = C3_B * z * 2.0 * x * y;
+    let a = SH_C3_C * zz + SH_C3_C0;
+    out[9] = SH_C3_A * (3.0 * xx * y - yy * y);
+    out[10] = SH_C3_B * z * 2.0 * x * y;
     out[11] = a * y;
-    out[12] = z * (C3_D * zz - C3_D0);
+    out[12] = z * (SH_C3_D * zz - SH_C3_D0);
     out[13] = a * x;
-    out[14] = C3_B * z * (xx - yy);
-    out[15] = C3_A * (xx * x - 3.0 * x * yy);
+    out[14] = SH_C3_B * z * (xx - yy);
+    out[15] = SH_C3_A * (xx * x - 3.0 * x * yy);
 }
 
 /// Gradients of each basis function with respect to the (treated as free) components of `d`.
@@ -83,23 +94,31 @@ pub fn basis_grad(degree: u32, d: Vec3, out: &mut [Vec3; 16]) {
     if degree < 2 {
         return;
     }
-    out[4] = Vec3::new(C2_XY * y, C2_XY * x, 0.0);
-    out[5] = Vec3::new(0.0, -C2_XY * z, -C2_XY * y);
-    out[6] = Vec3::new(0.0, 0.0, 2.0 * C2_ZZ * z);
-    out[7] = Vec3::new(-C2_XY * z, 0.0, -C2_XY * x);
-    out[8] = Vec3::new(2.0 * C2_XX * x, -2.0 * C2_XX * y, 0.0);
+    out[4] = Vec3::new(SH_C2_XY * y, SH_C2_XY * x, 0.0);
+    out[5] = Vec3::new(0.0, -SH_C2_XY * z, -SH_C2_XY * y);
+    out[6] = Vec3::new(0.0, 0.0, 2.0 * SH_C2_ZZ * z);
+    out[7] = Vec3::new(-SH_C2_XY * z, 0.0, -SH_C2_XY * x);
+    out[8] = Vec3::new(2.0 * SH_C2_XX * x, -2.0 * SH_C2_XX * y, 0.0);
     if degree < 3 {
         return;
     }
     let (xx, yy, zz) = (x * x, y * y, z * z);
-    let a = C3_C * zz + C3_C0;
-    out[9] = Vec3::new(C3_A * 6.0 * x * y, C3_A * (3.0 * xx - 3.0 * yy), 0.0);
-    out[10] = Vec3::new(C3_B * 2.0 * z * y, C3_B * 2.0 * z * x, C3_B * 2.0 * x * y);
-    out[11] = Vec3::new(0.0, a, 2.0 * C3_C * z * y);
-    out[12] = Vec3::new(0.0, 0.0, 3.0 * C3_D * zz - C3_D0);
-    out[13] = Vec3::new(a, 0.0, 2.0 * C3_C * z * x);
-    out[14] = Vec3::new(2.0 * C3_B * z * x, -2.0 * C3_B * z * y, C3_B * (xx - yy));
-    out[15] = Vec3::new(C3_A * (3.0 * xx - 3.0 * yy), -C3_A * 6.0 * x * y, 0.0);
+    let a = SH_C3_C * zz + SH_C3_C0;
+    out[9] = Vec3::new(SH_C3_A * 6.0 * x * y, SH_C3_A * (3.0 * xx - 3.0 * yy), 0.0);
+    out[10] = Vec3::new(
+        SH_C3_B * 2.0 * z * y,
+        SH_C3_B * 2.0 * z * x,
+        SH_C3_B * 2.0 * x * y,
+    );
+    out[11] = Vec3::new(0.0, a, 2.0 * SH_C3_C * z * y);
+    out[12] = Vec3::new(0.0, 0.0, 3.0 * SH_C3_D * zz - SH_C3_D0);
+    out[13] = Vec3::new(a, 0.0, 2.0 * SH_C3_C * z * x);
+    out[14] = Vec3::new(
+        2.0 * SH_C3_B * z * x,
+        -2.0 * SH_C3_B * z * y,
+        SH_C3_B * (xx - yy),
+    );
+    out[15] = Vec3::new(SH_C3_A * (3.0 * xx - 3.0 * yy), -SH_C3_A * 6.0 * x * y, 0.0);
 }
 
 /// `Σ_k c_k B_k(d) + 0.5` before the clamp (callers clamp and remember which channels clamped).
@@ -111,7 +130,7 @@ pub fn eval(degree: u32, dc: Vec3, rest: &[Vec3], d: Vec3) -> Vec3 {
     for k in 1..num_bases(degree) {
         c += rest[k - 1] * b[k];
     }
-    c + Vec3::splat(0.5)
+    c + Vec3::splat(crate::conventions::SH_COLOR_OFFSET)
 }
 
 /// Backward of [`eval`]: accumulates coefficient gradients into `v_dc`/`v_rest` and returns the

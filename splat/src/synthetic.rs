@@ -4,7 +4,7 @@ use glam::Vec3;
 
 use crate::camera::Camera;
 use crate::model::{Gaussians, sh_rest_count};
-use crate::rng::SplitMix64;
+use base::SplitMix64;
 
 /// `n` Gaussians filling a 4×3×3 box 4..7 units in front of the camera returned by
 /// [`benchmark_camera`]. Scales shrink as `n^(-1/3)` so the covered fraction of the view stays

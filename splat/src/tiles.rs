@@ -8,9 +8,8 @@
 
 use rayon::prelude::*;
 
+use crate::conventions::TILE_SIZE;
 use crate::project::Projected;
-
-pub const TILE_SIZE: u32 = 16;
 
 /// Tile lists: tile `t` holds `ids[offsets[t] .. offsets[t + 1]]`, front to back.
 #[derive(Clone, Debug, Default)]

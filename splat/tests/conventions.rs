@@ -1,8 +1,8 @@
 //! The documented conventions the wgpu renderer must reproduce.
 
 use glam::{Mat3, Vec3};
+use splat::conventions::TILE_SIZE;
 use splat::project::quat_to_rotmat;
-use splat::tiles::TILE_SIZE;
 use splat::{Camera, Gaussians, RenderSettings, render};
 
 fn dot_scene(points: &[Vec3]) -> Gaussians {
@@ -119,4 +119,40 @@ fn quaternions_are_w_x_y_z_and_unnormalised() {
     assert!((r.determinant() - 1.0).abs() < 1e-6);
     let (r, _, _) = quat_to_rotmat([0.0; 4]);
     assert_eq!(r, Mat3::IDENTITY);
+}
+
+#[test]
+fn a_resized_camera_sees_the_same_view() {
+    let cam = Camera::look_at(
+        Vec3::new(0.3, -0.2, -3.0),
+        Vec3::ZERO,
+        Vec3::new(0.0, -1.0, 0.0),
+        60.0,
+        60.0,
+        64,
+        48,
+    );
+    let p = Vec3::new(0.35, 0.2, 0.1);
+    let project = |c: &Camera| {
+        let q = c.rotation * p + c.translation;
+        (c.fx * q.x / q.z + c.cx, c.fy * q.y / q.z + c.cy)
+    };
+    let (u, v) = project(&cam);
+    // Same aspect ratio: a plain rescale of the image.
+    let half = cam.resized(32, 24);
+    half.validate().unwrap();
+    let (uh, vh) = project(&half);
+    assert!((uh - u / 2.0).abs() < 1e-4 && (vh - v / 2.0).abs() < 1e-4);
+    // A wider window: the vertical view and the pixel shape are kept, the centre stays centred.
+    let wide = cam.resized(128, 48);
+    let (uw, vw) = project(&wide);
+    assert!(
+        (vw - v).abs() < 1e-4,
+        "vertical position moved: {v} -> {vw}"
+    );
+    assert!((uw - (u + 32.0)).abs() < 1e-4, "horizontal: {u} -> {uw}");
+    assert_eq!(wide.fx / wide.fy, cam.fx / cam.fy);
+    // And the renderer agrees: the dot lands where the projection says.
+    let out = render(&dot_scene(&[p]), &half, &RenderSettings::default()).unwrap();
+    assert_eq!(brightest(&out), (uh as u32, vh as u32));
 }

@@ -2,10 +2,10 @@
 
 mod common;
 
+use base::SplitMix64;
 use common::{random_scene, test_camera};
 use glam::Vec3;
-use splat::rng::SplitMix64;
-use splat::{RenderSettings, render, render_backward};
+use splat::{CpuRasterizer, PixelGradients, Rasterizer, RenderSettings};
 
 fn run(threads: usize) -> Vec<u32> {
     let pool = rayon::ThreadPoolBuilder::new()
@@ -20,7 +20,9 @@ fn run(threads: usize) -> Vec<u32> {
             background: Vec3::new(0.5, 0.5, 0.5),
             antialiased: true,
         };
-        let out = render(&g, &cam, &s).unwrap();
+        let cpu = CpuRasterizer;
+        let scene = cpu.upload(&g).unwrap();
+        let (out, saved) = cpu.render_for_backward(&scene, &cam, &s).unwrap();
         let mut rng = SplitMix64::new(1);
         let v: Vec<Vec3> = (0..cam.num_pixels())
             .map(|_| {
@@ -31,8 +33,12 @@ fn run(threads: usize) -> Vec<u32> {
                 )
             })
             .collect();
-        let gr =
-            render_backward(&g, &cam, &s, &out, &v, Some(&out.alpha), Some(&out.depth)).unwrap();
+        let pixel = PixelGradients {
+            color: &v,
+            alpha: Some(&out.alpha),
+            depth: Some(&out.depth),
+        };
+        let gr = cpu.backward(&scene, &saved, pixel).unwrap();
         let mut bits = Vec::new();
         bits.extend(
             out.color

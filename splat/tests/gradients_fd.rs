@@ -2,11 +2,11 @@
 
 mod common;
 
+use base::SplitMix64;
 use common::reference::{RefCamera, render_ref};
 use common::{GROUP_NAMES, flatten, group_of, params_per_gaussian, random_scene, test_camera};
 use glam::Vec3;
-use splat::rng::SplitMix64;
-use splat::{Camera, Gaussians, RenderSettings, render, render_backward};
+use splat::{Camera, Gaussians, RenderSettings, render_backward, render_for_backward};
 
 const BG: [f64; 3] = [0.3, 0.1, 0.6];
 
@@ -65,23 +65,14 @@ fn check(seed: u64, deg: u32, antialiased: bool, clamped_one: bool) {
         background: Vec3::from_array(BG.map(|v| v as f32)),
         antialiased,
     };
-    let out = render(&g, &cam, &settings).unwrap();
+    let (_, saved) = render_for_backward(&g, &cam, &settings).unwrap();
     let v_color: Vec<Vec3> = w
         .iter()
         .map(|c| Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32))
         .collect();
     let v_alpha: Vec<f32> = u.iter().map(|&v| v as f32).collect();
     let v_depth: Vec<f32> = r.iter().map(|&v| v as f32).collect();
-    let grads = render_backward(
-        &g,
-        &cam,
-        &settings,
-        &out,
-        &v_color,
-        Some(&v_alpha),
-        Some(&v_depth),
-    )
-    .unwrap();
+    let grads = render_backward(&g, &saved, &v_color, Some(&v_alpha), Some(&v_depth)).unwrap();
     let analytic = flatten(&grads.params);
 
     let ppg = params_per_gaussian(3);

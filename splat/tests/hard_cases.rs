@@ -2,11 +2,14 @@
 
 mod common;
 
+use base::SplitMix64;
 use common::reference::{RefCamera, render_ref};
 use common::{flatten, random_scene, test_camera};
 use glam::{Mat3, Vec3};
-use splat::rng::SplitMix64;
-use splat::{Camera, Gaussians, Gradients, RenderOutput, RenderSettings, render, render_backward};
+use splat::{
+    Camera, Gaussians, Gradients, RenderOutput, RenderSettings, render, render_backward,
+    render_for_backward,
+};
 
 fn identity_camera(width: u32, height: u32) -> Camera {
     Camera {
@@ -47,7 +50,7 @@ fn run_all(g: &Gaussians, cam: &Camera) -> (RenderOutput, Gradients) {
                 background: Vec3::new(0.1, 0.2, 0.3),
                 antialiased,
             };
-            let out = render(g, cam, &s).unwrap();
+            let (out, saved) = render_for_backward(g, cam, &s).unwrap();
             assert!(out.color.iter().all(|c| c.is_finite()), "colour not finite");
             assert!(
                 out.alpha
@@ -55,8 +58,7 @@ fn run_all(g: &Gaussians, cam: &Camera) -> (RenderOutput, Gradients) {
                     .all(|a| a.is_finite() && (0.0..=1.0).contains(a))
             );
             assert!(out.depth.iter().all(|d| d.is_finite()));
-            let gr = render_backward(g, cam, &s, &out, &v_color, Some(&v_alpha), Some(&v_depth))
-                .unwrap();
+            let gr = render_backward(g, &saved, &v_color, Some(&v_alpha), Some(&v_depth)).unwrap();
             let p = &gr.params;
             assert!(p.means.iter().all(|v| v.is_finite()), "mean grad");
             assert!(p.log_scales.iter().all(|v| v.is_finite()), "scale grad");
@@ -249,14 +251,14 @@ fn bad_inputs_are_typed_errors() {
         render(&broken, &cam, &s),
         Err(splat::SplatError::SizeMismatch { .. })
     ));
-    let out = render(&g, &cam, &s).unwrap();
+    let (_, saved) = render_for_backward(&g, &cam, &s).unwrap();
     let v = vec![Vec3::ONE; 3];
-    assert!(render_backward(&g, &cam, &s, &out, &v, None, None).is_err());
+    assert!(render_backward(&g, &saved, &v, None, None).is_err());
     let v = vec![Vec3::ONE; 64];
-    let other = test_camera(8, 8, 9.0);
-    assert!(render_backward(&g, &other, &s, &out, &v, None, None).is_err());
+    let fewer = g.gather(&(0..g.len() - 1).collect::<Vec<_>>());
+    assert!(render_backward(&fewer, &saved, &v, None, None).is_err());
     let nan = vec![Vec3::NAN; 64];
-    assert!(render_backward(&g, &cam, &s, &out, &nan, None, None).is_err());
+    assert!(render_backward(&g, &saved, &nan, None, None).is_err());
     let short = vec![1.0; 5];
-    assert!(render_backward(&g, &cam, &s, &out, &v, None, Some(&short)).is_err());
+    assert!(render_backward(&g, &saved, &v, None, Some(&short)).is_err());
 }

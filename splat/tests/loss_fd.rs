@@ -1,9 +1,9 @@
 //! L1 / SSIM against an independent float64 brute-force SSIM (direct 2D window) and finite
 //! differences.
 
+use base::SplitMix64;
 use glam::Vec3;
 use splat::loss::{l1, photometric_loss, ssim};
-use splat::rng::SplitMix64;
 
 fn random_image(seed: u64, n: usize) -> Vec<Vec3> {
     let mut r = SplitMix64::new(seed);

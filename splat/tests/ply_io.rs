@@ -441,7 +441,7 @@ fn mutated_files_give_models_or_errors_never_panics() {
         "f_rest_0",
         "\u{ff}",
     ];
-    let mut rng = splat::rng::SplitMix64::new(7);
+    let mut rng = base::SplitMix64::new(7);
     let mut below = |n: usize| (rng.next_u64() % n.max(1) as u64) as usize;
     let (mut ok, mut errors) = (0, 0);
     for it in 0..20_000 {

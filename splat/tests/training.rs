@@ -10,7 +10,7 @@ use splat::densify::{
 use splat::loss::photometric_loss;
 use splat::model::sigmoid;
 use splat::optim::{Adam, ExponentialLr, LearningRates, ParamGroup};
-use splat::{Gaussians, RenderSettings, render, render_backward};
+use splat::{Gaussians, RenderSettings, render, render_backward, render_for_backward};
 
 fn lrs(v: f32) -> LearningRates {
     LearningRates {
@@ -162,9 +162,9 @@ fn fitting_a_small_scene_reduces_the_photometric_loss() {
     let mut first = None;
     let mut last = 0.0;
     for _ in 0..150 {
-        let out = render(&g, &cam, &settings).unwrap();
+        let (out, saved) = render_for_backward(&g, &cam, &settings).unwrap();
         let l = photometric_loss(&out.color, &target, cam.width, cam.height, 0.2).unwrap();
-        let grads = render_backward(&g, &cam, &settings, &out, &l.grad, None, None).unwrap();
+        let grads = render_backward(&g, &saved, &l.grad, None, None).unwrap();
         stats.add(&grads, &out, false);
         adam.step(&mut g, &grads.params, &lr).unwrap();
         first.get_or_insert(l.value);
@@ -180,9 +180,9 @@ fn fitting_a_small_scene_reduces_the_photometric_loss() {
     adam.remap(&src).unwrap();
     stats.remap(&src).unwrap();
     adam.reset_group(ParamGroup::Opacities);
-    let out = render(&g, &cam, &settings).unwrap();
+    let (out, saved) = render_for_backward(&g, &cam, &settings).unwrap();
     let l = photometric_loss(&out.color, &target, cam.width, cam.height, 0.2).unwrap();
-    let grads = render_backward(&g, &cam, &settings, &out, &l.grad, None, None).unwrap();
+    let grads = render_backward(&g, &saved, &l.grad, None, None).unwrap();
     adam.step(&mut g, &grads.params, &lr).unwrap();
     assert!(g.means.iter().all(|m| m.is_finite()));
 }

@@ -73,7 +73,7 @@ pub fn run(a: AberrateArgs) -> Result<()> {
         model.psf().grid(),
         model.psf().size(),
         im.mode,
-        psnr(&out, &clean),
+        psnr(&out, &clean)?,
         a.out.display()
     );
     Ok(())

@@ -48,9 +48,9 @@ pub fn run(a: DeconvolveArgs) -> Result<()> {
         );
     }
     let score = |img: &Image| {
-        reference
-            .as_ref()
-            .map_or(String::new(), |r| format!(" ({:.2} dB)", psnr(img, r)))
+        reference.as_ref().map_or(String::new(), |r| {
+            format!(" ({:.2} dB)", psnr(img, r).unwrap_or(f64::NAN))
+        })
     };
     if reference.is_some() {
         println!("input{}", score(&blurred));

@@ -48,7 +48,8 @@ enum Command {
     Restorer(restorer::RestorerCommand),
     /// Restore an aberrated image with trained weights.
     Restore(restorer::RestoreArgs),
-    /// Built-in demo: simulate the default PSF grid and aberrate a test chart.
+    /// Built-in demo: simulate the default PSF grid, render and aberrate a procedural scene, and
+    /// train plain and aberration-aware 3DGS on it.
     Demo(demo::DemoArgs),
 }
 

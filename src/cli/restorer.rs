@@ -6,7 +6,6 @@ use aberration::wiener::{BANK_MEDIAN, bank_constants};
 use aberration::{BlurMode, Image, ImagingModel, NoiseModel, PsfGrid, Regularizer, deconvolve};
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
-use metasplat::eval::compare_images;
 use restore::data::{TrainSet, list_images, load_photo};
 use restore::train::{Event, Schedule, Start, TrainOptions, ValSet, round_seed, train};
 use restore::{Restorer, RestorerConfig, weights};
@@ -166,8 +165,8 @@ pub fn run(c: RestorerCommand) -> Result<()> {
     }
 }
 
-fn metric(a: &Image, b: &Image) -> (f64, f64) {
-    compare_images(a, b).unwrap_or((f64::NAN, f64::NAN))
+fn metric(a: &Image, b: &Image) -> Result<(f64, f64)> {
+    Ok(aberration::compare(a, b)?)
 }
 
 fn load_folder(dir: &Path, min_side: usize) -> Result<Vec<(String, Image)>> {
@@ -371,7 +370,6 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         &opts,
         &a.out,
         &provenance,
-        &metric,
         &mut |e| match e {
             Event::Pairs {
                 round,
@@ -458,20 +456,20 @@ fn run_eval(a: EvalArgs) -> Result<()> {
             acc.0 += m.0;
             acc.1 += m.1;
         };
-        add(&mut input, metric(&blurred, clean));
+        add(&mut input, metric(&blurred, clean)?);
         let bank = restore::data::bank_images(&blurred, model.psf(), restorer.config().adaptive_k)?;
-        add(&mut median, metric(&bank[BANK_MEDIAN], clean));
+        add(&mut median, metric(&bank[BANK_MEDIAN], clean)?);
         if base_filter != BANK_MEDIAN {
-            add(&mut base, metric(&bank[base_filter], clean));
+            add(&mut base, metric(&bank[base_filter], clean)?);
         }
         for (j, &k) in ks.iter().enumerate() {
             let img = deconvolve(&blurred, model.psf(), Regularizer::Fixed(k))?;
-            add(&mut single[j], metric(&img, clean));
+            add(&mut single[j], metric(&img, clean)?);
         }
         let t = Instant::now();
         let restored = restorer.restore_bank(&bank);
         net_secs += t.elapsed().as_secs_f64();
-        add(&mut net, metric(&restored, clean));
+        add(&mut net, metric(&restored, clean)?);
         if let Some(dir) = &a.out {
             std::fs::create_dir_all(dir)
                 .with_context(|| format!("cannot create {}", dir.display()))?;
@@ -593,8 +591,8 @@ pub fn run_restore(a: RestoreArgs) -> Result<()> {
                 blurred.height
             );
         }
-        let (p0, s0) = metric(&blurred, &clean);
-        let (p1, s1) = metric(&restored, &clean);
+        let (p0, s0) = metric(&blurred, &clean)?;
+        let (p1, s1) = metric(&restored, &clean)?;
         print!("; PSNR {p0:.2} -> {p1:.2} dB, SSIM {s0:.4} -> {s1:.4}");
     }
     println!();

@@ -163,6 +163,8 @@ pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<(RunSummary, Vec<train::L
     );
     pb.set_prefix(a.mode.to_string());
     let mut last_test = None;
+    // Frequent events go into the bar's message; rare ones get a line of their own.
+    let mut last_edit = String::new();
     let mut on_event = |e: Event| match e {
         Event::Step {
             step,
@@ -179,16 +181,22 @@ pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<(RunSummary, Vec<train::L
                 };
                 let test = last_test.map_or(String::new(), |p: f64| format!(" test {p:.2} dB"));
                 pb.set_message(format!(
-                    "{parts} train {:.2} dB{test} | {splats} splats SH{sh_degree}",
+                    "{parts} train {:.2} dB{test} | {splats} splats SH{sh_degree}{last_edit}",
                     loss.psnr
                 ));
             }
         }
         Event::Evaluated { metrics, .. } => last_test = Some(metrics.mean_psnr),
         Event::Sh { step, event } => {
-            super::progress::say(&pb, format!("step {step}: SH {event:?}"));
+            super::progress::say(&pb, format!("Step {step}: {event}."));
         }
-        _ => {}
+        Event::Densified { step, edit, .. } => {
+            last_edit = format!(" | step {step}: {edit}");
+        }
+        Event::Unseen { step, pruned } => {
+            last_edit = format!(" | step {step}: {pruned} splats no view saw were pruned");
+        }
+        Event::Checkpoint { .. } => {}
     };
     let ckpt = a.out.join(CHECKPOINT_FILE);
     // A fresh run must not leave an older run's checkpoint for a later --resume to pick up.

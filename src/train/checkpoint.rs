@@ -4,10 +4,8 @@
 //!
 //! Layout: magic, u64 header length, JSON header, then little-endian arrays in a fixed order.
 
-use std::io::Write;
 use std::path::Path;
 
-use aberration::atomic::write_atomically;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use splat::Gaussians;
@@ -90,7 +88,7 @@ pub fn save(path: &Path, s: &State) -> Result<()> {
     put_f32s(&mut out, st.max_radius.iter().copied());
     out.extend(s.densifier.seen.iter().map(|&b| b as u8));
 
-    write_atomically(path, |f| f.write_all(&out)).map_err(|e| TrainError::io(path, e))
+    base::write_bytes_atomically(path, &out).map_err(|e| TrainError::io(path, e))
 }
 
 struct Reader<'a> {

@@ -66,8 +66,9 @@ pub enum Restorer {
 
 impl Restorer {
     /// The default weight of `L(render, I_ac)` for this source of `I_ac`: the paper's 0.75
-    /// with the transformer; with the Wiener stand-in (worse than the aberrated input at low
-    /// resolution) 0.75 cost 2 dB on the demo scene (26.15 vs 28.18 dB at 0.25 or 0).
+    /// with the transformer; the Wiener stand-in is worse than the aberrated input at low
+    /// resolution and a large λ fits its errors, so its default is lower (the demo-scene
+    /// sweep is in RESULTS.md).
     pub fn default_lambda(&self) -> f32 {
         match self {
             Restorer::MedianWiener => 0.25,

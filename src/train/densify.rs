@@ -4,12 +4,12 @@
 //! optimiser step, at the end of an epoch) and once at the end, so the loop stays short.
 
 use serde::{Deserialize, Serialize};
+use splat::conventions::ALPHA_THRESHOLD;
 use splat::densify::{
     DensifyStats, clone_gaussians, prune_gaussians, prune_mask, reset_opacity, split_gaussians,
 };
 use splat::model::sigmoid;
 use splat::optim::{Adam, ParamGroup};
-use splat::project::ALPHA_THRESHOLD;
 use splat::{Gaussians, Gradients, RenderOutput};
 
 use crate::error::Result;
@@ -29,6 +29,23 @@ pub struct Edit {
     /// Candidates turned away because the budget was reached.
     pub over_budget: usize,
     pub opacity_reset: bool,
+}
+
+impl std::fmt::Display for Edit {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} cloned, {} split, {} pruned",
+            self.cloned, self.split, self.pruned
+        )?;
+        if self.over_budget > 0 {
+            write!(f, ", {} turned away at the splat budget", self.over_budget)?;
+        }
+        if self.opacity_reset {
+            write!(f, ", opacities reset")?;
+        }
+        Ok(())
+    }
 }
 
 /// The strategy's state (saved in checkpoints).

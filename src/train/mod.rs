@@ -12,11 +12,11 @@ pub mod sh;
 use std::path::Path;
 use std::time::Instant;
 
+use base::SplitMix64;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use splat::optim::{Adam, ExponentialLr};
-use splat::rng::SplitMix64;
-use splat::{Gaussians, RenderSettings, render, render_backward};
+use splat::{Gaussians, RenderSettings, render, render_backward, render_for_backward};
 
 use crate::error::{Result, TrainError};
 use crate::eval::{self, Metrics};
@@ -87,7 +87,7 @@ pub struct Outcome {
 pub fn view_index(seed: u64, step: u64, n: usize) -> usize {
     let epoch = step / n as u64;
     let mut order: Vec<usize> = (0..n).collect();
-    let mut rng = SplitMix64::new(seed ^ epoch.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let mut rng = SplitMix64::new(seed ^ epoch.wrapping_mul(base::rng::GOLDEN_GAMMA));
     for i in (1..n).rev() {
         order.swap(i, (rng.next_u64() % (i as u64 + 1)) as usize);
     }
@@ -199,13 +199,13 @@ pub fn train(
         let started = Instant::now();
         let view = &data.train[view_index(config.seed, s.step, n_views)];
         let rs = settings(config, &s.model);
-        let out = render(&s.model, &view.camera, &rs)?;
+        let (out, saved) = render_for_backward(&s.model, &view.camera, &rs)?;
         let (parts, v_color) = objective.evaluate(&out.color, view)?;
-        let grads = render_backward(&s.model, &view.camera, &rs, &out, &v_color, None, None)?;
+        let grads = render_backward(&s.model, &saved, &v_color, None, None)?;
         s.densifier.after_backward(s.step, &grads, &out);
         s.adam
             .step(&mut s.model, &grads.params, &lrs.at(position_lr.at(s.step)))?;
-        drop((out, grads));
+        drop((out, saved, grads));
         s.step += 1;
         let step = s.step;
         if let Some(edit) = s

@@ -7,7 +7,6 @@ use aberration::ImagingModel;
 use glam::Vec3;
 use splat::loss::photometric_loss;
 
-use crate::convert::{image_to_pixels, pixels_to_image, psnr};
 use crate::error::{Result, TrainError};
 use crate::train::config::Mode;
 use crate::train::data::View;
@@ -36,7 +35,7 @@ pub struct Objective<'a> {
 impl Objective<'_> {
     fn term(&self, image: &[Vec3], target: &[Vec3]) -> Result<(f32, Vec<Vec3>, f64)> {
         let l = photometric_loss(image, target, self.width, self.height, self.dssim_weight)?;
-        Ok((l.value, l.grad, psnr(image, target)))
+        Ok((l.value, l.grad, base::psnr_rgb(image, target)?))
     }
 
     fn blur(&self) -> Result<&ImagingModel> {
@@ -50,8 +49,7 @@ impl Objective<'_> {
         if self.mode != Mode::Aware {
             return Ok(rendered.to_vec());
         }
-        let img = pixels_to_image(rendered, self.width, self.height);
-        Ok(image_to_pixels(&self.blur()?.blur(&img)?))
+        Ok(self.blur()?.blur_pixels(rendered)?)
     }
 
     /// Loss and `∂loss/∂rendered`.
@@ -81,8 +79,7 @@ impl Objective<'_> {
             Mode::Aware => {
                 let blurred = self.as_observed(rendered)?;
                 let (v_abr, g_blurred, p) = self.term(&blurred, &view.observed)?;
-                let g_img = pixels_to_image(&g_blurred, self.width, self.height);
-                let g_abr = image_to_pixels(&self.blur()?.plan().adjoint(&g_img)?);
+                let g_abr = self.blur()?.plan().adjoint_pixels(&g_blurred)?;
                 let (v_ac, g_ac, _) = if self.lambda != 0.0 {
                     self.term(rendered, restored()?)?
                 } else {

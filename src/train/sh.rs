@@ -29,6 +29,25 @@ pub enum ShEvent {
     },
 }
 
+impl std::fmt::Display for ShEvent {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            Self::Raised { degree } => write!(f, "colour detail raised to SH degree {degree}"),
+            Self::Kept { degree, gain } => write!(
+                f,
+                "SH band {degree} kept: it lowers the training loss by {:.2} %",
+                gain * 100.0
+            ),
+            Self::Dropped { degree, gain } => write!(
+                f,
+                "SH band {} dropped: it lowered the training loss by only {:.3} %, so colours stay at degree {degree}",
+                degree + 1,
+                gain * 100.0
+            ),
+        }
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ShBands {
     pub max_degree: u32,

@@ -84,16 +84,20 @@ pub struct Padded {
 
 impl Padded {
     pub fn new(plane: &[f32], width: usize, height: usize, pad: usize) -> Self {
+        Self::from_fn(|i| plane[i], width, height, pad)
+    }
+
+    /// Pads the plane whose pixel `i` (row-major) is `value(i)`.
+    pub fn from_fn(value: impl Fn(usize) -> f32, width: usize, height: usize, pad: usize) -> Self {
         let (pw, ph) = (width + 2 * pad, height + 2 * pad);
         let mut data = vec![0.0; pw * ph];
         let cols: Vec<usize> = (0..pw)
             .map(|x| reflect(x as isize - pad as isize, width))
             .collect();
         for y in 0..ph {
-            let sy = reflect(y as isize - pad as isize, height);
-            let src = &plane[sy * width..(sy + 1) * width];
+            let row = reflect(y as isize - pad as isize, height) * width;
             for (d, &sx) in data[y * pw..(y + 1) * pw].iter_mut().zip(&cols) {
-                *d = src[sx];
+                *d = value(row + sx);
             }
         }
         Self {

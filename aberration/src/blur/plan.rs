@@ -3,6 +3,7 @@ use crate::error::{AberrationError, Result};
 use crate::fft2::{Fft2Scratch, RealFft2, fast_len};
 use crate::image::Image;
 use crate::psf_grid::PsfGrid;
+use glam::Vec3;
 use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 use std::collections::HashMap;
@@ -12,9 +13,9 @@ use std::sync::Arc;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum BlurMode {
     /// The paper's patch-wise blur: hard tile borders.
+    #[default]
     Tiled,
     /// Seamless bilinear interpolation between neighbouring PSFs.
-    #[default]
     Blend,
 }
 
@@ -198,6 +199,18 @@ impl BlurPlan {
         Ok(())
     }
 
+    fn check_pixels(&self, pixels: &[Vec3]) -> Result<()> {
+        if pixels.len() != self.width * self.height {
+            return Err(AberrationError::BadParameter(format!(
+                "{} pixels given to a blur planned for {}x{}",
+                pixels.len(),
+                self.width,
+                self.height
+            )));
+        }
+        Ok(())
+    }
+
     /// The unit of parallel work: (channel, grid row).
     fn jobs(&self) -> Vec<(usize, usize)> {
         (0..3)
@@ -212,11 +225,44 @@ impl BlurPlan {
     /// `y = A x`.
     pub fn apply(&self, x: &Image) -> Result<Image> {
         self.check(x)?;
+        let n = x.plane_len();
+        let mut y = Image::new(self.width, self.height);
+        self.apply_with(
+            |ch, i| x.data[ch * n + i],
+            |ch, i, v| y.data[ch * n + i] += v,
+        );
+        Ok(y)
+    }
+
+    /// `y = A x` on row-major RGB pixels, the renderer's layout: the channels are read and
+    /// written in place of the copies the FFTs make anyway, so no layout conversion is paid.
+    pub fn apply_pixels(&self, x: &[Vec3]) -> Result<Vec<Vec3>> {
+        self.check_pixels(x)?;
+        let mut y = vec![Vec3::ZERO; x.len()];
+        self.apply_with(|ch, i| x[i][ch], |ch, i, v| y[i][ch] += v);
+        Ok(y)
+    }
+
+    /// `x = Aᵀ y` on row-major RGB pixels, the exact adjoint of [`BlurPlan::apply_pixels`].
+    pub fn adjoint_pixels(&self, y: &[Vec3]) -> Result<Vec<Vec3>> {
+        self.check_pixels(y)?;
+        let mut x = vec![Vec3::ZERO; y.len()];
+        self.adjoint_with(|ch, i| y[i][ch], |ch, i, v| x[i][ch] = v);
+        Ok(x)
+    }
+
+    /// The forward pass over any layout: `value(ch, i)` reads pixel `i` (row-major) of channel
+    /// `ch`, `add(ch, i, v)` accumulates into the output.
+    fn apply_with(
+        &self,
+        value: impl Fn(usize, usize) -> f32 + Sync,
+        mut add: impl FnMut(usize, usize, f32),
+    ) {
         let (w, h) = (self.width, self.height);
         let c = (self.ksize / 2) as isize;
         let padded: Vec<Padded> = (0..3)
             .into_par_iter()
-            .map(|ch| Padded::new(x.channel(ch), w, h, self.pad()))
+            .map(|ch| Padded::from_fn(|i| value(ch, i), w, h, self.pad()))
             .collect();
         let jobs = self.jobs();
         // Each job sums its terms into a band of rows; bands are added in a fixed order, so
@@ -234,17 +280,32 @@ impl BlurPlan {
                 (ch, rows.start, band)
             })
             .collect();
-        let mut y = Image::new(w, h);
         for (ch, y0, band) in bands {
-            let dst = &mut y.channel_mut(ch)[y0 * w..y0 * w + band.len()];
-            dst.iter_mut().zip(&band).for_each(|(d, s)| *d += s);
+            for (k, s) in band.iter().enumerate() {
+                add(ch, y0 * w + k, *s);
+            }
         }
-        Ok(y)
     }
 
     /// `x = Aᵀ y`, the exact adjoint of [`BlurPlan::apply`].
     pub fn adjoint(&self, y: &Image) -> Result<Image> {
         self.check(y)?;
+        let n = y.plane_len();
+        let mut x = Image::new(self.width, self.height);
+        self.adjoint_with(
+            |ch, i| y.data[ch * n + i],
+            |ch, i, v| x.data[ch * n + i] = v,
+        );
+        Ok(x)
+    }
+
+    /// The adjoint over any layout: `value(ch, i)` reads the input, `set(ch, i, v)` writes
+    /// the output.
+    fn adjoint_with(
+        &self,
+        value: impl Fn(usize, usize) -> f32 + Sync,
+        mut set: impl FnMut(usize, usize, f32),
+    ) {
         let (w, h) = (self.width, self.height);
         let c = (self.ksize / 2) as isize;
         let pad = self.pad();
@@ -265,7 +326,7 @@ impl BlurPlan {
                     adjoint_term(
                         t,
                         ch,
-                        y.channel(ch),
+                        &|i| value(ch, i),
                         w,
                         c,
                         pad,
@@ -282,11 +343,11 @@ impl BlurPlan {
             let dst = &mut grads[ch].data[y0 * pw..y0 * pw + band.len()];
             dst.iter_mut().zip(&band).for_each(|(d, s)| *d += s);
         }
-        let mut x = Image::new(w, h);
         for (ch, g) in grads.iter().enumerate() {
-            x.channel_mut(ch).copy_from_slice(&g.fold());
+            for (i, v) in g.fold().into_iter().enumerate() {
+                set(ch, i, v);
+            }
         }
-        Ok(x)
     }
 }
 
@@ -301,8 +362,8 @@ fn band_rows(ranges: impl Iterator<Item = Range<usize>>) -> Range<usize> {
         .unwrap_or(0..0)
 }
 
-/// Working memory reused across the terms of one job: a fresh 1 MB spectrum per term
-/// costs page faults comparable to the transforms themselves.
+/// Working memory reused across the terms of one job: a fresh spectrum per term costs page
+/// faults on every term.
 #[derive(Default)]
 struct Work {
     scratch: Option<((usize, usize), Fft2Scratch)>,
@@ -380,7 +441,7 @@ fn forward_term(
 fn adjoint_term(
     t: &Term,
     ch: usize,
-    g: &[f32],
+    g: &impl Fn(usize) -> f32,
     w: usize,
     c: isize,
     pad: usize,
@@ -396,7 +457,10 @@ fn adjoint_term(
         |m, row| {
             row.fill(0.0);
             let y = (m as isize + t.in_y - c) as usize;
-            row[t.out_n.clone()].copy_from_slice(&g[y * w + x0..y * w + x0 + t.out_n.len()]);
+            let src = y * w + x0;
+            for (k, d) in row[t.out_n.clone()].iter_mut().enumerate() {
+                *d = g(src + k);
+            }
         },
         spec,
         s,

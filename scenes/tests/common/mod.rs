@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DVec3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use scenes::{Bounds, Camera, RgbImage, Rigid};
+use scenes::{Bounds, Camera, Photo, Rigid};
 
 /// An OpenCV camera at `eye` looking at `target`, `up` pointing up in the image.
 pub fn look_at(
@@ -69,7 +69,7 @@ pub fn arc_cameras(n: usize, width: u32, height: u32, seed: u64) -> (Vec<Camera>
 }
 
 /// A smooth, camera-dependent test pattern.
-pub fn pattern(width: u32, height: u32, k: usize) -> RgbImage {
+pub fn pattern(width: u32, height: u32, k: usize) -> Photo {
     let mut data = Vec::with_capacity((width * height * 3) as usize);
     for y in 0..height {
         for x in 0..width {
@@ -78,7 +78,7 @@ pub fn pattern(width: u32, height: u32, k: usize) -> RgbImage {
             data.push(((x + y) as usize + k) as f32 % 7.0 / 7.0);
         }
     }
-    RgbImage {
+    Photo {
         width,
         height,
         data,

@@ -1,10 +1,11 @@
 //! Test support: an independent brute-force float64 renderer and seeded scene generators.
 #![allow(dead_code)]
 
-pub mod reference;
+#[allow(unused_imports)]
+pub use splat::reference::{self, flatten, params_per_gaussian};
 
+use base::SplitMix64;
 use glam::Vec3;
-use splat::rng::SplitMix64;
 use splat::{Camera, Gaussians, sh_rest_count};
 
 /// A small camera with an off-centre principal point and a non-trivial pose.
@@ -70,25 +71,6 @@ pub fn random_scene(
 
 /// All parameters of Gaussian-major layout: mean 3, log-scale 3, quaternion 4, logit 1,
 /// DC 3, rest 3·rc.
-pub fn params_per_gaussian(sh_degree: u32) -> usize {
-    14 + 3 * sh_rest_count(sh_degree)
-}
-
-pub fn flatten(g: &Gaussians) -> Vec<f64> {
-    let mut out = Vec::with_capacity(g.len() * params_per_gaussian(g.sh_degree));
-    for i in 0..g.len() {
-        out.extend(g.means[i].to_array().map(f64::from));
-        out.extend(g.log_scales[i].to_array().map(f64::from));
-        out.extend(g.rotations[i].map(f64::from));
-        out.push(g.logit_opacities[i] as f64);
-        out.extend(g.sh_dc[i].to_array().map(f64::from));
-        for c in g.sh_rest_of(i) {
-            out.extend(c.to_array().map(f64::from));
-        }
-    }
-    out
-}
-
 pub const GROUP_NAMES: [&str; 6] = [
     "mean",
     "log_scale",

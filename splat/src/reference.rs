@@ -1,13 +1,47 @@
 //! Brute-force float64 renderer: no tiles, no radius, no culling beyond the depth range and the
 //! per-pixel α rule; every pixel looks at every Gaussian sorted by (depth, index). Written
-//! independently of the crate's kernels (INRIA-form SH polynomials, explicit matrix algebra).
+//! independently of the crate's kernels (INRIA-form SH polynomials, explicit matrix algebra,
+//! its own literal constants), so that every fast renderer — this crate's tiled CPU one, the
+//! GPU one — can be tested against it from any crate. Slow by design: test scenes only.
 
 // Index loops read like the matrix algebra they implement.
 #![allow(clippy::needless_range_loop)]
 
-use splat::Camera;
+use crate::{Camera, Gaussians, RenderSettings, sh_rest_count};
 
-use super::params_per_gaussian;
+/// Parameters per Gaussian in the layout of [`flatten`].
+pub fn params_per_gaussian(sh_degree: u32) -> usize {
+    14 + 3 * sh_rest_count(sh_degree)
+}
+
+/// All parameters of `g` in f64, Gaussian by Gaussian: mean, log-scale, quaternion, logit
+/// opacity, SH DC, SH rest (coefficient-major, RGB innermost).
+pub fn flatten(g: &Gaussians) -> Vec<f64> {
+    let mut out = Vec::with_capacity(g.len() * params_per_gaussian(g.sh_degree));
+    for i in 0..g.len() {
+        out.extend(g.means[i].to_array().map(f64::from));
+        out.extend(g.log_scales[i].to_array().map(f64::from));
+        out.extend(g.rotations[i].map(f64::from));
+        out.push(g.logit_opacities[i] as f64);
+        out.extend(g.sh_dc[i].to_array().map(f64::from));
+        for c in g.sh_rest_of(i) {
+            out.extend(c.to_array().map(f64::from));
+        }
+    }
+    out
+}
+
+/// Renders `g` as [`crate::render`] would, in f64.
+pub fn render_reference(g: &Gaussians, cam: &Camera, settings: &RenderSettings) -> RefImage {
+    render_ref(
+        &flatten(g),
+        g.sh_degree,
+        &RefCamera::from(cam),
+        settings.sh_degree,
+        settings.background.to_array().map(f64::from),
+        settings.antialiased,
+    )
+}
 
 pub struct RefCamera {
     pub fx: f64,
@@ -142,7 +176,7 @@ struct Splat2d {
     index: usize,
 }
 
-/// Renders flattened parameters (layout of [`super::flatten`]) with stored degree `stored_deg`.
+/// Renders flattened parameters (layout of [`flatten`]) with stored degree `stored_deg`.
 pub fn render_ref(
     params: &[f64],
     stored_deg: u32,
@@ -246,7 +280,7 @@ pub fn render_ref(
         let len = (dir_raw[0].powi(2) + dir_raw[1].powi(2) + dir_raw[2].powi(2)).sqrt();
         let dir = dir_raw.map(|v| v / len);
         let mut coeffs = vec![[p[11], p[12], p[13]]];
-        for k in 0..(splat::sh_rest_count(stored_deg)) {
+        for k in 0..(sh_rest_count(stored_deg)) {
             coeffs.push([p[14 + 3 * k], p[15 + 3 * k], p[16 + 3 * k]]);
         }
         let pre = sh_color(deg, &coeffs, dir);

@@ -1,0 +1,13 @@
+//! What every metasplat crate shares, so that each exists once: the image metrics (PSNR, and
+//! SSIM with its gradient), the one way an output file is written, and the seeded mixer behind
+//! every reproducible random choice. It knows nothing of splats, optics or networks.
+
+pub mod atomic;
+pub mod error;
+pub mod metrics;
+pub mod rng;
+
+pub use atomic::{WriteError, write_atomically, write_atomically_with, write_bytes_atomically};
+pub use error::BaseError;
+pub use metrics::{psnr, psnr_rgb, ssim, ssim_planar, ssim_value};
+pub use rng::{SplitMix64, mix64};
