@@ -57,15 +57,20 @@ fn psnr_of(pairs: impl Iterator<Item = (f32, f32)>, count: usize) -> f64 {
 
 /// Mean SSIM of `a` against `b` (no gradient).
 pub fn ssim_value(a: &[Vec3], b: &[Vec3], width: u32, height: u32) -> Result<f64, BaseError> {
+    Ok(ssim_rgb(a, b, width, height, None)? as f64)
+}
+
+fn ssim_rgb(
+    a: &[Vec3],
+    b: &[Vec3],
+    width: u32,
+    height: u32,
+    grad: Option<GradSink<'_>>,
+) -> Result<f32, BaseError> {
     check(a.len(), b.len(), width, height)?;
     let plane = |img: &[Vec3], ch: usize| img.iter().map(|v| v[ch]).collect::<Vec<f32>>();
-    let value = ssim_channels(
-        width as usize,
-        height as usize,
-        |ch| (plane(a, ch), plane(b, ch)),
-        None,
-    );
-    Ok(value as f64)
+    let (w, h) = (width as usize, height as usize);
+    Ok(ssim_channels(w, h, |ch| (plane(a, ch), plane(b, ch)), grad))
 }
 
 fn check(rendered: usize, target: usize, width: u32, height: u32) -> Result<(), BaseError> {
@@ -132,15 +137,14 @@ pub fn ssim(
     width: u32,
     height: u32,
 ) -> Result<(f32, Vec<Vec3>), BaseError> {
-    check(rendered.len(), target.len(), width, height)?;
-    let plane = |img: &[Vec3], ch: usize| img.iter().map(|v| v[ch]).collect::<Vec<f32>>();
     let mut grad = vec![Vec3::ZERO; rendered.len()];
-    let value = ssim_channels(
-        width as usize,
-        height as usize,
-        |ch| (plane(rendered, ch), plane(target, ch)),
+    let value = ssim_rgb(
+        rendered,
+        target,
+        width,
+        height,
         Some(&mut |i, ch, g| grad[i][ch] = g),
-    );
+    )?;
     Ok((value, grad))
 }
 
@@ -150,13 +154,8 @@ pub fn ssim_planar(a: &[f32], b: &[f32], width: u32, height: u32) -> Result<f64,
     check_len(3 * n, a.len())?;
     check_len(3 * n, b.len())?;
     let plane = |img: &[f32], ch: usize| img[ch * n..(ch + 1) * n].to_vec();
-    let value = ssim_channels(
-        width as usize,
-        height as usize,
-        |ch| (plane(a, ch), plane(b, ch)),
-        None,
-    );
-    Ok(value as f64)
+    let (w, h) = (width as usize, height as usize);
+    Ok(ssim_channels(w, h, |ch| (plane(a, ch), plane(b, ch)), None) as f64)
 }
 
 /// Per-pixel gradient sink: `(pixel, channel, ∂SSIM/∂x)`.

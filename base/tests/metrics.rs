@@ -1,0 +1,47 @@
+//! One convention for every caller: the layouts agree, sizes that differ are errors.
+
+use base::{psnr, psnr_rgb, ssim, ssim_planar, ssim_value};
+use glam::Vec3;
+
+fn image(seed: u64, n: usize) -> Vec<Vec3> {
+    let mut r = base::SplitMix64::new(seed);
+    (0..n)
+        .map(|_| {
+            Vec3::new(
+                r.next_f64() as f32,
+                r.next_f64() as f32,
+                r.next_f64() as f32,
+            )
+        })
+        .collect()
+}
+
+fn planar(img: &[Vec3]) -> Vec<f32> {
+    (0..3).flat_map(|c| img.iter().map(move |p| p[c])).collect()
+}
+
+#[test]
+fn interleaved_and_planar_layouts_give_the_same_numbers() {
+    let (w, h) = (23, 17);
+    let (a, b) = (image(1, w * h), image(2, w * h));
+    let s = ssim_value(&a, &b, w as u32, h as u32).unwrap();
+    let sp = ssim_planar(&planar(&a), &planar(&b), w as u32, h as u32).unwrap();
+    assert_eq!(s, sp);
+    assert_eq!(s, ssim(&a, &b, w as u32, h as u32).unwrap().0 as f64);
+    let p = psnr_rgb(&a, &b).unwrap();
+    let pp = psnr(&planar(&a), &planar(&b)).unwrap();
+    assert!((p - pp).abs() < 1e-9, "{p} vs {pp}");
+    // Uniform noise of variance 1/6 per value: PSNR = 10 log10(6) ≈ 7.78 dB.
+    assert!((p - 7.78).abs() < 0.3, "{p}");
+}
+
+#[test]
+fn identical_images_are_capped_and_mismatches_are_errors() {
+    let a = image(3, 12);
+    assert_eq!(psnr_rgb(&a, &a).unwrap(), 100.0);
+    assert!((ssim_value(&a, &a, 4, 3).unwrap() - 1.0).abs() < 1e-6);
+    assert!(psnr_rgb(&a, &a[1..]).is_err());
+    assert!(psnr(&[], &[]).is_err());
+    assert!(ssim_value(&a, &a, 5, 3).is_err());
+    assert!(ssim_planar(&planar(&a), &planar(&a)[1..], 4, 3).is_err());
+}
