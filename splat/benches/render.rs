@@ -128,7 +128,7 @@ fn bench(c: &mut Criterion) {
         eprintln!(
             "n={n}: visible={visible} tile_intersections={} blended_pairs={blended} \
              forward_flops={:.3e} forward_backward_flops={:.3e}",
-            out.num_intersections(),
+            out.num_intersections,
             fwd,
             fwd + bwd
         );

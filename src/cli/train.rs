@@ -187,6 +187,11 @@ pub fn train_run(a: &TrainArgs, quiet: bool) -> Result<(RunSummary, Vec<train::L
             }
         }
         Event::Evaluated { metrics, .. } => last_test = Some(metrics.mean_psnr),
+        // A band that stays is routine; one raised or dropped changes the model.
+        Event::Sh {
+            step,
+            event: event @ train::sh::ShEvent::Kept { .. },
+        } => last_edit = format!(" | step {step}: {event}"),
         Event::Sh { step, event } => {
             super::progress::say(&pb, format!("Step {step}: {event}."));
         }
