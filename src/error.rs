@@ -24,6 +24,15 @@ pub enum TrainError {
     File { path: PathBuf, problem: String },
     #[error("{0}")]
     Invalid(String),
+    #[error(transparent)]
+    Plot(#[from] crate::plot::PlotError),
+    /// What was being done when `source` went wrong.
+    #[error("{what}")]
+    Context {
+        what: String,
+        #[source]
+        source: Box<TrainError>,
+    },
 }
 
 pub type Result<T> = std::result::Result<T, TrainError>;
@@ -33,6 +42,14 @@ impl TrainError {
         TrainError::Io {
             path: path.into(),
             source,
+        }
+    }
+
+    /// Wraps the error in what was being done.
+    pub fn context(self, what: impl Into<String>) -> Self {
+        TrainError::Context {
+            what: what.into(),
+            source: Box::new(self),
         }
     }
 

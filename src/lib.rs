@@ -1,7 +1,7 @@
 //! metasplat: clean Gaussian-splat scenes from metalens-aberrated photos.
 //!
 //! The library behind the `metasplat` binary: the aberration-aware training loop
-//! ([`train`]), held-out evaluation ([`eval`]), the initial splats ([`init`]), and the
+//! ([`train`]), one run assembled from a request ([`run`]), held-out evaluation ([`eval`]), the initial splats ([`init`]), and the
 //! conversions between the member crates' types ([`convert`]).
 
 pub mod convert;
@@ -11,6 +11,7 @@ pub mod init;
 pub mod outputs;
 pub mod plot;
 pub mod procedural;
+pub mod run;
 pub mod spiral;
 pub mod train;
 

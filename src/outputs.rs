@@ -19,6 +19,8 @@ pub const PLY_FILE: &str = "point_cloud.ply";
 pub const METRICS_FILE: &str = "metrics.json";
 pub const LOG_FILE: &str = "train_log.csv";
 pub const CHECKPOINT_FILE: &str = "checkpoint.bin";
+pub const CONFIG_FILE: &str = "config.json";
+pub const PSNR_PLOT: &str = "psnr_vs_time.png";
 
 /// Creates the run folder and proves it writable before any training time is spent.
 pub fn prepare_run_dir(dir: &Path) -> Result<()> {
@@ -187,4 +189,27 @@ pub fn render_frames(
             Ok(path)
         })
         .collect()
+}
+
+/// The PSNR-vs-time picture, when there are test PSNRs to plot.
+pub fn plot_log(dir: &Path, log: &[LogRow]) -> Result<()> {
+    let points: Vec<(f64, f64)> = log
+        .iter()
+        .filter_map(|r| r.test_psnr.map(|p| (r.seconds, p)))
+        .collect();
+    if points.is_empty() {
+        return Ok(());
+    }
+    let series = [crate::plot::Series {
+        name: "held-out PSNR".into(),
+        points,
+    }];
+    crate::plot::line_plot(
+        &dir.join(PSNR_PLOT),
+        "held-out PSNR vs training time",
+        "training time (s)",
+        "PSNR vs clean (dB)",
+        &series,
+    )?;
+    Ok(())
 }

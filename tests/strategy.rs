@@ -4,7 +4,7 @@
 use glam::Vec3;
 use metasplat::train::config::Recipe;
 use metasplat::train::densify::Densifier;
-use metasplat::train::sh::{MIN_RELATIVE_GAIN, ShBands, ShEvent};
+use metasplat::train::sh::{ShBands, ShEvent};
 use splat::model::logit;
 use splat::optim::Adam;
 use splat::{Gaussians, RenderSettings, render};
@@ -62,7 +62,7 @@ fn growth_stops_at_the_budget_and_takes_the_largest_gradients() {
     adam.step(
         &mut model,
         &grads,
-        &Recipe::for_iters(10, false).lrs.at(1e-3),
+        &Recipe::for_iters(10, false).lrs.with_means(1e-3),
     )
     .unwrap();
 
@@ -111,13 +111,14 @@ fn unseen_and_invisible_splats_are_pruned_without_changing_renders() {
 fn sh_bands_stay_only_while_they_lower_the_loss() {
     let mut model = row_of_splats(5, 0);
     let mut adam = Adam::new(&model);
-    let mut bands = ShBands::new(3, 100);
+    let min_gain = Recipe::for_iters(1000, false).sh_min_gain;
+    let mut bands = ShBands::new(3, 100, min_gain);
     // A scene whose loss improves with band 1 but not with band 2.
     let mut loss_at = |_: &Gaussians, degree: u32| -> metasplat::Result<f64> {
         Ok(match degree {
             0 => 1.0,
             1 => 0.9,
-            _ => 0.9 * (1.0 - MIN_RELATIVE_GAIN / 10.0),
+            _ => 0.9 * (1.0 - min_gain / 10.0),
         })
     };
     assert!(
@@ -159,7 +160,7 @@ fn sh_bands_stay_only_while_they_lower_the_loss() {
     adam.step(
         &mut model,
         &grads,
-        &Recipe::for_iters(10, false).lrs.at(1e-3),
+        &Recipe::for_iters(10, false).lrs.with_means(1e-3),
     )
     .unwrap();
 }

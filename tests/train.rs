@@ -71,10 +71,14 @@ fn options() -> DataOptions {
 }
 
 fn config(mode: Mode, iters: u64, data: &Dataset) -> TrainConfig {
-    let mut c = TrainConfig::new(mode, iters, data.width, data.height);
-    c.eval_every = 0;
-    c.checkpoint_every = 0;
-    c
+    let settings = metasplat::run::TrainSettings {
+        mode,
+        iters,
+        eval_every: Some(0),
+        checkpoint_every: Some(0),
+        ..Default::default()
+    };
+    TrainConfig::build(&settings, 0, data)
 }
 
 fn mean_psnr(mode: Mode, iters: u64, lambda: f32) -> f64 {

@@ -10,6 +10,7 @@ use crate::model::Gaussians;
 
 /// Learning rate per parameter group.
 #[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct LearningRates {
     pub means: f32,
     pub log_scales: f32,
@@ -29,6 +30,16 @@ impl Default for LearningRates {
             opacities: 5e-2,
             sh_dc: 2.5e-3,
             sh_rest: 2.5e-3 / 20.0,
+        }
+    }
+}
+
+impl LearningRates {
+    /// The same rates with the position rate taken from its schedule.
+    pub fn with_means(&self, means: f32) -> Self {
+        Self {
+            means,
+            ..self.clone()
         }
     }
 }

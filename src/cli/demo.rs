@@ -3,7 +3,7 @@
 //! `plain` and `aware` splats on the aberrated views, and compares both with the clean ones.
 
 use super::psf::{print_report, simulate};
-use super::train::{TrainArgs, train_run};
+use super::train::train_run;
 use aberration::image::save_rgb8_png;
 use aberration::optics::SimConfig;
 use aberration::picture::psf_grid_picture;
@@ -11,6 +11,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use metasplat::outputs::RunSummary;
 use metasplat::procedural::{ProceduralOptions, write_capture};
+use metasplat::run::RunRequest;
 use metasplat::train::config::Mode;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -94,12 +95,15 @@ pub fn run(a: DemoArgs) -> Result<()> {
     for mode in [Mode::Plain, Mode::Aware] {
         println!("4/4 training {mode} ({iters} steps)");
         let run_dir = a.out.join(format!("run_{mode}"));
-        let args = TrainArgs {
-            seed: a.seed,
-            checkpoint_every: Some(0),
-            spiral: if a.quick { 4 } else { 30 },
-            ..TrainArgs::new(aberrated_dir.clone(), run_dir.clone(), mode, iters, 1)
-        };
+        let mut args = RunRequest::new(&aberrated_dir, &run_dir);
+        args.data.downsample = 1;
+        args.data.seed = a.seed;
+        args.training.mode = mode;
+        args.training.iters = iters;
+        args.training.checkpoint_every = Some(0);
+        if a.quick {
+            args.spiral = 4;
+        }
         let (summary, _) = train_run(&args, true)?;
         results.push((mode, summary, run_dir));
     }

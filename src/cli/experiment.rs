@@ -4,11 +4,12 @@
 //! against training time: the speed-against-error report of the main job.
 
 use super::psf::{print_report, simulate};
-use super::train::{TrainArgs, train_run};
+use super::train::train_run;
 use aberration::optics::SimConfig;
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use metasplat::plot::{Series, line_plot};
+use metasplat::run::RunRequest;
 use metasplat::train::config::Mode;
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -76,12 +77,13 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
     let mut rows = Vec::new();
     for &mode in &a.modes {
         let run_dir = a.out.join(format!("run_{mode}"));
-        let args = TrainArgs {
-            lambda: a.lambda,
-            seed: a.seed,
-            eval_every: Some((a.iters / 20).max(1)),
-            ..TrainArgs::new(aberrated.clone(), run_dir, mode, a.iters, a.downsample)
-        };
+        let mut args = RunRequest::new(&aberrated, run_dir);
+        args.data.downsample = a.downsample;
+        args.data.seed = a.seed;
+        args.training.mode = mode;
+        args.training.iters = a.iters;
+        args.training.lambda = a.lambda;
+        args.training.eval_every = Some((a.iters / 20).max(1));
         let (summary, log) = train_run(&args, false)?;
         rows.push((mode, summary, log));
     }

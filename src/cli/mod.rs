@@ -37,7 +37,7 @@ enum Command {
     #[command(subcommand)]
     Scene(scene::SceneCommand),
     /// Train a splat scene from an (aberrated) capture: aware, restored or plain.
-    Train(train::TrainArgs),
+    Train(metasplat::run::RunRequest),
     /// Render a PLY from a capture's cameras or its spiral path.
     Render(render::RenderArgs),
     /// The paper's comparison (plain, restored, aware) on a capture, with speed against error.

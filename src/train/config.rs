@@ -4,45 +4,6 @@
 use serde::{Deserialize, Serialize};
 use splat::optim::LearningRates;
 
-/// Per-group learning rates (INRIA defaults; `means` before scaling by the scene extent).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Lrs {
-    pub means: f32,
-    pub log_scales: f32,
-    pub rotations: f32,
-    pub opacities: f32,
-    pub sh_dc: f32,
-    pub sh_rest: f32,
-}
-
-impl Default for Lrs {
-    fn default() -> Self {
-        let d = LearningRates::default();
-        Lrs {
-            means: d.means,
-            log_scales: d.log_scales,
-            rotations: d.rotations,
-            opacities: d.opacities,
-            sh_dc: d.sh_dc,
-            sh_rest: d.sh_rest,
-        }
-    }
-}
-
-impl Lrs {
-    /// The rates at one step, the position rate taken from its schedule.
-    pub fn at(&self, means: f32) -> LearningRates {
-        LearningRates {
-            means,
-            log_scales: self.log_scales,
-            rotations: self.rotations,
-            opacities: self.opacities,
-            sh_dc: self.sh_dc,
-            sh_rest: self.sh_rest,
-        }
-    }
-}
-
 /// The paper's three rows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
@@ -91,9 +52,34 @@ pub struct Recipe {
     /// Clone (rather than split) when the largest scale is below this fraction of the extent.
     pub percent_dense: f32,
     pub prune_opacity: f32,
-    pub lrs: Lrs,
+    /// Per-group learning rates (INRIA defaults; `means` before scaling by the scene extent).
+    pub lrs: LearningRates,
     pub position_lr_final_ratio: f32,
     pub dssim_weight: f32,
+    /// After the first opacity reset, splats wider than this fraction of the extent are
+    /// pruned (3DGS: 0.1).
+    #[serde(default = "defaults::max_world_scale")]
+    pub max_world_scale: f32,
+    /// After the first opacity reset, splats with a larger screen radius (px) are pruned.
+    #[serde(default = "defaults::max_screen_radius")]
+    pub max_screen_radius: f32,
+    /// An SH band stays when dropping it raises the training loss by at least this fraction.
+    #[serde(default = "defaults::sh_min_gain")]
+    pub sh_min_gain: f64,
+}
+
+/// Defaults of the thresholds added to the recipe after the first checkpoints were written,
+/// so that those still load (and compare equal to a fresh config).
+pub mod defaults {
+    pub fn max_world_scale() -> f32 {
+        0.1
+    }
+    pub fn max_screen_radius() -> f32 {
+        20.0
+    }
+    pub fn sh_min_gain() -> f64 {
+        1e-3
+    }
 }
 
 impl Recipe {
@@ -112,9 +98,12 @@ impl Recipe {
             grad_threshold: 2e-4,
             percent_dense: 0.01,
             prune_opacity: 0.005,
-            lrs: Lrs::default(),
+            lrs: LearningRates::default(),
             position_lr_final_ratio: 0.01,
             dssim_weight: 0.2,
+            max_world_scale: defaults::max_world_scale(),
+            max_screen_radius: defaults::max_screen_radius(),
+            sh_min_gain: defaults::sh_min_gain(),
         }
     }
 }
@@ -123,7 +112,7 @@ impl Recipe {
 pub struct TrainConfig {
     pub mode: Mode,
     pub iters: u64,
-    /// Weight of `L(render, I_ac)` in `aware` mode (0.75 for LLFF in the paper).
+    /// Weight of `L(render, I_ac)` in `aware` mode ([`PAPER_LAMBDA`] for LLFF in the paper).
     pub lambda: f32,
     /// Most splats densification may create; pruning keeps the count lower where it can.
     pub max_splats: usize,
@@ -140,6 +129,9 @@ pub struct TrainConfig {
     pub i_ac: Option<String>,
 }
 
+/// The paper's weight of `L(render, I_ac)` for LLFF scenes with its trained restorer.
+pub const PAPER_LAMBDA: f32 = 0.75;
+
 /// Default budget: one splat per two pixels of a view (≈ 95k at 504×378), the order of
 /// what 3DGS keeps for LLFF scenes at that size.
 pub fn default_max_splats(width: u32, height: u32) -> usize {
@@ -147,19 +139,31 @@ pub fn default_max_splats(width: u32, height: u32) -> usize {
 }
 
 impl TrainConfig {
-    pub fn new(mode: Mode, iters: u64, width: u32, height: u32) -> TrainConfig {
+    /// The config of a run with `settings` on `data`: the one place where defaults that depend
+    /// on the capture (budget, λ for the capture's `I_ac`, evaluation and checkpoint cadence)
+    /// are decided.
+    pub fn build(
+        settings: &crate::run::TrainSettings,
+        seed: u64,
+        data: &crate::train::data::Dataset,
+    ) -> TrainConfig {
+        let iters = settings.iters;
         TrainConfig {
-            mode,
+            mode: settings.mode,
             iters,
-            lambda: 0.75,
-            max_splats: default_max_splats(width, height),
-            max_sh_degree: 3,
-            seed: 0,
+            lambda: settings
+                .lambda
+                .unwrap_or_else(|| crate::train::data::default_lambda(data.restorer.as_ref())),
+            max_splats: settings
+                .max_splats
+                .unwrap_or_else(|| default_max_splats(data.width, data.height)),
+            max_sh_degree: settings.max_sh_degree,
+            seed,
             background: [0.0; 3],
-            eval_every: (iters / 10).max(1),
-            checkpoint_every: (iters / 5).max(100),
-            recipe: Recipe::for_iters(iters, false),
-            i_ac: None,
+            eval_every: settings.eval_every.unwrap_or((iters / 10).max(1)),
+            checkpoint_every: settings.checkpoint_every.unwrap_or((iters / 5).max(100)),
+            recipe: Recipe::for_iters(iters, settings.opacity_reset),
+            i_ac: data.restorer.as_ref().map(|r| r.identity()),
         }
     }
 }

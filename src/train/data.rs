@@ -72,7 +72,7 @@ impl Restorer {
     pub fn default_lambda(&self) -> f32 {
         match self {
             Restorer::MedianWiener => 0.25,
-            Restorer::Network { .. } => 0.75,
+            Restorer::Network { .. } => crate::train::config::PAPER_LAMBDA,
         }
     }
 
@@ -139,25 +139,34 @@ fn open_restorer(
     })
 }
 
-#[derive(Clone, Debug)]
+/// How a capture is read for training (the defaults are the command line's).
+#[derive(clap::Args, Clone, Debug)]
 pub struct DataOptions {
+    /// Use images_N (1: images/).
+    #[arg(long, default_value_t = 8)]
     pub downsample: u32,
+    /// Every N-th view is held out for evaluation.
+    #[arg(long, default_value_t = scenes::LLFFHOLD)]
     pub llffhold: usize,
-    /// A PSF grid file; must agree with the capture's own `psf.npy` when it has one.
+    /// PSF grid .npy; must match the capture's own psf.npy when it has one.
+    #[arg(long)]
     pub psf: Option<PathBuf>,
+    /// Source of I_ac: `auto` (the shipped transformer when trained for this PSF grid, else
+    /// the median MAFG Wiener image), `wiener`, or a restorer weights file.
+    #[arg(long, default_value = "auto")]
     pub restorer: RestorerChoice,
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
+}
+
+/// λ when the user gives none: the restorer's, or the paper's where no `I_ac` is used.
+pub fn default_lambda(restorer: Option<&Restorer>) -> f32 {
+    restorer.map_or(crate::train::config::PAPER_LAMBDA, Restorer::default_lambda)
 }
 
 impl Default for DataOptions {
     fn default() -> Self {
-        Self {
-            downsample: 8,
-            llffhold: scenes::LLFFHOLD,
-            psf: None,
-            restorer: RestorerChoice::Auto,
-            seed: 0,
-        }
+        crate::run::parse_args(&[])
     }
 }
 

@@ -15,11 +15,6 @@ use splat::{Gaussians, Gradients, RenderOutput};
 use crate::error::Result;
 use crate::train::config::Recipe;
 
-/// Screen radius (px) above which 3DGS prunes after the first opacity reset.
-const MAX_SCREEN_RADIUS: f32 = 20.0;
-/// Largest world scale kept, as a fraction of the extent (3DGS: 0.1).
-const MAX_WORLD_SCALE: f32 = 0.1;
-
 /// What one hook changed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Edit {
@@ -114,8 +109,8 @@ impl Densifier {
             let mask = prune_mask(
                 model,
                 r.prune_opacity,
-                after_reset.then_some(MAX_WORLD_SCALE * self.extent),
-                after_reset.then_some((&self.stats, MAX_SCREEN_RADIUS)),
+                after_reset.then_some(r.max_world_scale * self.extent),
+                after_reset.then_some((&self.stats, r.max_screen_radius)),
             );
             edit.pruned += self.prune(model, adam, &mask)?;
             self.stats = DensifyStats::new(model.len());

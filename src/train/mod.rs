@@ -131,7 +131,11 @@ fn fresh_state(config: &TrainConfig, data: &Dataset) -> Result<State> {
         train_seconds: 0.0,
         adam: Adam::new(&model),
         densifier: Densifier::new(config.recipe.clone(), config.max_splats, data.extent, n),
-        sh: ShBands::new(config.max_sh_degree, config.recipe.sh_every),
+        sh: ShBands::new(
+            config.max_sh_degree,
+            config.recipe.sh_every,
+            config.recipe.sh_min_gain,
+        ),
         log: Vec::new(),
         model,
     })
@@ -203,8 +207,11 @@ pub fn train(
         let (parts, v_color) = objective.evaluate(&out.color, view)?;
         let grads = render_backward(&s.model, &saved, &v_color, None, None)?;
         s.densifier.after_backward(s.step, &grads, &out);
-        s.adam
-            .step(&mut s.model, &grads.params, &lrs.at(position_lr.at(s.step)))?;
+        s.adam.step(
+            &mut s.model,
+            &grads.params,
+            &lrs.with_means(position_lr.at(s.step)),
+        )?;
         drop((out, saved, grads));
         s.step += 1;
         let step = s.step;

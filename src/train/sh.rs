@@ -9,9 +9,6 @@ use splat::optim::Adam;
 
 use crate::error::Result;
 
-/// A band stays when dropping it raises the training loss by at least this fraction.
-pub const MIN_RELATIVE_GAIN: f64 = 1e-3;
-
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub enum ShEvent {
     Raised {
@@ -54,14 +51,19 @@ pub struct ShBands {
     pub every: u64,
     /// No more bands once one was dropped.
     pub frozen: bool,
+    /// A band stays when dropping it raises the training loss by at least this fraction
+    /// ([`crate::train::config::Recipe::sh_min_gain`]).
+    #[serde(default = "crate::train::config::defaults::sh_min_gain")]
+    pub min_gain: f64,
 }
 
 impl ShBands {
-    pub fn new(max_degree: u32, every: u64) -> Self {
+    pub fn new(max_degree: u32, every: u64, min_gain: f64) -> Self {
         Self {
             max_degree: max_degree.min(splat::MAX_SH_DEGREE),
             every: every.max(1),
             frozen: false,
+            min_gain,
         }
     }
 
@@ -80,7 +82,7 @@ impl ShBands {
         let with = loss_at(model, d)?;
         let without = loss_at(model, d - 1)?;
         let gain = (without - with) / with.abs().max(1e-12);
-        if gain < MIN_RELATIVE_GAIN {
+        if gain < self.min_gain {
             model.set_sh_degree(d - 1);
             adam.set_sh_degree(d - 1);
             self.frozen = true;

@@ -1,0 +1,163 @@
+//! One training run, assembled once for every caller (`train`, `demo`, `experiment`, a viewer's
+//! live view, library users): the request with every setting a user can give, the prepared
+//! run (capture loaded, config built and recorded) and the run itself with its outputs.
+//!
+//! Each default exists once: in the clap attribute of its field here or in
+//! [`DataOptions`], or, where it depends on the capture, in [`TrainConfig::build`].
+
+use std::path::PathBuf;
+
+use clap::{Args, FromArgMatches};
+
+use crate::error::{Result, TrainError};
+use crate::outputs::{self, CHECKPOINT_FILE, RunSummary};
+use crate::train::config::{Mode, TrainConfig};
+use crate::train::data::{self, DataOptions, Dataset};
+use crate::train::{self, Event, Outcome};
+
+/// What a run is asked to do: where from, where to, and how.
+#[derive(Args, Clone, Debug)]
+pub struct RunRequest {
+    /// Capture directory (LLFF or COLMAP); an aberrated capture from `scene aberrate` carries
+    /// its PSF grid and clean images.
+    #[arg(long)]
+    pub scene: PathBuf,
+    /// Run folder (created; checkpoint, PLY, metrics, renders).
+    #[arg(long)]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub data: DataOptions,
+    #[command(flatten)]
+    pub training: TrainSettings,
+    /// Continue from RUN/checkpoint.bin (same settings required).
+    #[arg(long)]
+    pub resume: bool,
+    /// Spiral frames to render at the end.
+    #[arg(long, default_value_t = 30)]
+    pub spiral: usize,
+}
+
+/// How to train; what is left unset is derived from the capture in [`TrainConfig::build`].
+#[derive(Args, Clone, Debug)]
+pub struct TrainSettings {
+    #[arg(long, value_enum, default_value_t = Mode::Aware)]
+    pub mode: Mode,
+    /// Weight of L(render, I_ac) in aware mode; default 0.75 (the paper's) with a trained
+    /// restorer, 0.25 with the median-Wiener stand-in.
+    #[arg(long)]
+    pub lambda: Option<f32>,
+    #[arg(long, default_value_t = 7000)]
+    pub iters: u64,
+    /// Splat budget; default: one per two pixels of a view.
+    #[arg(long)]
+    pub max_splats: Option<usize>,
+    #[arg(long, default_value_t = 3)]
+    pub max_sh_degree: u32,
+    /// Reset opacities as 3DGS does (the paper turned this off for LLFF scenes).
+    #[arg(long)]
+    pub opacity_reset: bool,
+    /// Held-out evaluation every N steps (default: 10 times per run).
+    #[arg(long)]
+    pub eval_every: Option<u64>,
+    /// Checkpoint every N steps (default: 5 times per run).
+    #[arg(long)]
+    pub checkpoint_every: Option<u64>,
+}
+
+/// Parses `args` into `T` alone: the defaults of its clap attributes, with `args` on top.
+/// The attributes are static, so failing here is a programming error (a test covers it).
+pub fn parse_args<T: Args + FromArgMatches>(args: &[&std::ffi::OsStr]) -> T {
+    let cmd = T::augment_args(clap::Command::new("defaults").no_binary_name(true));
+    let matches = cmd
+        .try_get_matches_from(args)
+        .expect("the arguments' own defaults parse");
+    T::from_arg_matches(&matches).expect("the arguments' own defaults parse")
+}
+
+impl Default for TrainSettings {
+    fn default() -> Self {
+        parse_args(&[])
+    }
+}
+
+impl RunRequest {
+    /// A request with every default, as `metasplat train --scene SCENE --out OUT` makes it.
+    pub fn new(scene: impl Into<PathBuf>, out: impl Into<PathBuf>) -> Self {
+        let (scene, out) = (scene.into(), out.into());
+        parse_args(&[
+            "--scene".as_ref(),
+            scene.as_os_str(),
+            "--out".as_ref(),
+            out.as_os_str(),
+        ])
+    }
+}
+
+/// A run ready to train: the run folder exists and is writable, the capture is loaded, and
+/// the config is built and written to `config.json`.
+pub struct PreparedRun {
+    pub request: RunRequest,
+    pub data: Dataset,
+    pub config: TrainConfig,
+}
+
+/// Checks and loads everything a run needs, before any training time is spent.
+pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
+    let out = &request.out;
+    outputs::prepare_run_dir(out)
+        .map_err(|e| e.context(format!("cannot use {} as the run folder", out.display())))?;
+    let data = data::load(&request.scene, request.training.mode, &request.data)
+        .map_err(|e| e.context(format!("cannot load the scene {}", request.scene.display())))?;
+    let config = TrainConfig::build(&request.training, request.data.seed, &data);
+    outputs::write_json(&out.join(outputs::CONFIG_FILE), &config)?;
+    Ok(PreparedRun {
+        request: request.clone(),
+        data,
+        config,
+    })
+}
+
+impl PreparedRun {
+    /// Trains (resuming if asked), then writes the run folder: PLY, metrics, log, renders and
+    /// the PSNR-vs-time plot.
+    pub fn run(&self, on_event: &mut dyn FnMut(Event)) -> Result<(RunSummary, Outcome)> {
+        let out = &self.request.out;
+        let ckpt = out.join(CHECKPOINT_FILE);
+        // A fresh run must not leave an older run's checkpoint for a later --resume to pick up.
+        if !self.request.resume && ckpt.exists() {
+            std::fs::remove_file(&ckpt).map_err(|e| {
+                TrainError::io(&ckpt, e).context(format!("cannot replace {}", ckpt.display()))
+            })?;
+        }
+        let outcome = train::train(
+            &self.config,
+            &self.data,
+            Some(&ckpt),
+            self.request.resume,
+            on_event,
+        )?;
+        let summary =
+            outputs::write_run(out, &self.data, &self.config, &outcome, self.request.spiral)
+                .and_then(|s| outputs::plot_log(out, &outcome.log).map(|_| s))
+                .map_err(|e| e.context(format!("cannot write the run folder {}", out.display())))?;
+        Ok((summary, outcome))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_come_from_the_arguments() {
+        let r = RunRequest::new("scene", "run");
+        assert_eq!(r.scene, PathBuf::from("scene"));
+        assert_eq!(r.training.mode, Mode::Aware);
+        assert_eq!(r.training.iters, 7000);
+        assert_eq!(r.data.downsample, DataOptions::default().downsample);
+        assert_eq!(r.data.llffhold, scenes::LLFFHOLD);
+        let t: TrainSettings = parse_args(&["--iters".as_ref(), "12".as_ref()]);
+        assert_eq!(t.iters, 12);
+        assert_eq!(t.max_sh_degree, TrainSettings::default().max_sh_degree);
+    }
+}
