@@ -5,7 +5,7 @@ use aberration::wiener::{BANK_MEDIAN, BANK_SIZE};
 use serde::{Deserialize, Serialize};
 
 /// How the 13 Wiener images enter the network.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Guidance {
     /// The paper's MAFG: windowed cross-attention, query from the median image, keys and
@@ -13,11 +13,30 @@ pub enum Guidance {
     CrossAttention,
     /// The same cross-attention with each filter's own image added to its answer, so the
     /// guide starts as the identity on the bank instead of a window average of it.
+    #[value(name = "residual")]
     CrossAttentionResidual,
     /// Ablation: the 13 images concatenated (39 channels) straight into the 3×3 embedding.
     Concat,
     /// Ablation: the median Wiener image alone.
+    #[value(name = "single")]
     SingleWiener,
+}
+
+impl std::fmt::Display for Guidance {
+    /// The command-line name.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        use clap::ValueEnum;
+        let v = self.to_possible_value().expect("no variant is skipped");
+        f.write_str(v.get_name())
+    }
+}
+
+/// The three sizes of the restorer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Preset {
+    Tiny,
+    Small,
+    Paper,
 }
 
 /// Sizes of the MAFG + STAF restorer. The U-shaped body follows Restormer: level `l` has
@@ -133,13 +152,36 @@ impl RestorerConfig {
         }
     }
 
-    pub fn by_name(name: &str) -> Option<Self> {
-        match name {
-            "paper" => Some(Self::paper()),
-            "small" => Some(Self::small()),
-            "tiny" => Some(Self::tiny()),
-            _ => None,
+    pub fn preset(p: Preset) -> Self {
+        match p {
+            Preset::Tiny => Self::tiny(),
+            Preset::Small => Self::small(),
+            Preset::Paper => Self::paper(),
         }
+    }
+
+    /// This config with ablation switches changed; each change is named in the config's
+    /// name, so weights trained under it say so.
+    pub fn with_ablations(
+        mut self,
+        guidance: Option<Guidance>,
+        fixed_k: bool,
+        residual_base: Option<usize>,
+    ) -> Result<Self, String> {
+        if let Some(g) = guidance.filter(|&g| g != self.guidance) {
+            self.guidance = g;
+            self.name = format!("{}-{g}", self.name);
+        }
+        if fixed_k {
+            self.adaptive_k = false;
+            self.name = format!("{}-fixed-k", self.name);
+        }
+        if let Some(m) = residual_base.filter(|&m| m != self.residual_base) {
+            self.residual_base = m;
+            self.name = format!("{}-base{m}", self.name);
+        }
+        self.validate()?;
+        Ok(self)
     }
 
     /// The same network, whatever its name: weights of one load into the other.

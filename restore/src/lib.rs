@@ -12,6 +12,7 @@ pub mod data;
 pub mod error;
 pub mod infer;
 pub mod net;
+pub mod provenance;
 pub mod shipped;
 pub mod tiles;
 pub mod train;
@@ -19,7 +20,7 @@ pub mod train_state;
 pub mod weights;
 
 pub use compute::Compute;
-pub use config::{Guidance, RestorerConfig};
+pub use config::{Guidance, Preset, RestorerConfig};
 pub use error::{RestoreError, Result};
 pub use infer::Restorer;
 pub use net::RestorerNet;

@@ -200,24 +200,41 @@ pub enum Start {
     Resume(RestorerNet, Box<TrainState>, OptimizerRecord),
 }
 
-/// Trains a network and writes it to `out` at every validation and at the end, with the
-/// training state beside it (`out.state`, see [`crate::train_state`]) so the run can be
-/// resumed. `pairs(round)` makes the training pairs of a refresh round
-/// ([`Schedule::round`]; seed them with [`round_seed`]): the round of the first step,
-/// then each later one. Returns the trained network, the last validation metrics and the step reached
-/// (below the schedule's steps when a `stop_after_*` ended the invocation early).
-#[allow(clippy::too_many_arguments)]
+/// What a training run works with.
+pub struct TrainRun<'a> {
+    pub config: &'a RestorerConfig,
+    /// The PSF grid the pairs were aberrated with (its fingerprint goes into the weights).
+    pub native: &'a PsfGrid,
+    /// `pairs(round)` makes the training pairs of a refresh round ([`Schedule::round`]; seed
+    /// them with [`round_seed`]): the round of the first step, then each later one.
+    pub pairs: &'a dyn Fn(usize) -> Result<TrainSet>,
+    pub val: &'a ValSet,
+    pub options: &'a TrainOptions,
+    /// The weights file, written at every validation and at the end, with the training
+    /// state beside it (`out.state`, see [`crate::train_state`]) so the run can be resumed.
+    pub out: &'a Path,
+    /// The weights file's provenance record at `(step, seconds, (val PSNR, val SSIM))`
+    /// (see [`crate::provenance`]).
+    pub provenance: &'a dyn Fn(usize, f64, (f64, f64)) -> serde_json::Value,
+}
+
+/// Trains a network as `run` says. Returns the trained network, the last validation metrics
+/// and the step reached (below the schedule's steps when a `stop_after_*` ended the
+/// invocation early).
 pub fn train(
-    cfg: &RestorerConfig,
+    run: &TrainRun<'_>,
     start: Start,
-    pairs: &dyn Fn(usize) -> Result<TrainSet>,
-    val: &ValSet,
-    native: &PsfGrid,
-    opts: &TrainOptions,
-    out: &Path,
-    provenance: &dyn Fn(usize, f64, (f64, f64)) -> serde_json::Value,
     on_event: &mut dyn FnMut(Event),
 ) -> Result<(RestorerNet, (f64, f64), usize)> {
+    let &TrainRun {
+        config: cfg,
+        native,
+        pairs,
+        val,
+        options: opts,
+        out,
+        provenance,
+    } = run;
     let inner = opts.compute.device()?;
     let device = inner.clone().autodiff();
     let mut sched = opts.schedule.clone();

@@ -5,7 +5,7 @@ use aberration::{Image, NoiseModel, PsfGrid};
 use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};
 use restore::data::TrainSet;
-use restore::train::{Schedule, Start, TrainOptions, ValSet, round_seed, train};
+use restore::train::{Schedule, Start, TrainOptions, TrainRun, ValSet, round_seed, train};
 use restore::train_state::{self, state_path};
 use restore::{RestoreError, RestorerConfig, RestorerNet, weights};
 use std::path::Path;
@@ -80,18 +80,16 @@ fn a_resumed_run_ends_where_the_uninterrupted_run_ends() {
     let provenance = |_: usize, _: f64, _: (f64, f64)| serde_json::Value::Null;
     let dir = tempfile::tempdir().unwrap();
     let run = |start: Start, opts: &TrainOptions, out: &Path| {
-        train(
-            &cfg,
-            start,
-            &make,
-            &val,
-            &psf,
-            opts,
+        let run = TrainRun {
+            config: &cfg,
+            native: &psf,
+            pairs: &make,
+            val: &val,
+            options: opts,
             out,
-            &provenance,
-            &mut |_| {},
-        )
-        .unwrap()
+            provenance: &provenance,
+        };
+        train(&run, start, &mut |_| {}).unwrap()
     };
 
     let whole = dir.path().join("whole.bin");

@@ -7,8 +7,9 @@ use aberration::{BlurMode, Image, ImagingModel, NoiseModel, PsfGrid, Regularizer
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use restore::data::{TrainSet, list_images, load_photo};
-use restore::train::{Event, Schedule, Start, TrainOptions, ValSet, round_seed, train};
-use restore::{Restorer, RestorerConfig, weights};
+use restore::provenance::Lineage;
+use restore::train::{Event, Schedule, Start, TrainOptions, TrainRun, ValSet, round_seed, train};
+use restore::{Guidance, Preset, Restorer, RestorerConfig, weights};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -30,9 +31,8 @@ pub struct TrainRestorerArgs {
     pub val: PathBuf,
     #[arg(long)]
     pub psf: PathBuf,
-    /// tiny, small or paper.
-    #[arg(long, default_value = "tiny")]
-    pub config: String,
+    #[arg(long, value_enum, default_value_t = Preset::Tiny)]
+    pub config: Preset,
     /// Weights file to write (updated at every validation).
     #[arg(long)]
     pub out: PathBuf,
@@ -64,11 +64,10 @@ pub struct TrainRestorerArgs {
     /// 0: never.
     #[arg(long, default_value_t = 200)]
     pub refresh_every: usize,
-    /// `residual` (MAFG cross-attention answers added to each filter's image; tiny, small),
-    /// `cross-attention` (no skip; paper); ablations: `concat` (the 13 images straight in),
-    /// `single` (median Wiener image only). Default: the config's.
-    #[arg(long)]
-    pub guidance: Option<String>,
+    /// How the Wiener bank enters the network; default: the config's (`residual` for tiny and
+    /// small, `cross-attention` for paper); `concat` and `single` are ablations.
+    #[arg(long, value_enum)]
+    pub guidance: Option<Guidance>,
     /// Ablation: fixed Wiener K (no channel intensity in K).
     #[arg(long)]
     pub fixed_k: bool,
@@ -184,31 +183,9 @@ fn load_folder(dir: &Path, min_side: usize) -> Result<Vec<(String, Image)>> {
 }
 
 fn config_from(a: &TrainRestorerArgs) -> Result<RestorerConfig> {
-    let mut cfg = RestorerConfig::by_name(&a.config)
-        .with_context(|| format!("unknown config '{}' (tiny, small, paper)", a.config))?;
-    if let Some(g) = &a.guidance {
-        let guidance = match g.as_str() {
-            "residual" => restore::Guidance::CrossAttentionResidual,
-            "cross-attention" => restore::Guidance::CrossAttention,
-            "concat" => restore::Guidance::Concat,
-            "single" => restore::Guidance::SingleWiener,
-            _ => bail!("unknown guidance '{g}' (residual, cross-attention, concat, single)"),
-        };
-        if guidance != cfg.guidance {
-            cfg.guidance = guidance;
-            cfg.name = format!("{}-{g}", cfg.name);
-        }
-    }
-    if a.fixed_k {
-        cfg.adaptive_k = false;
-        cfg.name = format!("{}-fixed-k", cfg.name);
-    }
-    if let Some(m) = a.residual_base.filter(|&m| m != cfg.residual_base) {
-        cfg.residual_base = m;
-        cfg.name = format!("{}-base{m}", cfg.name);
-    }
-    cfg.validate().map_err(anyhow::Error::msg)?;
-    Ok(cfg)
+    RestorerConfig::preset(a.config)
+        .with_ablations(a.guidance, a.fixed_k, a.residual_base)
+        .map_err(anyhow::Error::msg)
 }
 
 fn run_train(a: TrainRestorerArgs) -> Result<()> {
@@ -232,7 +209,7 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         ..Default::default()
     };
     // What the weights file's provenance carries over from the weights it started from.
-    let mut earlier = serde_json::Map::new();
+    let lineage;
     let start = if a.resume {
         let (net, header) = load(&a.out).context("cannot resume")?;
         let (state, record) = restore::train_state::load(&a.out).context("cannot resume")?;
@@ -256,28 +233,19 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
             s.lr,
             s.seed
         );
-        if let serde_json::Value::Object(mut p) = header.provenance {
-            let mut resumed = match p.remove("resumed") {
-                Some(serde_json::Value::Array(v)) => v,
-                _ => vec![],
-            };
-            resumed.push(serde_json::json!({"at_step": state.step}));
-            p.insert("resumed".into(), resumed.into());
-            for key in ["command", "init_from", "resumed"] {
-                if let Some(v) = p.remove(key) {
-                    earlier.insert(key.into(), v);
-                }
-            }
-        }
+        lineage = Lineage::resumed(header.provenance, state.step);
         Start::Resume(net, Box::new(state), record)
     } else {
         match &a.init {
             Some(p) => {
                 let (net, header) = load(p)?;
-                earlier.insert("init_from".into(), header.provenance);
+                lineage = Lineage::init_from(header.provenance);
                 Start::Init(net)
             }
-            None => Start::Fresh,
+            None => {
+                lineage = Lineage::fresh();
+                Start::Fresh
+            }
         }
     };
     let photos: Vec<Image> = load_folder(&a.images, cfg.crop)?
@@ -327,10 +295,10 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         cfg.name,
         cfg.analytic_params()
     );
-    let command: Vec<String> = std::env::args().collect();
+    let command = std::env::args().collect::<Vec<_>>().join(" ");
     let provenance = |step: usize, seconds: f64, m: (f64, f64)| {
-        let mut p = serde_json::json!({
-            "command": command.join(" "),
+        let p = serde_json::json!({
+            "command": command,
             "steps": step,
             "batch": s.batch,
             "seed": s.seed,
@@ -341,19 +309,7 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
             "val_ssim": m.1,
             "val_crop": a.val_crop,
         });
-        for (k, v) in &earlier {
-            // A resumed run keeps the command that started it; this one is in `resumed`.
-            if k == "resumed" {
-                let mut v = v.clone();
-                if let Some(last) = v.as_array_mut().and_then(|r| r.last_mut()) {
-                    last["command"] = command.join(" ").into();
-                }
-                p[k] = v;
-            } else {
-                p[k] = v.clone();
-            }
-        }
-        p
+        lineage.apply(p, &command)
     };
     let pb = bar(s.steps as u64, "training");
     pb.set_position(first as u64);
@@ -361,46 +317,43 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
     let mut log = Vec::new();
     let mut ema: Option<f32> = None;
     let started = Instant::now();
-    let (_, last, reached) = train(
-        &cfg,
-        start,
-        &make_set,
-        &val,
-        &native,
-        &opts,
-        &a.out,
-        &provenance,
-        &mut |e| match e {
-            Event::Pairs {
-                round,
-                samples,
-                seconds,
-            } => say(
+    let run = TrainRun {
+        config: &cfg,
+        native: &native,
+        pairs: &make_set,
+        val: &val,
+        options: &opts,
+        out: &a.out,
+        provenance: &provenance,
+    };
+    let (_, last, reached) = train(&run, start, &mut |e| match e {
+        Event::Pairs {
+            round,
+            samples,
+            seconds,
+        } => say(
+            &pb,
+            format!("round {round}: {samples} training pairs ({seconds:.1} s)"),
+        ),
+        Event::Step { step, loss, lr } => {
+            let e = ema.map_or(loss, |m| 0.95 * m + 0.05 * loss);
+            ema = Some(e);
+            pb.set_position(step as u64);
+            pb.set_message(format!("L1 {e:.4} lr {lr:.1e}"));
+        }
+        Event::Val {
+            step,
+            psnr,
+            ssim,
+            seconds,
+        } => {
+            say(
                 &pb,
-                format!("round {round}: {samples} training pairs ({seconds:.1} s)"),
-            ),
-            Event::Step { step, loss, lr } => {
-                let e = ema.map_or(loss, |m| 0.95 * m + 0.05 * loss);
-                ema = Some(e);
-                pb.set_position(step as u64);
-                pb.set_message(format!("L1 {e:.4} lr {lr:.1e}"));
-            }
-            Event::Val {
-                step,
-                psnr,
-                ssim,
-                seconds,
-            } => {
-                say(
-                    &pb,
-                    format!(
-                        "step {step:>6}  {seconds:>7.0} s  val PSNR {psnr:.2} dB  SSIM {ssim:.4}"
-                    ),
-                );
-                log.push((step, seconds, psnr, ssim));
-            }
-        },
-    )?;
+                format!("step {step:>6}  {seconds:>7.0} s  val PSNR {psnr:.2} dB  SSIM {ssim:.4}"),
+            );
+            log.push((step, seconds, psnr, ssim));
+        }
+    })?;
     pb.finish_and_clear();
     let secs = started.elapsed().as_secs_f64();
     println!(
