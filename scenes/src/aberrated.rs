@@ -254,7 +254,8 @@ pub fn make_aberrated(
     let record_path = staging.join(RECORD_FILE);
     let text = serde_json::to_string_pretty(&record)
         .map_err(|e| SceneError::invalid(&record_path, e.to_string()))?;
-    std::fs::write(&record_path, text + "\n").map_err(|e| SceneError::io(&record_path, e))?;
+    base::write_bytes_atomically(&record_path, (text + "\n").as_bytes())
+        .map_err(|e| SceneError::io(&record_path, e))?;
 
     let dest = writer.finish()?;
     Ok(AberrateReport {

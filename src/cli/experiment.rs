@@ -135,8 +135,9 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
     if let Some(r) = rows.iter().find_map(|(_, s, _)| s.restorer.clone()) {
         println!("({r})");
     }
-    std::fs::write(a.out.join("table.md"), &table)
-        .with_context(|| format!("cannot write {}", a.out.join("table.md").display()))?;
+    let table_path = a.out.join("table.md");
+    base::write_bytes_atomically(&table_path, table.as_bytes())
+        .with_context(|| format!("cannot write {}", table_path.display()))?;
     let series: Vec<Series> = rows
         .iter()
         .map(|(mode, _, log)| Series {
