@@ -11,6 +11,8 @@ pub enum SplatError {
     InvalidModel(String),
     #[error("invalid input: {0}")]
     InvalidInput(String),
+    #[error("GPU: {0}")]
+    Gpu(String),
     #[error("{what}: expected length {expected}, got {got}")]
     SizeMismatch {
         what: &'static str,

@@ -9,6 +9,8 @@ pub mod camera;
 pub mod conventions;
 pub mod densify;
 pub mod error;
+#[cfg(feature = "gpu")]
+pub mod gpu;
 pub mod loss;
 pub mod model;
 pub mod optim;

@@ -98,7 +98,7 @@ fn quat_to_rotmat_backward(qn: [f32; 4], len: f32, v_r: Mat3) -> [f32; 4] {
 
 /// Frustum limits of `x/z` and `y/z` used by the Jacobian clamp: `(neg_x, pos_x, neg_y, pos_y)`.
 #[inline]
-fn clamp_limits(cam: &Camera) -> [f32; 4] {
+pub(crate) fn clamp_limits(cam: &Camera) -> [f32; 4] {
     let tan_fovx = 0.5 * cam.width as f32 / cam.fx;
     let tan_fovy = 0.5 * cam.height as f32 / cam.fy;
     [

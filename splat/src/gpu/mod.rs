@@ -1,0 +1,348 @@
+//! The wgpu rasterizer: the CPU renderer's stages as compute shaders (one WGSL file per stage
+//! in `wgsl/`), behind the same [`Rasterizer`] interface and tested against the CPU renderer
+//! and the float64 reference.
+//!
+//! Stages of a render: projection and culling with SH colour and per-Gaussian tile counts →
+//! exclusive scan → key emission → stable radix sort of (tile, depth) keys → per-tile ranges
+//! → front-to-back blending in 16×16 workgroups. The model is uploaded once per scene
+//! ([`Rasterizer::upload`]); a render reads back one count (to size the keys) and its images.
+//! The backward pass does not run on the GPU yet: training uses the CPU rasterizer.
+
+mod context;
+mod kernels;
+#[doc(hidden)]
+pub mod sort;
+mod util;
+
+use std::sync::Arc;
+
+use glam::Vec3;
+
+pub use context::GpuContext;
+
+use crate::camera::Camera;
+use crate::conventions::TILE_SIZE;
+use crate::error::SplatError;
+use crate::model::Gaussians;
+use crate::rasterizer::{PixelGradients, Rasterizer};
+use crate::reference::flatten;
+use crate::render::{Gradients, RenderOutput, RenderSettings};
+use kernels::Kernels;
+use sort::{KeyBuffers, radix_sort, scan};
+use util::{bind, blocks, dispatch, f32s, grid, read_back, storage, storage_init, u32s, uniform};
+
+/// Floats per projected Gaussian (`PROJ_STRIDE` in the shaders).
+const PROJ_STRIDE: u64 = 12;
+
+/// The rasterizer on one GPU. Cheap to clone: the device and pipelines are shared.
+#[derive(Clone)]
+pub struct GpuRasterizer {
+    ctx: Arc<GpuContext>,
+    kernels: Arc<Kernels>,
+}
+
+/// A model resident on the GPU: its parameters in one buffer, Gaussian by Gaussian.
+pub struct GpuScene {
+    params: wgpu::Buffer,
+    n: u32,
+    sh_degree: u32,
+    stride: u32,
+}
+
+impl GpuScene {
+    pub fn len(&self) -> usize {
+        self.n as usize
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct CameraUniform {
+    r0: [f32; 4],
+    r1: [f32; 4],
+    r2: [f32; 4],
+    t: [f32; 4],
+    intr: [f32; 4],
+    lim: [f32; 4],
+    pos: [f32; 4],
+    bg: [f32; 4],
+    dims: [u32; 4],
+    cfg: [u32; 4],
+}
+
+impl GpuRasterizer {
+    /// Opens the best adapter there is; an error that says why when there is none.
+    pub fn new() -> Result<Self, SplatError> {
+        Ok(Self::on(Arc::new(GpuContext::new()?)))
+    }
+
+    /// The rasterizer on an already opened device.
+    pub fn on(ctx: Arc<GpuContext>) -> Self {
+        let kernels = Arc::new(Kernels::new(&ctx.device));
+        Self { ctx, kernels }
+    }
+
+    pub fn context(&self) -> &GpuContext {
+        &self.ctx
+    }
+
+    fn forward(
+        &self,
+        scene: &GpuScene,
+        cam: &Camera,
+        settings: &RenderSettings,
+    ) -> Result<RenderOutput, SplatError> {
+        cam.validate()?;
+        if settings.sh_degree > scene.sh_degree {
+            return Err(SplatError::InvalidInput(format!(
+                "render sh_degree {} exceeds the model's stored degree {}",
+                settings.sh_degree, scene.sh_degree
+            )));
+        }
+        if !settings.background.is_finite() {
+            return Err(SplatError::InvalidInput("background is not finite".into()));
+        }
+        let (ctx, k) = (&*self.ctx, &*self.kernels);
+        let dev = &ctx.device;
+        let n = scene.n;
+        let (w, h) = (cam.width, cam.height);
+        let (tiles_x, tiles_y) = (w.div_ceil(TILE_SIZE), h.div_ceil(TILE_SIZE));
+        let np = w as u64 * h as u64;
+        ctx.check_size("the projected splats", 4 * PROJ_STRIDE * n as u64)?;
+        ctx.check_size("the rendered images", 4 * 5 * np)?;
+
+        let rows = cam.rotation.transpose();
+        let lim = crate::project::clamp_limits(cam);
+        let pos = cam.position();
+        let row = |v: Vec3, w: f32| [v.x, v.y, v.z, w];
+        let cu = CameraUniform {
+            r0: row(rows.x_axis, 0.0),
+            r1: row(rows.y_axis, 0.0),
+            r2: row(rows.z_axis, 0.0),
+            t: row(cam.translation, cam.near),
+            intr: [cam.fx, cam.fy, cam.cx, cam.cy],
+            lim,
+            pos: row(pos, cam.far),
+            bg: row(settings.background, 0.0),
+            dims: [w, h, tiles_x, tiles_y],
+            cfg: [
+                n,
+                settings.sh_degree,
+                scene.stride,
+                settings.antialiased as u32,
+            ],
+        };
+        let cam_u = uniform(dev, "camera", bytemuck::bytes_of(&cu));
+        let proj = storage(dev, "projected", 4 * PROJ_STRIDE * n as u64);
+        let counts = storage(dev, "tile counts", 4 * n as u64);
+        let offsets = storage(dev, "tile offsets", 4 * n as u64);
+        let radii = storage(dev, "radii", 8 * n as u64);
+
+        // Projection and the scan of tile counts; read back how many keys there are.
+        let mut enc = dev.create_command_encoder(&Default::default());
+        let total = if n > 0 {
+            let g = bind(
+                dev,
+                &k.project,
+                &[&cam_u, &scene.params, &proj, &counts, &radii],
+            );
+            dispatch(&mut enc, &k.project, &g, grid(blocks(n)));
+            scan(dev, k, &mut enc, &counts, &offsets, n);
+            let last = 4 * (n as u64 - 1);
+            let b = read_back(
+                dev,
+                &ctx.queue,
+                enc,
+                &[(&offsets, last, 4), (&counts, last, 4)],
+            )?;
+            let (o, c) = (u32s(&b[0])[0] as u64, u32s(&b[1])[0] as u64);
+            enc = dev.create_command_encoder(&Default::default());
+            o + c
+        } else {
+            0
+        };
+        ctx.check_size("the tile keys", 4 * total)?;
+        let total = u32::try_from(total).map_err(|_| {
+            SplatError::Gpu(format!("{total} tile keys are more than a u32 counts"))
+        })?;
+
+        // Keys, sort, ranges, blending.
+        let a = KeyBuffers::new(dev, total);
+        let b = KeyBuffers::new(dev, total);
+        if total > 0 {
+            let g = bind(
+                dev,
+                &k.keys,
+                &[&cam_u, &proj, &offsets, &a.hi, &a.lo, &a.val, &counts],
+            );
+            dispatch(&mut enc, &k.keys, &g, grid(blocks(n)));
+        }
+        let num_tiles = tiles_x * tiles_y;
+        let hi_bits = 32 - (num_tiles.max(2) - 1).leading_zeros();
+        let sorted = if radix_sort(dev, k, &mut enc, &a, &b, total, hi_bits) {
+            &b
+        } else {
+            &a
+        };
+        let ranges = storage(dev, "tile ranges", 8 * num_tiles as u64);
+        enc.clear_buffer(&ranges, 0, None);
+        if total > 0 {
+            let len = uniform(dev, "keys len", bytemuck::bytes_of(&total));
+            let g = bind(dev, &k.ranges, &[&len, &sorted.hi, &ranges]);
+            dispatch(&mut enc, &k.ranges, &g, grid(blocks(total)));
+        }
+        let out = storage(dev, "images", 4 * 5 * np);
+        let state = storage(dev, "pixel state", 4 * 2 * np);
+        let stats = storage(dev, "stats", 4);
+        enc.clear_buffer(&stats, 0, None);
+        let g = bind(
+            dev,
+            &k.raster,
+            &[&cam_u, &proj, &sorted.val, &ranges, &out, &state, &stats],
+        );
+        dispatch(&mut enc, &k.raster, &g, (tiles_x, tiles_y));
+        let bytes = read_back(
+            dev,
+            &ctx.queue,
+            enc,
+            &[
+                (&out, 0, 4 * 5 * np),
+                (&radii, 0, 8 * n as u64),
+                (&stats, 0, 4),
+            ],
+        )?;
+        let img = f32s(&bytes[0]);
+        let np = np as usize;
+        let color = img[..3 * np]
+            .chunks_exact(3)
+            .map(|c| Vec3::new(c[0], c[1], c[2]))
+            .collect();
+        let radii: Vec<[i32; 2]> = f32s(&bytes[1])
+            .chunks_exact(2)
+            .map(|r| [r[0] as i32, r[1] as i32])
+            .collect();
+        Ok(RenderOutput {
+            width: w,
+            height: h,
+            color,
+            alpha: img[3 * np..4 * np].to_vec(),
+            depth: img[4 * np..5 * np].to_vec(),
+            visible: radii.iter().map(|r| r[0] > 0 || r[1] > 0).collect(),
+            radii,
+            num_intersections: total as usize,
+            num_blended: u32s(&bytes[2])[0] as u64,
+        })
+    }
+}
+
+#[doc(hidden)]
+impl GpuRasterizer {
+    /// The GPU exclusive scan on its own, for tests against a CPU scan.
+    pub fn exclusive_scan(&self, values: &[u32]) -> Result<Vec<u32>, SplatError> {
+        let dev = &self.ctx.device;
+        let n = values.len() as u32;
+        let input = storage_init(dev, "scan in", bytemuck::cast_slice(values));
+        let output = storage(dev, "scan out", 4 * n as u64);
+        let mut enc = dev.create_command_encoder(&Default::default());
+        scan(dev, &self.kernels, &mut enc, &input, &output, n);
+        let b = read_back(dev, &self.ctx.queue, enc, &[(&output, 0, 4 * n as u64)])?;
+        Ok(u32s(&b[0]))
+    }
+
+    /// The GPU radix sort on its own: `(hi, lo, value)` triples sorted stably by `(hi, lo)`.
+    pub fn sort_pairs(
+        &self,
+        hi: &[u32],
+        lo: &[u32],
+        values: &[u32],
+        hi_bits: u32,
+    ) -> Result<Vec<(u32, u32, u32)>, SplatError> {
+        let dev = &self.ctx.device;
+        let n = hi.len() as u32;
+        let a = KeyBuffers {
+            hi: storage_init(dev, "hi", bytemuck::cast_slice(hi)),
+            lo: storage_init(dev, "lo", bytemuck::cast_slice(lo)),
+            val: storage_init(dev, "val", bytemuck::cast_slice(values)),
+        };
+        let b = KeyBuffers::new(dev, n);
+        let mut enc = dev.create_command_encoder(&Default::default());
+        let s = if radix_sort(dev, &self.kernels, &mut enc, &a, &b, n, hi_bits) {
+            &b
+        } else {
+            &a
+        };
+        let bytes = 4 * n as u64;
+        let r = read_back(
+            dev,
+            &self.ctx.queue,
+            enc,
+            &[(&s.hi, 0, bytes), (&s.lo, 0, bytes), (&s.val, 0, bytes)],
+        )?;
+        let (h, l, v) = (u32s(&r[0]), u32s(&r[1]), u32s(&r[2]));
+        Ok((0..n as usize).map(|i| (h[i], l[i], v[i])).collect())
+    }
+}
+
+/// What a GPU forward pass would keep for its backward pass (not implemented yet).
+pub struct GpuSaved(());
+
+impl Rasterizer for GpuRasterizer {
+    type Scene<'a> = GpuScene;
+    type Saved = GpuSaved;
+
+    fn name(&self) -> &str {
+        "gpu"
+    }
+
+    fn upload<'a>(&'a self, g: &'a Gaussians) -> Result<GpuScene, SplatError> {
+        g.validate()?;
+        let n = u32::try_from(g.len()).map_err(|_| {
+            SplatError::Gpu(format!("{} splats are too many for one scene", g.len()))
+        })?;
+        let stride = 14 + 3 * g.rest_count() as u32;
+        self.ctx
+            .check_size("the splat parameters", 4 * stride as u64 * n as u64)?;
+        let params: Vec<f32> = flatten(g).into_iter().map(|v| v as f32).collect();
+        Ok(GpuScene {
+            params: storage_init(&self.ctx.device, "splats", bytemuck::cast_slice(&params)),
+            n,
+            sh_degree: g.sh_degree,
+            stride,
+        })
+    }
+
+    fn render(
+        &self,
+        scene: &GpuScene,
+        cam: &Camera,
+        settings: &RenderSettings,
+    ) -> Result<RenderOutput, SplatError> {
+        self.forward(scene, cam, settings)
+    }
+
+    fn render_for_backward(
+        &self,
+        _scene: &GpuScene,
+        _cam: &Camera,
+        _settings: &RenderSettings,
+    ) -> Result<(RenderOutput, GpuSaved), SplatError> {
+        Err(SplatError::Gpu(
+            "the backward pass does not run on the GPU yet; train with the CPU rasterizer".into(),
+        ))
+    }
+
+    fn backward(
+        &self,
+        _scene: &GpuScene,
+        _saved: &GpuSaved,
+        _pixel: PixelGradients<'_>,
+    ) -> Result<Gradients, SplatError> {
+        Err(SplatError::Gpu(
+            "the backward pass does not run on the GPU yet; train with the CPU rasterizer".into(),
+        ))
+    }
+}

@@ -1,0 +1,143 @@
+//! Small helpers over wgpu: buffers, bind groups, dispatch sizes, read-back.
+
+use wgpu::util::DeviceExt;
+
+use crate::error::SplatError;
+
+/// Workgroups of 256 invocations needed for `n` items.
+pub fn blocks(n: u32) -> u32 {
+    n.div_ceil(256)
+}
+
+/// A dispatch of `groups` workgroups laid out in two dimensions (at most 65535 per dimension);
+/// the shaders recover the linear index with `linear_group`.
+pub fn grid(groups: u32) -> (u32, u32) {
+    let x = groups.clamp(1, 65535);
+    (x, groups.div_ceil(x).max(1))
+}
+
+pub fn storage(device: &wgpu::Device, label: &str, bytes: u64) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        // Bindings must not be empty.
+        size: bytes.max(4),
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_SRC
+            | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
+pub fn storage_init(device: &wgpu::Device, label: &str, data: &[u8]) -> wgpu::Buffer {
+    let padded;
+    let contents = if data.is_empty() {
+        padded = [0u8; 4];
+        &padded[..]
+    } else {
+        data
+    };
+    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some(label),
+        contents,
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_SRC
+            | wgpu::BufferUsages::COPY_DST,
+    })
+}
+
+pub fn uniform(device: &wgpu::Device, label: &str, data: &[u8]) -> wgpu::Buffer {
+    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some(label),
+        contents: data,
+        usage: wgpu::BufferUsages::UNIFORM,
+    })
+}
+
+pub fn bind(
+    device: &wgpu::Device,
+    pipeline: &wgpu::ComputePipeline,
+    buffers: &[&wgpu::Buffer],
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry> = buffers
+        .iter()
+        .enumerate()
+        .map(|(i, b)| wgpu::BindGroupEntry {
+            binding: i as u32,
+            resource: b.as_entire_binding(),
+        })
+        .collect();
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &entries,
+    })
+}
+
+/// Records one dispatch of `groups` workgroups (laid out by [`grid`]).
+pub fn dispatch(
+    encoder: &mut wgpu::CommandEncoder,
+    pipeline: &wgpu::ComputePipeline,
+    group: &wgpu::BindGroup,
+    (x, y): (u32, u32),
+) {
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, group, &[]);
+    pass.dispatch_workgroups(x, y, 1);
+}
+
+/// Copies `bytes` from `offset` of each source into one mappable buffer, submits, waits and
+/// returns them.
+pub fn read_back(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    mut encoder: wgpu::CommandEncoder,
+    sources: &[(&wgpu::Buffer, u64, u64)],
+) -> Result<Vec<Vec<u8>>, SplatError> {
+    let total: u64 = sources.iter().map(|(_, _, n)| n.next_multiple_of(4)).sum();
+    let staging = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("read back"),
+        size: total.max(4),
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut at = 0;
+    for (b, offset, n) in sources {
+        if *n > 0 {
+            encoder.copy_buffer_to_buffer(b, *offset, &staging, at, *n);
+        }
+        at += n.next_multiple_of(4);
+    }
+    queue.submit([encoder.finish()]);
+    let slice = staging.slice(..);
+    let (tx, rx) = std::sync::mpsc::channel();
+    slice.map_async(wgpu::MapMode::Read, move |r| {
+        let _ = tx.send(r);
+    });
+    device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map_err(|e| SplatError::Gpu(format!("waiting for the GPU: {e}")))?;
+    rx.recv()
+        .map_err(|e| SplatError::Gpu(format!("read-back lost: {e}")))?
+        .map_err(|e| SplatError::Gpu(format!("cannot read GPU memory back: {e}")))?;
+    let view = slice
+        .get_mapped_range()
+        .map_err(|e| SplatError::Gpu(format!("cannot read GPU memory back: {e}")))?;
+    let mut out = Vec::with_capacity(sources.len());
+    let mut at = 0usize;
+    for (_, _, n) in sources {
+        out.push(view[at..at + *n as usize].to_vec());
+        at += n.next_multiple_of(4) as usize;
+    }
+    drop(view);
+    staging.unmap();
+    Ok(out)
+}
+
+pub fn u32s(bytes: &[u8]) -> Vec<u32> {
+    bytemuck::pod_collect_to_vec(bytes)
+}
+
+pub fn f32s(bytes: &[u8]) -> Vec<f32> {
+    bytemuck::pod_collect_to_vec(bytes)
+}

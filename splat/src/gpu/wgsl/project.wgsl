@@ -1,0 +1,186 @@
+// Projection and culling, one invocation per Gaussian: the EWA footprint, opacity-aware
+// radius, SH colour and the number of 16×16 tiles the footprint touches. Mirrors `project.rs`.
+
+@group(0) @binding(0) var<uniform> cam: Camera;
+@group(0) @binding(1) var<storage, read> params: array<f32>;
+@group(0) @binding(2) var<storage, read_write> proj: array<f32>;
+@group(0) @binding(3) var<storage, read_write> counts: array<u32>;
+@group(0) @binding(4) var<storage, read_write> radii: array<f32>;
+
+fn cull(i: u32) {
+    counts[i] = 0u;
+    radii[2u * i] = 0.0;
+    radii[2u * i + 1u] = 0.0;
+}
+
+fn sh_color(i: u32, base: u32, dir: vec3<f32>) -> vec3<f32> {
+    let deg = cam.cfg.y;
+    let dc = vec3<f32>(params[base + 11u], params[base + 12u], params[base + 13u]);
+    var b: array<f32, 16>;
+    b[0] = SH_C0;
+    let x = dir.x;
+    let y = dir.y;
+    let z = dir.z;
+    if (deg >= 1u) {
+        b[1] = -SH_C1 * y;
+        b[2] = SH_C1 * z;
+        b[3] = -SH_C1 * x;
+    }
+    if (deg >= 2u) {
+        let xx = x * x;
+        let yy = y * y;
+        let zz = z * z;
+        b[4] = SH_C2_XY * x * y;
+        b[5] = -SH_C2_XY * y * z;
+        b[6] = SH_C2_ZZ * zz - SH_C2_ZZ0;
+        b[7] = -SH_C2_XY * x * z;
+        b[8] = SH_C2_XX * (xx - yy);
+        if (deg >= 3u) {
+            let a = SH_C3_C * zz + SH_C3_C0;
+            b[9] = SH_C3_A * (3.0 * xx * y - yy * y);
+            b[10] = SH_C3_B * z * 2.0 * x * y;
+            b[11] = a * y;
+            b[12] = z * (SH_C3_D * zz - SH_C3_D0);
+            b[13] = a * x;
+            b[14] = SH_C3_B * z * (xx - yy);
+            b[15] = SH_C3_A * (xx * x - 3.0 * x * yy);
+        }
+    }
+    var c = dc * b[0];
+    let nb = (deg + 1u) * (deg + 1u);
+    for (var k = 1u; k < nb; k = k + 1u) {
+        let o = base + 14u + 3u * (k - 1u);
+        c = c + vec3<f32>(params[o], params[o + 1u], params[o + 2u]) * b[k];
+    }
+    return c + vec3<f32>(SH_COLOR_OFFSET);
+}
+
+@compute @workgroup_size(256)
+fn main(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) li: u32,
+) {
+    let i = linear_group(wid, nwg) * 256u + li;
+    if (i >= cam.cfg.x) {
+        return;
+    }
+    let base = i * cam.cfg.z;
+    let mean = vec3<f32>(params[base], params[base + 1u], params[base + 2u]);
+    let p_cam = vec3<f32>(dot(cam.r0.xyz, mean), dot(cam.r1.xyz, mean), dot(cam.r2.xyz, mean))
+        + cam.t.xyz;
+    let z = p_cam.z;
+    if (!(finite3(p_cam) && z >= cam.t.w && z <= cam.pos.w)) {
+        cull(i);
+        return;
+    }
+    // Rotation of the quaternion (w, x, y, z), scaled by its largest component first.
+    let q = vec4<f32>(params[base + 6u], params[base + 7u], params[base + 8u], params[base + 9u]);
+    let m = max(max(abs(q.x), abs(q.y)), max(abs(q.z), abs(q.w)));
+    var rot = mat3x3<f32>(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0);
+    if (finite(m) && m > 0.0) {
+        let s = q / m;
+        let qn = s / sqrt(dot(s, s));
+        let w = qn.x;
+        let x = qn.y;
+        let y = qn.z;
+        let zq = qn.w;
+        rot = mat3x3<f32>(
+            1.0 - 2.0 * (y * y + zq * zq), 2.0 * (x * y + w * zq), 2.0 * (x * zq - w * y),
+            2.0 * (x * y - w * zq), 1.0 - 2.0 * (x * x + zq * zq), 2.0 * (y * zq + w * x),
+            2.0 * (x * zq + w * y), 2.0 * (y * zq - w * x), 1.0 - 2.0 * (x * x + y * y),
+        );
+    }
+    let scale = exp(vec3<f32>(params[base + 3u], params[base + 4u], params[base + 5u]));
+    let mm = mat3x3<f32>(rot[0] * scale.x, rot[1] * scale.y, rot[2] * scale.z);
+    let cov_world = mm * transpose(mm);
+    let wr = transpose(mat3x3<f32>(cam.r0.xyz, cam.r1.xyz, cam.r2.xyz));
+    let cov_cam = wr * cov_world * transpose(wr);
+    let rx = p_cam.x / z;
+    let ry = p_cam.y / z;
+    let tx = z * clamp(rx, -cam.lim.x, cam.lim.y);
+    let ty = z * clamp(ry, -cam.lim.z, cam.lim.w);
+    let rz = 1.0 / z;
+    let rz2 = rz * rz;
+    let j0 = vec3<f32>(cam.intr.x * rz, 0.0, -cam.intr.x * tx * rz2);
+    let j1 = vec3<f32>(0.0, cam.intr.y * rz, -cam.intr.y * ty * rz2);
+    let s0 = cov_cam * j0;
+    let s1 = cov_cam * j1;
+    let ca = dot(j0, s0);
+    let cb = dot(j0, s1);
+    let cc = dot(j1, s1);
+    if (!(finite(ca) && finite(cb) && finite(cc))) {
+        cull(i);
+        return;
+    }
+    let ab = ca + COV2D_BLUR;
+    let cbb = cc + COV2D_BLUR;
+    let det_b = ab * cbb - cb * cb;
+    if (!(finite(det_b) && det_b > 0.0)) {
+        cull(i);
+        return;
+    }
+    var opacity = 1.0 / (1.0 + exp(-params[base + 10u]));
+    if (cam.cfg.w != 0u) {
+        let det = ca * cc - cb * cb;
+        opacity = opacity * sqrt(max(det / det_b, 0.0));
+    }
+    if (!(opacity == opacity) || opacity < ALPHA_THRESHOLD) {
+        cull(i);
+        return;
+    }
+    let extent = min(MAX_EXTENT_SIGMAS, sqrt(2.0 * log(opacity / ALPHA_THRESHOLD)));
+    let rad_x = ceil(extent * sqrt(ab));
+    let rad_y = ceil(extent * sqrt(cbb));
+    let mx = cam.intr.x * p_cam.x / z + cam.intr.z;
+    let my = cam.intr.y * p_cam.y / z + cam.intr.w;
+    let w = f32(cam.dims.x);
+    let h = f32(cam.dims.y);
+    if (!(mx + rad_x > 0.0 && mx - rad_x < w && my + rad_y > 0.0 && my - rad_y < h)) {
+        cull(i);
+        return;
+    }
+    let inv = 1.0 / det_b;
+    let conic = vec3<f32>(cbb * inv, -cb * inv, ab * inv);
+    if (!finite3(conic)) {
+        cull(i);
+        return;
+    }
+    var color: vec3<f32>;
+    if (cam.cfg.y == 0u) {
+        color = vec3<f32>(params[base + 11u], params[base + 12u], params[base + 13u]) * SH_C0
+            + vec3<f32>(SH_COLOR_OFFSET);
+    } else {
+        let v = mean - cam.pos.xyz;
+        let rcp = 1.0 / length(v);
+        var dir = vec3<f32>(0.0);
+        if (finite(rcp) && rcp > 0.0) {
+            dir = v * rcp;
+        }
+        color = sh_color(i, base, dir);
+    }
+    color = max(color, vec3<f32>(0.0));
+    if (!finite3(color)) {
+        cull(i);
+        return;
+    }
+    let big = 1073741824.0;
+    let r = vec2<f32>(min(rad_x, big), min(rad_y, big));
+    let o = i * PROJ_STRIDE;
+    proj[o] = mx;
+    proj[o + 1u] = my;
+    proj[o + 2u] = conic.x;
+    proj[o + 3u] = conic.y;
+    proj[o + 4u] = conic.z;
+    proj[o + 5u] = z;
+    proj[o + 6u] = opacity;
+    proj[o + 7u] = color.x;
+    proj[o + 8u] = color.y;
+    proj[o + 9u] = color.z;
+    proj[o + 10u] = r.x;
+    proj[o + 11u] = r.y;
+    radii[2u * i] = r.x;
+    radii[2u * i + 1u] = r.y;
+    let rect = tile_rect(vec2<f32>(mx, my), r, cam.dims.z, cam.dims.w);
+    counts[i] = (rect.y - rect.x) * (rect.w - rect.z);
+}

@@ -1,0 +1,159 @@
+//! The wgpu rasterizer against the CPU renderer (and so against the f64 reference), and its
+//! sort and scan against CPU ones. Without an adapter these tests print why and pass, unless
+//! `METASPLAT_REQUIRE_GPU=1` (set by CI after installing lavapipe) makes that a failure.
+
+mod common;
+
+use common::{random_scene, test_camera};
+use glam::Vec3;
+use splat::gpu::GpuRasterizer;
+use splat::{Camera, CpuRasterizer, Gaussians, Rasterizer, RenderSettings};
+
+fn gpu() -> Option<GpuRasterizer> {
+    match GpuRasterizer::new() {
+        Ok(g) => {
+            eprintln!("GPU tests on {}", g.context().describe());
+            Some(g)
+        }
+        Err(e) if std::env::var("METASPLAT_REQUIRE_GPU").is_ok_and(|v| v == "1") => {
+            panic!("METASPLAT_REQUIRE_GPU=1 but there is no GPU: {e}")
+        }
+        Err(e) => {
+            eprintln!("SKIP: GPU tests need a wgpu adapter (e.g. lavapipe): {e}");
+            None
+        }
+    }
+}
+
+/// Largest absolute difference of colour, alpha and depth (depth relative to max(1, depth)).
+fn compare(gpu: &GpuRasterizer, g: &Gaussians, cam: &Camera, s: &RenderSettings) -> f32 {
+    let cpu = CpuRasterizer;
+    let want = cpu.render(&cpu.upload(g).unwrap(), cam, s).unwrap();
+    let got = gpu.render(&gpu.upload(g).unwrap(), cam, s).unwrap();
+    let mut err = 0.0f32;
+    for i in 0..want.color.len() {
+        err = err.max((want.color[i] - got.color[i]).abs().max_element());
+        err = err.max((want.alpha[i] - got.alpha[i]).abs());
+        err = err.max((want.depth[i] - got.depth[i]).abs() / want.depth[i].max(1.0));
+    }
+    assert_eq!(want.visible, got.visible, "culling differs");
+    for (a, b) in want.radii.iter().zip(&got.radii) {
+        assert!(
+            (a[0] - b[0]).abs() <= 1 && (a[1] - b[1]).abs() <= 1,
+            "radius {a:?} vs {b:?}"
+        );
+    }
+    // Work of the same size: the GPU blends what the CPU blends (up to threshold ties).
+    let (a, b) = (want.num_blended as f64, got.num_blended as f64);
+    assert!((a - b).abs() <= 1e-3 * a.max(1.0), "blended {a} vs {b}");
+    eprintln!("{} splats: max error {err:e}, {a} pairs blended", g.len());
+    err
+}
+
+#[test]
+fn forward_matches_the_cpu_renderer() {
+    let Some(gpu) = gpu() else { return };
+    let cam = test_camera(53, 37, 45.0);
+    for (seed, n, deg, aa, scales) in [
+        (1, 40, 0, false, (0.05, 0.3)),
+        (2, 40, 1, true, (0.05, 0.3)),
+        (3, 40, 2, false, (0.05, 0.3)),
+        (4, 60, 3, true, (0.05, 0.3)),
+        // Many small Gaussians.
+        (5, 2000, 3, false, (0.005, 0.03)),
+        // Large, overlapping: opaque layers and the transmittance stop.
+        (6, 300, 1, false, (0.2, 0.8)),
+    ] {
+        let g = random_scene(seed, n, 3, scales, 1.2);
+        let s = RenderSettings {
+            sh_degree: deg,
+            background: Vec3::new(0.2, 0.5, 0.9),
+            antialiased: aa,
+        };
+        let err = compare(&gpu, &g, &cam, &s);
+        assert!(err <= 1e-4, "seed {seed}: max error {err}");
+        let alpha = CpuRasterizer.render(&&g, &cam, &s).unwrap().alpha;
+        assert!(
+            alpha.iter().any(|a| *a > 0.5),
+            "seed {seed}: the scene is not in view"
+        );
+    }
+}
+
+#[test]
+fn needles_and_hard_cases_stay_finite_and_match() {
+    let Some(gpu) = gpu() else { return };
+    let cam = test_camera(40, 30, 35.0);
+    let mut g = random_scene(9, 200, 0, (0.01, 0.4), 1.0);
+    // Needles: one axis thousands of times longer than another.
+    for i in 0..g.len() {
+        g.log_scales[i].x = -9.0;
+        g.log_scales[i].y += 1.0;
+    }
+    // Non-finite parameters are culled, as on the CPU.
+    g.means[3].x = f32::NAN;
+    g.log_scales[4].z = f32::INFINITY;
+    g.logit_opacities[5] = f32::NAN;
+    g.rotations[6] = [0.0; 4];
+    let s = RenderSettings::default();
+    let err = compare(&gpu, &g, &cam, &s);
+    assert!(err <= 1e-4, "max error {err}");
+    let out = gpu.render(&gpu.upload(&g).unwrap(), &cam, &s).unwrap();
+    assert!(out.color.iter().all(|c| c.is_finite()));
+    assert!(out.depth.iter().chain(&out.alpha).all(|v| v.is_finite()));
+    // An empty scene is the background.
+    let empty = Gaussians::new(0);
+    let bg = RenderSettings {
+        background: Vec3::new(0.1, 0.2, 0.3),
+        ..s
+    };
+    let out = gpu.render(&gpu.upload(&empty).unwrap(), &cam, &bg).unwrap();
+    assert!(out.color.iter().all(|c| *c == bg.background));
+}
+
+#[test]
+fn a_larger_image_with_many_tiles_matches() {
+    let Some(gpu) = gpu() else { return };
+    let cam = test_camera(260, 190, 220.0);
+    let g = random_scene(11, 5000, 1, (0.01, 0.08), 1.3);
+    let s = RenderSettings {
+        sh_degree: 1,
+        ..Default::default()
+    };
+    let err = compare(&gpu, &g, &cam, &s);
+    assert!(err <= 1e-4, "max error {err}");
+}
+
+#[test]
+fn radix_sort_is_stable_and_matches_a_cpu_sort() {
+    let Some(gpu) = gpu() else { return };
+    let mut rng = base::SplitMix64::new(5);
+    for n in [1usize, 255, 256, 257, 5000, 70_000] {
+        // Few distinct keys, so many duplicates; values record the input order.
+        let hi: Vec<u32> = (0..n).map(|_| (rng.next_u64() % 37) as u32).collect();
+        let lo: Vec<u32> = (0..n)
+            .map(|_| (rng.next_u64() % 5) as u32 * 0x1234_5677)
+            .collect();
+        let vals: Vec<u32> = (0..n as u32).collect();
+        let got = gpu.sort_pairs(&hi, &lo, &vals, 6).unwrap();
+        let mut want: Vec<(u32, u32, u32)> = (0..n).map(|i| (hi[i], lo[i], vals[i])).collect();
+        want.sort_by_key(|&(h, l, _)| (h, l)); // stable
+        assert_eq!(got, want, "n = {n}");
+    }
+}
+
+#[test]
+fn exclusive_scan_matches_a_cpu_scan() {
+    let Some(gpu) = gpu() else { return };
+    let mut rng = base::SplitMix64::new(8);
+    for n in [1usize, 256, 257, 65_536, 70_001] {
+        let v: Vec<u32> = (0..n).map(|_| (rng.next_u64() % 9) as u32).collect();
+        let mut want = Vec::with_capacity(n);
+        let mut acc = 0u32;
+        for x in &v {
+            want.push(acc);
+            acc += x;
+        }
+        assert_eq!(gpu.exclusive_scan(&v).unwrap(), want, "n = {n}");
+    }
+}
