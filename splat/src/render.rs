@@ -280,11 +280,6 @@ pub fn render_backward(
         cursor[id as usize] += 1;
     }
 
-    let cam_pos = cam.position();
-    let rc = g.rest_count();
-    let mut grads = Gaussians::zeros(n, g.sh_degree);
-    let mut means2d = vec![[0.0f32; 2]; n];
-    let mut means2d_abs = vec![[0.0f32; 2]; n];
     // Two passes: first the (cache-missing) gather of per-tile partials into one compact
     // record per Gaussian, then the compute-heavy projection backward over contiguous data.
     let screen: Vec<(ScreenGrad, glam::Vec2)> = (0..n)
@@ -307,9 +302,30 @@ pub fn render_backward(
         })
         .collect();
     drop(isect);
+    Ok(gradients_from_screen(g, cam, settings, &screen, |i| {
+        starts[i] != starts[i + 1]
+    }))
+}
+
+/// Parameter gradients from the per-Gaussian screen-space gradients (with the sums of
+/// `|∂L/∂mean2d|`) of a backward pass over the pixels; `touched(i)`: Gaussian `i` was in some
+/// tile's list. Shared by the CPU and GPU rasterizers: one projection backward for both.
+pub(crate) fn gradients_from_screen(
+    g: &Gaussians,
+    cam: &Camera,
+    settings: &RenderSettings,
+    screen: &[(ScreenGrad, glam::Vec2)],
+    touched: impl Fn(usize) -> bool + Sync,
+) -> Gradients {
+    let n = g.len();
+    let cam_pos = cam.position();
+    let rc = g.rest_count();
+    let mut grads = Gaussians::zeros(n, g.sh_degree);
+    let mut means2d = vec![[0.0f32; 2]; n];
+    let mut means2d_abs = vec![[0.0f32; 2]; n];
     let per_gaussian = |i: usize, v_rest: &mut [Vec3]| {
         let (sg, abs) = &screen[i];
-        let pg = if starts[i] == starts[i + 1] {
+        let pg = if !touched(i) {
             project::ParamGrad::default()
         } else {
             project::project_backward_one(
@@ -347,9 +363,9 @@ pub fn render_backward(
         means2d[i] = m2;
         means2d_abs[i] = m2a;
     }
-    Ok(Gradients {
+    Gradients {
         params: grads,
         means2d,
         means2d_abs,
-    })
+    }
 }

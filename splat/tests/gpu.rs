@@ -7,7 +7,7 @@ mod common;
 use common::{random_scene, test_camera};
 use glam::Vec3;
 use splat::gpu::GpuRasterizer;
-use splat::{Camera, CpuRasterizer, Gaussians, Rasterizer, RenderSettings};
+use splat::{Camera, CpuRasterizer, Gaussians, PixelGradients, Rasterizer, RenderSettings};
 
 fn gpu() -> Option<GpuRasterizer> {
     match GpuRasterizer::new() {
@@ -155,5 +155,79 @@ fn exclusive_scan_matches_a_cpu_scan() {
             acc += x;
         }
         assert_eq!(gpu.exclusive_scan(&v).unwrap(), want, "n = {n}");
+    }
+}
+
+/// `|a − b| / |b|` over one parameter group (0 when both are 0).
+fn rel(a: &[f32], b: &[f32]) -> f64 {
+    let d: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum();
+    let n: f64 = b.iter().map(|y| (*y as f64).powi(2)).sum();
+    if n == 0.0 { d.sqrt() } else { (d / n).sqrt() }
+}
+
+fn flat3(v: &[Vec3]) -> Vec<f32> {
+    v.iter().flat_map(|c| c.to_array()).collect()
+}
+
+#[test]
+fn backward_matches_the_cpu_backward() {
+    let Some(gpu) = gpu() else { return };
+    let cam = test_camera(61, 43, 50.0);
+    let mut rng = base::SplitMix64::new(3);
+    for (seed, n, deg, aa) in [(21, 80, 0, false), (22, 80, 3, true), (23, 1500, 2, false)] {
+        let g = random_scene(seed, n, 3, (0.02, 0.3), 1.2);
+        let s = RenderSettings {
+            sh_degree: deg,
+            background: Vec3::new(0.3, 0.1, 0.6),
+            antialiased: aa,
+        };
+        let np = cam.num_pixels();
+        let mut r = || rng.normal() as f32;
+        let v_color: Vec<Vec3> = (0..np).map(|_| Vec3::new(r(), r(), r())).collect();
+        let v_alpha: Vec<f32> = (0..np).map(|_| r()).collect();
+        let v_depth: Vec<f32> = (0..np).map(|_| r()).collect();
+        let pixel = PixelGradients {
+            color: &v_color,
+            alpha: Some(&v_alpha),
+            depth: Some(&v_depth),
+        };
+        let cpu = CpuRasterizer;
+        let cs = cpu.upload(&g).unwrap();
+        let (_, saved) = cpu.render_for_backward(&cs, &cam, &s).unwrap();
+        let want = cpu.backward(&cs, &saved, pixel).unwrap();
+        let gs = gpu.upload(&g).unwrap();
+        let (_, saved) = gpu.render_for_backward(&gs, &cam, &s).unwrap();
+        let got = gpu.backward(&gs, &saved, pixel).unwrap();
+        let (w, h) = (&want.params, &got.params);
+        let groups = [
+            ("means", rel(&flat3(&h.means), &flat3(&w.means))),
+            (
+                "log_scales",
+                rel(&flat3(&h.log_scales), &flat3(&w.log_scales)),
+            ),
+            (
+                "rotations",
+                rel(&h.rotations.concat(), &w.rotations.concat()),
+            ),
+            ("opacities", rel(&h.logit_opacities, &w.logit_opacities)),
+            ("sh_dc", rel(&flat3(&h.sh_dc), &flat3(&w.sh_dc))),
+            ("sh_rest", rel(&flat3(&h.sh_rest), &flat3(&w.sh_rest))),
+            (
+                "means2d",
+                rel(&got.means2d.concat(), &want.means2d.concat()),
+            ),
+            (
+                "means2d_abs",
+                rel(&got.means2d_abs.concat(), &want.means2d_abs.concat()),
+            ),
+        ];
+        eprintln!("seed {seed}: {groups:?}");
+        for (name, e) in groups {
+            assert!(e <= 1e-3, "seed {seed}: {name} differs by {e:e} (relative)");
+        }
+        assert!(
+            flat3(&w.means).iter().any(|v| *v != 0.0),
+            "no gradient at all"
+        );
     }
 }

@@ -14,6 +14,8 @@ pub struct Kernels {
     pub sort_scatter: wgpu::ComputePipeline,
     pub ranges: wgpu::ComputePipeline,
     pub raster: wgpu::ComputePipeline,
+    pub raster_backward: wgpu::ComputePipeline,
+    pub isect_reduce: wgpu::ComputePipeline,
 }
 
 /// The constants, as WGSL. `{:?}` prints the shortest decimal that reads back as the same f32.
@@ -85,6 +87,16 @@ impl Kernels {
             ),
             ranges: pipeline(device, "ranges", include_str!("wgsl/ranges.wgsl")),
             raster: pipeline(device, "raster", include_str!("wgsl/raster.wgsl")),
+            raster_backward: pipeline(
+                device,
+                "raster_backward",
+                include_str!("wgsl/raster_backward.wgsl"),
+            ),
+            isect_reduce: pipeline(
+                device,
+                "isect_reduce",
+                include_str!("wgsl/isect_reduce.wgsl"),
+            ),
         }
     }
 }

@@ -6,7 +6,11 @@
 //! exclusive scan → key emission → stable radix sort of (tile, depth) keys → per-tile ranges
 //! → front-to-back blending in 16×16 workgroups. The model is uploaded once per scene
 //! ([`Rasterizer::upload`]); a render reads back one count (to size the keys) and its images.
-//! The backward pass does not run on the GPU yet: training uses the CPU rasterizer.
+//! The backward pass blends back to front per tile and sums each (tile, splat) pair's pixel
+//! contributions with a fixed-order tree into the pair's own slot, then sums each Gaussian's
+//! slots: no float atomics, so it is deterministic. The projection backward (screen-space to
+//! parameter gradients) runs on the CPU, shared with the CPU rasterizer; it reads back 48 bytes
+//! per Gaussian per step.
 
 mod context;
 mod kernels;
@@ -16,7 +20,7 @@ mod util;
 
 use std::sync::Arc;
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 pub use context::GpuContext;
 
@@ -24,9 +28,10 @@ use crate::camera::Camera;
 use crate::conventions::TILE_SIZE;
 use crate::error::SplatError;
 use crate::model::Gaussians;
+use crate::project::ScreenGrad;
 use crate::rasterizer::{PixelGradients, Rasterizer};
 use crate::reference::flatten;
-use crate::render::{Gradients, RenderOutput, RenderSettings};
+use crate::render::{Gradients, RenderOutput, RenderSettings, gradients_from_screen};
 use kernels::Kernels;
 use sort::{KeyBuffers, radix_sort, scan};
 use util::{bind, blocks, dispatch, f32s, grid, read_back, storage, storage_init, u32s, uniform};
@@ -41,15 +46,17 @@ pub struct GpuRasterizer {
     kernels: Arc<Kernels>,
 }
 
-/// A model resident on the GPU: its parameters in one buffer, Gaussian by Gaussian.
-pub struct GpuScene {
+/// A model resident on the GPU: its parameters in one buffer, Gaussian by Gaussian, and the
+/// host model it came from (the projection backward still runs on the CPU).
+pub struct GpuScene<'a> {
+    host: &'a Gaussians,
     params: wgpu::Buffer,
     n: u32,
     sh_degree: u32,
     stride: u32,
 }
 
-impl GpuScene {
+impl GpuScene<'_> {
     pub fn len(&self) -> usize {
         self.n as usize
     }
@@ -95,7 +102,7 @@ impl GpuRasterizer {
         scene: &GpuScene,
         cam: &Camera,
         settings: &RenderSettings,
-    ) -> Result<RenderOutput, SplatError> {
+    ) -> Result<(RenderOutput, GpuSaved), SplatError> {
         cam.validate()?;
         if settings.sh_degree > scene.sh_degree {
             return Err(SplatError::InvalidInput(format!(
@@ -173,20 +180,23 @@ impl GpuRasterizer {
         // Keys, sort, ranges, blending.
         let a = KeyBuffers::new(dev, total);
         let b = KeyBuffers::new(dev, total);
+        let owner = storage(dev, "key owners", 4 * total as u64);
         if total > 0 {
             let g = bind(
                 dev,
                 &k.keys,
-                &[&cam_u, &proj, &offsets, &a.hi, &a.lo, &a.val, &counts],
+                &[
+                    &cam_u, &proj, &offsets, &a.hi, &a.lo, &a.val, &counts, &owner,
+                ],
             );
             dispatch(&mut enc, &k.keys, &g, grid(blocks(n)));
         }
         let num_tiles = tiles_x * tiles_y;
         let hi_bits = 32 - (num_tiles.max(2) - 1).leading_zeros();
         let sorted = if radix_sort(dev, k, &mut enc, &a, &b, total, hi_bits) {
-            &b
+            b
         } else {
-            &a
+            a
         };
         let ranges = storage(dev, "tile ranges", 8 * num_tiles as u64);
         enc.clear_buffer(&ranges, 0, None);
@@ -202,7 +212,16 @@ impl GpuRasterizer {
         let g = bind(
             dev,
             &k.raster,
-            &[&cam_u, &proj, &sorted.val, &ranges, &out, &state, &stats],
+            &[
+                &cam_u,
+                &proj,
+                &sorted.val,
+                &ranges,
+                &out,
+                &state,
+                &stats,
+                &owner,
+            ],
         );
         dispatch(&mut enc, &k.raster, &g, (tiles_x, tiles_y));
         let bytes = read_back(
@@ -225,7 +244,7 @@ impl GpuRasterizer {
             .chunks_exact(2)
             .map(|r| [r[0] as i32, r[1] as i32])
             .collect();
-        Ok(RenderOutput {
+        let output = RenderOutput {
             width: w,
             height: h,
             color,
@@ -235,7 +254,130 @@ impl GpuRasterizer {
             radii,
             num_intersections: total as usize,
             num_blended: u32s(&bytes[2])[0] as u64,
-        })
+        };
+        let saved = GpuSaved {
+            camera: cam.clone(),
+            settings: settings.clone(),
+            n,
+            total,
+            tiles: (tiles_x, tiles_y),
+            cam_u,
+            proj,
+            values: sorted.val,
+            owner,
+            ranges,
+            offsets,
+            counts,
+            out,
+            state,
+        };
+        Ok((output, saved))
+    }
+
+    fn backward_pass(
+        &self,
+        scene: &GpuScene,
+        st: &GpuSaved,
+        pixel: PixelGradients<'_>,
+    ) -> Result<Gradients, SplatError> {
+        let g = scene.host;
+        if g.len() != st.n as usize {
+            return Err(SplatError::InvalidInput(format!(
+                "backward called with {} Gaussians, the forward pass rendered {}",
+                g.len(),
+                st.n
+            )));
+        }
+        let np = st.camera.num_pixels();
+        let size = |what, got: usize| {
+            if got == np {
+                Ok(())
+            } else {
+                Err(SplatError::SizeMismatch {
+                    what,
+                    expected: np,
+                    got,
+                })
+            }
+        };
+        size("v_color", pixel.color.len())?;
+        if let Some(a) = pixel.alpha {
+            size("v_alpha", a.len())?;
+        }
+        if let Some(d) = pixel.depth {
+            size("v_depth", d.len())?;
+        }
+        let finite = |v: Option<&[f32]>| v.is_none_or(|a| a.iter().all(|x| x.is_finite()));
+        if !pixel.color.iter().all(|v| v.is_finite())
+            || !finite(pixel.alpha)
+            || !finite(pixel.depth)
+        {
+            return Err(SplatError::InvalidInput(
+                "pixel gradients are not finite".into(),
+            ));
+        }
+        let (ctx, k) = (&*self.ctx, &*self.kernels);
+        let dev = &ctx.device;
+        // Absent gradients are zeros: the same arithmetic as the CPU's `None`.
+        let mut pix = Vec::with_capacity(5 * np);
+        pix.extend(pixel.color.iter().flat_map(|c| c.to_array()));
+        pix.extend_from_slice(pixel.alpha.unwrap_or(&vec![0.0; np]));
+        pix.extend_from_slice(pixel.depth.unwrap_or(&vec![0.0; np]));
+        let pix = storage_init(dev, "pixel gradients", bytemuck::cast_slice(&pix));
+        ctx.check_size("the tile gradients", 48 * st.total as u64)?;
+        let isect = storage(dev, "tile gradients", 48 * st.total as u64);
+        let screen = storage(dev, "screen gradients", 48 * st.n as u64);
+        let mut enc = dev.create_command_encoder(&Default::default());
+        enc.clear_buffer(&isect, 0, None);
+        let bg = bind(
+            dev,
+            &k.raster_backward,
+            &[
+                &st.cam_u, &st.proj, &st.values, &st.owner, &st.ranges, &st.state, &st.out, &pix,
+                &isect,
+            ],
+        );
+        dispatch(&mut enc, &k.raster_backward, &bg, st.tiles);
+        if st.n > 0 {
+            let len = uniform(dev, "gaussians", bytemuck::bytes_of(&st.n));
+            let bg = bind(
+                dev,
+                &k.isect_reduce,
+                &[&len, &st.offsets, &st.counts, &isect, &screen],
+            );
+            dispatch(&mut enc, &k.isect_reduce, &bg, grid(blocks(st.n)));
+        }
+        let n = st.n as u64;
+        let bytes = read_back(
+            dev,
+            &ctx.queue,
+            enc,
+            &[(&screen, 0, 48 * n), (&st.counts, 0, 4 * n)],
+        )?;
+        let sg = f32s(&bytes[0]);
+        let counts = u32s(&bytes[1]);
+        let screen: Vec<(ScreenGrad, Vec2)> = sg
+            .chunks_exact(12)
+            .map(|v| {
+                (
+                    ScreenGrad {
+                        mean2d: Vec2::new(v[0], v[1]),
+                        conic: [v[4], v[5], v[6]],
+                        color: Vec3::new(v[7], v[8], v[9]),
+                        opacity: v[10],
+                        depth: v[11],
+                    },
+                    Vec2::new(v[2], v[3]),
+                )
+            })
+            .collect();
+        Ok(gradients_from_screen(
+            g,
+            &st.camera,
+            &st.settings,
+            &screen,
+            |i| counts[i] > 0,
+        ))
     }
 }
 
@@ -287,18 +429,33 @@ impl GpuRasterizer {
     }
 }
 
-/// What a GPU forward pass would keep for its backward pass (not implemented yet).
-pub struct GpuSaved(());
+/// What a GPU forward pass keeps for its backward pass: its buffers, still on the GPU.
+pub struct GpuSaved {
+    camera: Camera,
+    settings: RenderSettings,
+    n: u32,
+    total: u32,
+    tiles: (u32, u32),
+    cam_u: wgpu::Buffer,
+    proj: wgpu::Buffer,
+    values: wgpu::Buffer,
+    owner: wgpu::Buffer,
+    ranges: wgpu::Buffer,
+    offsets: wgpu::Buffer,
+    counts: wgpu::Buffer,
+    out: wgpu::Buffer,
+    state: wgpu::Buffer,
+}
 
 impl Rasterizer for GpuRasterizer {
-    type Scene<'a> = GpuScene;
+    type Scene<'a> = GpuScene<'a>;
     type Saved = GpuSaved;
 
     fn name(&self) -> &str {
         "gpu"
     }
 
-    fn upload<'a>(&'a self, g: &'a Gaussians) -> Result<GpuScene, SplatError> {
+    fn upload<'a>(&'a self, g: &'a Gaussians) -> Result<GpuScene<'a>, SplatError> {
         g.validate()?;
         let n = u32::try_from(g.len()).map_err(|_| {
             SplatError::Gpu(format!("{} splats are too many for one scene", g.len()))
@@ -308,6 +465,7 @@ impl Rasterizer for GpuRasterizer {
             .check_size("the splat parameters", 4 * stride as u64 * n as u64)?;
         let params: Vec<f32> = flatten(g).into_iter().map(|v| v as f32).collect();
         Ok(GpuScene {
+            host: g,
             params: storage_init(&self.ctx.device, "splats", bytemuck::cast_slice(&params)),
             n,
             sh_degree: g.sh_degree,
@@ -321,28 +479,24 @@ impl Rasterizer for GpuRasterizer {
         cam: &Camera,
         settings: &RenderSettings,
     ) -> Result<RenderOutput, SplatError> {
-        self.forward(scene, cam, settings)
+        self.forward(scene, cam, settings).map(|(out, _)| out)
     }
 
     fn render_for_backward(
         &self,
-        _scene: &GpuScene,
-        _cam: &Camera,
-        _settings: &RenderSettings,
+        scene: &GpuScene,
+        cam: &Camera,
+        settings: &RenderSettings,
     ) -> Result<(RenderOutput, GpuSaved), SplatError> {
-        Err(SplatError::Gpu(
-            "the backward pass does not run on the GPU yet; train with the CPU rasterizer".into(),
-        ))
+        self.forward(scene, cam, settings)
     }
 
     fn backward(
         &self,
-        _scene: &GpuScene,
-        _saved: &GpuSaved,
-        _pixel: PixelGradients<'_>,
+        scene: &GpuScene,
+        saved: &GpuSaved,
+        pixel: PixelGradients<'_>,
     ) -> Result<Gradients, SplatError> {
-        Err(SplatError::Gpu(
-            "the backward pass does not run on the GPU yet; train with the CPU rasterizer".into(),
-        ))
+        self.backward_pass(scene, saved, pixel)
     }
 }

@@ -1,6 +1,8 @@
 // Key emission: each visible Gaussian writes one (tile, depth) key per tile it touches, at
 // its scanned offset, in row-major tile order. Keys of one Gaussian are contiguous and
-// Gaussians are in index order, so a stable sort gives the CPU's (depth, index) order.
+// Gaussians are in index order, so a stable sort gives the CPU's (depth, index) order. The
+// value is the emission slot; `owner` maps it to the Gaussian, and the backward pass writes
+// each (tile, Gaussian) gradient at its slot, so one Gaussian's partials stay contiguous.
 
 @group(0) @binding(0) var<uniform> cam: Camera;
 @group(0) @binding(1) var<storage, read> proj: array<f32>;
@@ -9,6 +11,7 @@
 @group(0) @binding(4) var<storage, read_write> keys_lo: array<u32>;
 @group(0) @binding(5) var<storage, read_write> values: array<u32>;
 @group(0) @binding(6) var<storage, read> counts: array<u32>;
+@group(0) @binding(7) var<storage, read_write> owner: array<u32>;
 
 @compute @workgroup_size(256)
 fn main(
@@ -34,7 +37,8 @@ fn main(
         for (var tx = rect.x; tx < rect.y; tx = tx + 1u) {
             keys_hi[k] = ty * cam.dims.z + tx;
             keys_lo[k] = depth_bits;
-            values[k] = i;
+            values[k] = k;
+            owner[k] = i;
             k = k + 1u;
         }
     }

@@ -10,6 +10,7 @@
 @group(0) @binding(4) var<storage, read_write> out: array<f32>;
 @group(0) @binding(5) var<storage, read_write> state: array<u32>;
 @group(0) @binding(6) var<storage, read_write> stats: array<atomic<u32>>;
+@group(0) @binding(7) var<storage, read> owner: array<u32>;
 
 var<workgroup> s_mean: array<vec2<f32>, 256>;
 var<workgroup> s_conic: array<vec4<f32>, 256>;
@@ -52,7 +53,7 @@ fn main(
     for (var b = start; b < end; b = b + 256u) {
         let idx = b + li;
         if (idx < end) {
-            let o = values[idx] * PROJ_STRIDE;
+            let o = owner[values[idx]] * PROJ_STRIDE;
             s_mean[li] = vec2<f32>(proj[o], proj[o + 1u]);
             s_conic[li] = vec4<f32>(proj[o + 2u], proj[o + 3u], proj[o + 4u], proj[o + 6u]);
             s_color[li] = vec4<f32>(proj[o + 7u], proj[o + 8u], proj[o + 9u], proj[o + 5u]);
