@@ -5,6 +5,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use splat::{Gaussians, RenderSettings};
 
+use crate::device::Device;
 use crate::error::Result;
 use crate::train::data::View;
 
@@ -20,14 +21,6 @@ pub struct Metrics {
     pub views: Vec<ViewMetrics>,
     pub mean_psnr: f64,
     pub mean_ssim: f64,
-}
-
-pub fn render_pixels(
-    model: &Gaussians,
-    camera: &splat::Camera,
-    settings: &RenderSettings,
-) -> Result<Vec<Vec3>> {
-    Ok(splat::render(model, camera, settings)?.color)
 }
 
 /// PSNR and SSIM (the 3DGS SSIM, data range 1) of `image` against `reference`.
@@ -47,14 +40,18 @@ pub fn evaluate(
     model: &Gaussians,
     views: &[View],
     settings: &RenderSettings,
+    device: &Device,
 ) -> Result<Option<Metrics>> {
     if views.is_empty() || views.iter().any(|v| v.clean.is_none()) {
         return Ok(None);
     }
+    let cameras: Vec<splat::Camera> = views.iter().map(|v| v.camera.clone()).collect();
+    let images = device.render_views(model, &cameras, settings)?;
     let per_view = views
         .par_iter()
-        .map(|v| {
-            let image = render_pixels(model, &v.camera, settings)?;
+        .zip(images)
+        .map(|(v, out)| {
+            let image = out.color;
             let clean = v.clean.as_deref().expect("checked above");
             let (p, s) = compare(&image, clean, v.camera.width, v.camera.height)?;
             Ok(ViewMetrics {

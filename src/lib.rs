@@ -5,6 +5,7 @@
 //! conversions between the member crates' types ([`convert`]).
 
 pub mod convert;
+pub mod device;
 pub mod error;
 pub mod eval;
 pub mod init;

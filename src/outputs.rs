@@ -9,6 +9,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::convert::{pixels_to_image, save_pixels, splat_camera};
+use crate::device::Device;
 use crate::error::{Result, TrainError};
 use crate::eval::{self, Metrics};
 use crate::train::config::TrainConfig;
@@ -106,11 +107,12 @@ pub fn write_run(
     config: &TrainConfig,
     outcome: &Outcome,
     spiral_frames: usize,
+    device: &Device,
 ) -> Result<RunSummary> {
     let model = &outcome.model;
     splat::ply::write_ply(dir.join(PLY_FILE), model)?;
     write_log_csv(&dir.join(LOG_FILE), &outcome.log)?;
-    let metrics = eval::evaluate(model, &data.test, &outcome.settings)?;
+    let metrics = eval::evaluate(model, &data.test, &outcome.settings, device)?;
     let not_evaluated = match (&metrics, data.test.is_empty()) {
         (Some(_), _) => None,
         (None, true) => Some("no held-out views (llffhold 0 or too few images)".to_string()),
@@ -123,26 +125,31 @@ pub fn write_run(
     let test_dir = dir.join("test");
     std::fs::create_dir_all(&test_dir).map_err(|e| TrainError::io(&test_dir, e))?;
     let (w, h) = (data.width, data.height);
-    data.test.par_iter().try_for_each(|v| -> Result<()> {
-        let render = eval::render_pixels(model, &v.camera, &outcome.settings)?;
-        save_pixels(&test_dir.join(format!("{}.png", v.name)), &render, w, h)?;
-        let mut row: Vec<&[Vec3]> = vec![&v.observed, &render];
-        if let Some(c) = &v.clean {
-            row.push(c);
-        }
-        save_rgb8_png(
-            &side_by_side(&row, w, h),
-            &test_dir.join(format!("{}_compare.png", v.name)),
-        )?;
-        Ok(())
-    })?;
+    let cameras: Vec<splat::Camera> = data.test.iter().map(|v| v.camera.clone()).collect();
+    let renders = device.render_views(model, &cameras, &outcome.settings)?;
+    data.test
+        .par_iter()
+        .zip(renders)
+        .try_for_each(|(v, out)| -> Result<()> {
+            let render = out.color;
+            save_pixels(&test_dir.join(format!("{}.png", v.name)), &render, w, h)?;
+            let mut row: Vec<&[Vec3]> = vec![&v.observed, &render];
+            if let Some(c) = &v.clean {
+                row.push(c);
+            }
+            save_rgb8_png(
+                &side_by_side(&row, w, h),
+                &test_dir.join(format!("{}_compare.png", v.name)),
+            )?;
+            Ok(())
+        })?;
 
     if spiral_frames > 0 {
         let spiral_dir = dir.join("spiral");
         std::fs::create_dir_all(&spiral_dir).map_err(|e| TrainError::io(&spiral_dir, e))?;
         let path =
             crate::spiral::spiral(&data.capture.cameras, &data.capture.bounds, spiral_frames);
-        render_frames(model, &outcome.settings, &path, &spiral_dir)?;
+        render_frames(model, &outcome.settings, &path, &spiral_dir, device)?;
     }
 
     let observed_psnr = match &metrics {
@@ -178,17 +185,25 @@ pub fn render_frames(
     settings: &splat::RenderSettings,
     cameras: &[scenes::Camera],
     dir: &Path,
+    device: &Device,
 ) -> Result<Vec<PathBuf>> {
-    cameras
-        .par_iter()
-        .map(|c| {
-            let cam = splat_camera(c);
-            let px = eval::render_pixels(model, &cam, settings)?;
-            let path = dir.join(format!("{}.png", c.name));
-            save_pixels(&path, &px, cam.width, cam.height)?;
-            Ok(path)
-        })
-        .collect()
+    let mut written = Vec::with_capacity(cameras.len());
+    // A few frames at a time: rendered together, then encoded in parallel.
+    for chunk in cameras.chunks(8) {
+        let cams: Vec<splat::Camera> = chunk.iter().map(splat_camera).collect();
+        let frames = device.render_views(model, &cams, settings)?;
+        let paths = chunk
+            .par_iter()
+            .zip(frames)
+            .map(|(c, out)| {
+                let path = dir.join(format!("{}.png", c.name));
+                save_pixels(&path, &out.color, out.width, out.height)?;
+                Ok(path)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        written.extend(paths);
+    }
+    Ok(written)
 }
 
 /// The PSNR-vs-time picture, when there are test PSNRs to plot.

@@ -9,6 +9,7 @@ use std::path::PathBuf;
 
 use clap::{Args, FromArgMatches};
 
+use crate::device::{Device, DeviceChoice};
 use crate::error::{Result, TrainError};
 use crate::outputs::{self, CHECKPOINT_FILE, RunSummary};
 use crate::train::config::{Mode, TrainConfig};
@@ -35,6 +36,10 @@ pub struct RunRequest {
     /// Spiral frames to render at the end.
     #[arg(long, default_value_t = 30)]
     pub spiral: usize,
+    /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu` (any
+    /// adapter, software ones included). Results do not depend on it.
+    #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
+    pub device: DeviceChoice,
 }
 
 /// How to train; what is left unset is derived from the capture in [`TrainConfig::build`].
@@ -99,11 +104,15 @@ pub struct PreparedRun {
     pub request: RunRequest,
     pub data: Dataset,
     pub config: TrainConfig,
+    pub device: Device,
+    /// Which device renders, and why, as a sentence.
+    pub device_note: String,
 }
 
 /// Checks and loads everything a run needs, before any training time is spent.
 pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
     let out = &request.out;
+    let (device, device_note) = Device::choose(request.device)?;
     outputs::prepare_run_dir(out)
         .map_err(|e| e.context(format!("cannot use {} as the run folder", out.display())))?;
     let data = data::load(&request.scene, request.training.mode, &request.data)
@@ -114,6 +123,8 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
         request: request.clone(),
         data,
         config,
+        device,
+        device_note,
     })
 }
 
@@ -132,14 +143,21 @@ impl PreparedRun {
         let outcome = train::train(
             &self.config,
             &self.data,
+            &self.device,
             Some(&ckpt),
             self.request.resume,
             on_event,
         )?;
-        let summary =
-            outputs::write_run(out, &self.data, &self.config, &outcome, self.request.spiral)
-                .and_then(|s| outputs::plot_log(out, &outcome.log).map(|_| s))
-                .map_err(|e| e.context(format!("cannot write the run folder {}", out.display())))?;
+        let summary = outputs::write_run(
+            out,
+            &self.data,
+            &self.config,
+            &outcome,
+            self.request.spiral,
+            &self.device,
+        )
+        .and_then(|s| outputs::plot_log(out, &outcome.log).map(|_| s))
+        .map_err(|e| e.context(format!("cannot write the run folder {}", out.display())))?;
         Ok((summary, outcome))
     }
 }

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use aberration::optics::{SimConfig, simulate_grid};
+use metasplat::device::Device;
 use metasplat::procedural::{ProceduralOptions, write_capture};
 use metasplat::train::config::{Mode, TrainConfig};
 use metasplat::train::data::{self, DataOptions, Dataset};
@@ -82,12 +83,16 @@ fn config(mode: Mode, iters: u64, data: &Dataset) -> TrainConfig {
 }
 
 fn mean_psnr(mode: Mode, iters: u64, lambda: f32) -> f64 {
+    mean_psnr_on(&Device::Cpu, mode, iters, lambda)
+}
+
+fn mean_psnr_on(device: &Device, mode: Mode, iters: u64, lambda: f32) -> f64 {
     let data = data::load(&fixture().aberrated, mode, &options()).unwrap();
     let mut cfg = config(mode, iters, &data);
     cfg.lambda = lambda;
-    let out = train::train(&cfg, &data, None, false, &mut |_| {}).unwrap();
+    let out = train::train(&cfg, &data, device, None, false, &mut |_| {}).unwrap();
     assert!(out.model.means.iter().all(|m| m.is_finite()));
-    let m = metasplat::eval::evaluate(&out.model, &data.test, &out.settings)
+    let m = metasplat::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu)
         .unwrap()
         .expect("the aberrated capture has clean images");
     m.mean_psnr
@@ -116,6 +121,27 @@ fn aware_beats_plain_on_held_out_views() {
 }
 
 #[test]
+fn training_on_the_gpu_reaches_the_cpu_result() {
+    let device = match Device::choose(metasplat::device::DeviceChoice::Gpu) {
+        Ok((d, note)) => {
+            eprintln!("{note}");
+            d
+        }
+        Err(e) if std::env::var("METASPLAT_REQUIRE_GPU").is_ok_and(|v| v == "1") => {
+            panic!("METASPLAT_REQUIRE_GPU=1 but there is no GPU: {e}")
+        }
+        Err(e) => {
+            eprintln!("SKIP: training on the GPU needs a wgpu adapter: {e}");
+            return;
+        }
+    };
+    let cpu = mean_psnr(Mode::Aware, 300, 0.0);
+    let gpu = mean_psnr_on(&device, Mode::Aware, 300, 0.0);
+    eprintln!("aware, 300 steps: CPU {cpu:.3} dB, GPU {gpu:.3} dB");
+    assert!((cpu - gpu).abs() <= 0.3, "CPU {cpu} dB vs GPU {gpu} dB");
+}
+
+#[test]
 fn resuming_from_a_checkpoint_gives_the_same_splats() {
     let tmp = tempfile::tempdir().unwrap();
     let data = data::load(&fixture().aberrated, Mode::Aware, &options()).unwrap();
@@ -128,13 +154,13 @@ fn resuming_from_a_checkpoint_gives_the_same_splats() {
     cfg.recipe.sh_every = 120;
     let ckpt = tmp.path().join("ckpt.bin");
     let kept = tmp.path().join("at100.bin");
-    let full = train::train(&cfg, &data, Some(&ckpt), false, &mut |e| {
+    let full = train::train(&cfg, &data, &Device::Cpu, Some(&ckpt), false, &mut |e| {
         if let Event::Checkpoint { step: 100 } = e {
             std::fs::copy(&ckpt, &kept).unwrap();
         }
     })
     .unwrap();
-    let resumed = train::train(&cfg, &data, Some(&kept), true, &mut |_| {}).unwrap();
+    let resumed = train::train(&cfg, &data, &Device::Cpu, Some(&kept), true, &mut |_| {}).unwrap();
     assert_eq!(resumed.resumed_from, Some(100));
     assert!(!full.model.is_empty());
     assert_eq!(full.model, resumed.model, "resumed run diverged");
@@ -142,13 +168,13 @@ fn resuming_from_a_checkpoint_gives_the_same_splats() {
     // Other settings cannot resume this checkpoint.
     let mut other = cfg.clone();
     other.lambda = 0.5;
-    let err = train::train(&other, &data, Some(&kept), true, &mut |_| {})
+    let err = train::train(&other, &data, &Device::Cpu, Some(&kept), true, &mut |_| {})
         .err()
         .expect("must refuse")
         .to_string();
     assert!(err.contains("lambda") && err.contains("at100.bin"), "{err}");
     std::fs::write(&kept, b"metasplat-ckpt01 truncated").unwrap();
-    let err = train::train(&cfg, &data, Some(&kept), true, &mut |_| {})
+    let err = train::train(&cfg, &data, &Device::Cpu, Some(&kept), true, &mut |_| {})
         .err()
         .expect("must refuse")
         .to_string();
@@ -295,9 +321,9 @@ fn bad_input_is_reported_clearly() {
     let data = data::load(&f.clean, Mode::Aware, &opts).unwrap();
     assert!(!data.can_evaluate());
     let cfg = config(Mode::Aware, 20, &data);
-    let out = train::train(&cfg, &data, None, false, &mut |_| {}).unwrap();
+    let out = train::train(&cfg, &data, &Device::Cpu, None, false, &mut |_| {}).unwrap();
     assert!(
-        metasplat::eval::evaluate(&out.model, &data.test, &out.settings)
+        metasplat::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu)
             .unwrap()
             .is_none()
     );

@@ -42,6 +42,9 @@ pub struct LlffArgs {
     /// Modes to run, in order.
     #[arg(long, value_enum, value_delimiter = ',', default_values_t = Mode::ALL.to_vec())]
     pub modes: Vec<Mode>,
+    /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu`.
+    #[arg(long, value_enum, default_value_t = metasplat::device::DeviceChoice::Auto)]
+    pub device: metasplat::device::DeviceChoice,
 }
 
 pub fn run(cmd: ExperimentCommand) -> Result<()> {
@@ -80,6 +83,7 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
         let mut args = RunRequest::new(&aberrated, run_dir);
         args.data.downsample = a.downsample;
         args.data.seed = a.seed;
+        args.device = a.device;
         args.training.mode = mode;
         args.training.iters = a.iters;
         args.training.lambda = a.lambda;

@@ -2,6 +2,7 @@
 
 use anyhow::{Context, Result};
 use clap::Args;
+use metasplat::device::{Device, DeviceChoice};
 use metasplat::outputs::render_frames;
 use std::path::PathBuf;
 
@@ -20,9 +21,13 @@ pub struct RenderArgs {
     pub spiral: Option<usize>,
     #[arg(long, default_value_t = 8)]
     pub downsample: u32,
+    /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu`.
+    #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
+    pub device: DeviceChoice,
 }
 
 pub fn run(a: RenderArgs) -> Result<()> {
+    let (device, note) = Device::choose(a.device)?;
     let model = splat::ply::read_ply(&a.ply)?;
     let capture = super::open_scene(&a.scene, a.downsample)?;
     let cameras = match a.spiral {
@@ -36,7 +41,8 @@ pub fn run(a: RenderArgs) -> Result<()> {
         ..Default::default()
     };
     let start = std::time::Instant::now();
-    let written = render_frames(&model, &settings, &cameras, &a.out)?;
+    println!("{note}");
+    let written = render_frames(&model, &settings, &cameras, &a.out, &device)?;
     println!(
         "{} splats (SH degree {}) rendered to {} images {}x{} in {:.2} s under {}",
         model.len(),

@@ -28,6 +28,7 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             t.iters,
             config.max_splats
         );
+        println!("{}", prepared.device_note);
         if let Some(note) = &data.restorer_note {
             println!("{note}");
         }

@@ -16,7 +16,9 @@ use base::SplitMix64;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use splat::optim::{Adam, ExponentialLr};
-use splat::{Gaussians, RenderSettings, render, render_backward, render_for_backward};
+use splat::{Gaussians, RenderSettings};
+
+use crate::device::Device;
 
 use crate::error::{Result, TrainError};
 use crate::eval::{self, Metrics};
@@ -146,6 +148,7 @@ fn fresh_state(config: &TrainConfig, data: &Dataset) -> Result<State> {
 pub fn train(
     config: &TrainConfig,
     data: &Dataset,
+    device: &Device,
     checkpoint_path: Option<&Path>,
     resume: bool,
     on_event: &mut dyn FnMut(Event),
@@ -193,7 +196,7 @@ pub fn train(
         };
         let mut sum = 0.0;
         for &i in &probe {
-            let out = render(model, &data.train[i].camera, &rs)?;
+            let out = device.render(model, &data.train[i].camera, &rs)?;
             sum += objective.evaluate(&out.color, &data.train[i])?.0.total as f64;
         }
         Ok(sum / probe.len() as f64)
@@ -203,16 +206,16 @@ pub fn train(
         let started = Instant::now();
         let view = &data.train[view_index(config.seed, s.step, n_views)];
         let rs = settings(config, &s.model);
-        let (out, saved) = render_for_backward(&s.model, &view.camera, &rs)?;
-        let (parts, v_color) = objective.evaluate(&out.color, view)?;
-        let grads = render_backward(&s.model, &saved, &v_color, None, None)?;
+        let (out, parts, grads) = device.forward_backward(&s.model, &view.camera, &rs, |out| {
+            objective.evaluate(&out.color, view)
+        })?;
         s.densifier.after_backward(s.step, &grads, &out);
         s.adam.step(
             &mut s.model,
             &grads.params,
             &lrs.with_means(position_lr.at(s.step)),
         )?;
-        drop((out, saved, grads));
+        drop((out, grads));
         s.step += 1;
         let step = s.step;
         if let Some(edit) = s
@@ -249,7 +252,8 @@ pub fn train(
         let eval_now =
             step == config.iters || (config.eval_every > 0 && step % config.eval_every == 0);
         if eval_now {
-            let metrics = eval::evaluate(&s.model, &data.test, &settings(config, &s.model))?;
+            let metrics =
+                eval::evaluate(&s.model, &data.test, &settings(config, &s.model), device)?;
             if let Some(m) = &metrics {
                 on_event(Event::Evaluated { step, metrics: m });
             }

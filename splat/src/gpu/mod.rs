@@ -23,6 +23,7 @@ use std::sync::Arc;
 use glam::{Vec2, Vec3};
 
 pub use context::GpuContext;
+pub use wgpu::DeviceType;
 
 use crate::camera::Camera;
 use crate::conventions::TILE_SIZE;
