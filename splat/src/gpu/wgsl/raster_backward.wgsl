@@ -1,9 +1,9 @@
 // Backward of the blending, one 16×16 workgroup per tile (as `raster::backward_tile`): splats
 // are visited back to front; each pixel undoes its blending step (recovering T by division)
 // and computes its contribution to the splat's screen-space gradient. The 256 pixel
-// contributions are summed by a fixed-order tree in workgroup memory and written to the
-// (tile, splat) pair's own slot: no atomics, so the result is deterministic; a splat no pixel
-// of the tile blended skips the tree.
+// contributions are summed in a fixed order in workgroup memory (16 row sums, then their sum)
+// and written to the (tile, splat) pair's own slot: no atomics, so the result is
+// deterministic; a splat no pixel of the tile blended skips the sums.
 //
 // Slot layout (12 floats): ∂mean2d (2), Σ|∂mean2d| (2), ∂conic (3), ∂colour (3), ∂opacity,
 // ∂depth.
@@ -21,6 +21,9 @@
 var<workgroup> red0: array<vec4<f32>, 256>;
 var<workgroup> red1: array<vec4<f32>, 256>;
 var<workgroup> red2: array<vec4<f32>, 256>;
+var<workgroup> row0: array<vec4<f32>, 16>;
+var<workgroup> row1: array<vec4<f32>, 16>;
+var<workgroup> row2: array<vec4<f32>, 16>;
 var<workgroup> w_start: u32;
 var<workgroup> w_max_last: atomic<u32>;
 var<workgroup> w_last_u: u32;
@@ -126,20 +129,33 @@ fn main(
             w_flag = atomicLoad(&w_any);
             atomicStore(&w_any, 0u);
         }
+        // Barriers are what this kernel pays for (each splat of the tile costs two, three when
+        // some pixel blended it), so the sums take two levels rather than a tree of eight.
         if (workgroupUniformLoad(&w_flag) != 0u) {
-            for (var s = 128u; s > 0u; s = s >> 1u) {
-                if (li < s) {
-                    red0[li] = red0[li] + red0[li + s];
-                    red1[li] = red1[li] + red1[li + s];
-                    red2[li] = red2[li] + red2[li + s];
+            if (li < 16u) {
+                var s0 = vec4<f32>(0.0);
+                var s1 = vec4<f32>(0.0);
+                var s2 = vec4<f32>(0.0);
+                for (var c = 0u; c < 16u; c = c + 1u) {
+                    s0 = s0 + red0[li * 16u + c];
+                    s1 = s1 + red1[li * 16u + c];
+                    s2 = s2 + red2[li * 16u + c];
                 }
-                workgroupBarrier();
+                row0[li] = s0;
+                row1[li] = s1;
+                row2[li] = s2;
             }
+            workgroupBarrier();
             if (li == 0u) {
+                var a0 = vec4<f32>(0.0);
+                var a1 = vec4<f32>(0.0);
+                var a2 = vec4<f32>(0.0);
+                for (var r = 0u; r < 16u; r = r + 1u) {
+                    a0 = a0 + row0[r];
+                    a1 = a1 + row1[r];
+                    a2 = a2 + row2[r];
+                }
                 let b = e * 12u;
-                let a0 = red0[0];
-                let a1 = red1[0];
-                let a2 = red2[0];
                 isect[b] = a0.x;
                 isect[b + 1u] = a0.y;
                 isect[b + 2u] = a0.z;
@@ -154,6 +170,5 @@ fn main(
                 isect[b + 11u] = a2.w;
             }
         }
-        workgroupBarrier();
     }
 }
