@@ -245,7 +245,12 @@ fn l_abr_gradient_through_the_blur_adjoint_matches_finite_differences() {
             objective.evaluate(&out.color, view).unwrap().0.total as f64
         };
         let (out, saved) = render_for_backward(&model, &view.camera, &settings).unwrap();
-        let (_, v) = objective.evaluate(&out.color, view).unwrap();
+        let (parts, v) = objective.evaluate(&out.color, view).unwrap();
+        // The value-only path the SH probes use gives the same bits.
+        assert_eq!(
+            objective.value(&out.color, view).unwrap().to_bits(),
+            parts.total.to_bits()
+        );
         let g = render_backward(&model, &saved, &v, None, None).unwrap();
         // The Gaussians with the largest mean gradients: well above f32 noise.
         let mut order: Vec<usize> = (0..model.len()).collect();

@@ -6,6 +6,8 @@ pub mod atomic;
 pub mod error;
 pub mod metrics;
 pub mod rng;
+#[doc(hidden)]
+pub mod ssim_reference;
 
 pub use atomic::{WriteError, write_atomically, write_atomically_with, write_bytes_atomically};
 pub use error::BaseError;

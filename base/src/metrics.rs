@@ -11,6 +11,8 @@
 
 use glam::Vec3;
 
+use rayon::prelude::*;
+
 use crate::error::BaseError;
 
 pub const SSIM_WINDOW: usize = 11;
@@ -55,22 +57,127 @@ fn psnr_of(pairs: impl Iterator<Item = (f32, f32)>, count: usize) -> f64 {
     -10.0 * (se / count as f64).max(PSNR_MSE_FLOOR).log10()
 }
 
-/// Mean SSIM of `a` against `b` (no gradient).
+/// Mean SSIM of `a` against `b` (no gradient: what evaluation and loss probes need).
 pub fn ssim_value(a: &[Vec3], b: &[Vec3], width: u32, height: u32) -> Result<f64, BaseError> {
-    Ok(ssim_rgb(a, b, width, height, None)? as f64)
+    check(a.len(), b.len(), width, height)?;
+    Ok(ssim_rgb(a, b, width as usize, height as usize, None) as f64)
 }
 
-fn ssim_rgb(
-    a: &[Vec3],
-    b: &[Vec3],
+/// Mean SSIM of `rendered` against `target` and its gradient with respect to `rendered`.
+pub fn ssim(
+    rendered: &[Vec3],
+    target: &[Vec3],
     width: u32,
     height: u32,
-    grad: Option<GradSink<'_>>,
-) -> Result<f32, BaseError> {
-    check(a.len(), b.len(), width, height)?;
-    let plane = |img: &[Vec3], ch: usize| img.iter().map(|v| v[ch]).collect::<Vec<f32>>();
+) -> Result<(f32, Vec<Vec3>), BaseError> {
+    check(rendered.len(), target.len(), width, height)?;
+    let mut grad = vec![Vec3::ZERO; rendered.len()];
+    let value = ssim_rgb(
+        rendered,
+        target,
+        width as usize,
+        height as usize,
+        Some(&mut grad),
+    );
+    Ok((value, grad))
+}
+
+/// Mean SSIM of two planar RGB images (all red, then green, then blue; no gradient).
+pub fn ssim_planar(a: &[f32], b: &[f32], width: u32, height: u32) -> Result<f64, BaseError> {
+    let n = width as usize * height as usize;
+    check_len(3 * n, a.len())?;
+    check_len(3 * n, b.len())?;
     let (w, h) = (width as usize, height as usize);
-    Ok(ssim_channels(w, h, |ch| (plane(a, ch), plane(b, ch)), grad))
+    let mut total = 0.0f64;
+    with_scratch(n, |s| {
+        for ch in 0..3 {
+            let c = ch * n..(ch + 1) * n;
+            let inv = 1.0 / (3 * n) as f32;
+            ssim_channel(
+                &a[c.clone()],
+                &b[c],
+                w,
+                h,
+                inv,
+                &mut total,
+                None,
+                &mut s.work,
+            );
+        }
+    });
+    Ok((total / (3 * n) as f64) as f32 as f64)
+}
+
+fn ssim_rgb(a: &[Vec3], b: &[Vec3], w: usize, h: usize, mut grad: Option<&mut [Vec3]>) -> f32 {
+    let n = w * h;
+    let inv_count = 1.0 / (3 * n) as f32;
+    let mut total = 0.0f64;
+    with_scratch(n, |s| {
+        for ch in 0..3 {
+            let (x, y, g) = (&mut s.x[..n], &mut s.y[..n], &mut s.grad[..n]);
+            x.iter_mut().zip(a).for_each(|(d, v)| *d = v[ch]);
+            y.iter_mut().zip(b).for_each(|(d, v)| *d = v[ch]);
+            let want = grad.is_some().then_some(&mut *g);
+            ssim_channel(x, y, w, h, inv_count, &mut total, want, &mut s.work);
+            if let Some(out) = grad.as_deref_mut() {
+                out.iter_mut().zip(&*g).for_each(|(o, v)| o[ch] = *v);
+            }
+        }
+    });
+    (total * inv_count as f64) as f32
+}
+
+/// Working memory of one SSIM call, kept per thread between calls: fresh multi-megabyte
+/// buffers cost page faults comparable to the arithmetic itself.
+#[derive(Default)]
+struct Scratch {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    grad: Vec<f32>,
+    work: Work,
+}
+
+#[derive(Default)]
+struct Work {
+    stats: Vec<f32>,
+    tmp: Vec<f32>,
+    blurred: Vec<f32>,
+    map: Vec<f32>,
+    d: Vec<f32>,
+}
+
+thread_local! {
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
+}
+
+/// Runs `f` with this thread's scratch grown to `n` pixels; a call nested in another on the
+/// same thread (rayon may run one inside the other's parallel loop) gets fresh memory.
+fn with_scratch<R>(n: usize, f: impl FnOnce(&mut Scratch) -> R) -> R {
+    let grow = |s: &mut Scratch| {
+        for v in [&mut s.x, &mut s.y, &mut s.grad] {
+            if v.len() < n {
+                v.resize(n, 0.0);
+            }
+        }
+    };
+    SCRATCH.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut s) => {
+            grow(&mut s);
+            f(&mut s)
+        }
+        Err(_) => {
+            let mut s = Scratch::default();
+            grow(&mut s);
+            f(&mut s)
+        }
+    })
+}
+
+/// `v` as `len` zeros, reusing its memory.
+fn zeroed(v: &mut Vec<f32>, len: usize) -> &mut [f32] {
+    v.clear();
+    v.resize(len, 0.0);
+    &mut v[..]
 }
 
 fn check(rendered: usize, target: usize, width: u32, height: u32) -> Result<(), BaseError> {
@@ -90,6 +197,7 @@ fn check(rendered: usize, target: usize, width: u32, height: u32) -> Result<(), 
     Ok(())
 }
 
+/// The normalised Gaussian window.
 fn window() -> [f32; SSIM_WINDOW] {
     let mut w = [0.0f32; SSIM_WINDOW];
     let half = (SSIM_WINDOW / 2) as f32;
@@ -101,125 +209,137 @@ fn window() -> [f32; SSIM_WINDOW] {
     w.map(|v| v / s)
 }
 
-/// Separable zero-padded "same" convolution; the kernel is symmetric, so this is also its own
-/// adjoint, which the backward pass relies on.
-fn blur(src: &[f32], w: usize, h: usize, k: &[f32; SSIM_WINDOW], tmp: &mut [f32], dst: &mut [f32]) {
-    let r = SSIM_WINDOW / 2;
-    for y in 0..h {
-        let row = &src[y * w..(y + 1) * w];
-        for x in 0..w {
-            let lo = x.saturating_sub(r);
-            let hi = (x + r).min(w - 1);
-            let mut acc = 0.0;
-            for xx in lo..=hi {
-                acc += k[xx + r - x] * row[xx];
-            }
-            tmp[y * w + x] = acc;
-        }
-    }
-    for y in 0..h {
-        let lo = y.saturating_sub(r);
-        let hi = (y + r).min(h - 1);
-        for x in 0..w {
-            let mut acc = 0.0;
-            for yy in lo..=hi {
-                acc += k[yy + r - y] * tmp[yy * w + x];
-            }
-            dst[y * w + x] = acc;
-        }
-    }
-}
+/// Rows of output per parallel task: enough work to pay for the task.
+const ROWS_PER_TASK: usize = 8;
 
-/// Mean SSIM of `rendered` against `target` and its gradient with respect to `rendered`.
-pub fn ssim(
-    rendered: &[Vec3],
-    target: &[Vec3],
-    width: u32,
-    height: u32,
-) -> Result<(f32, Vec<Vec3>), BaseError> {
-    let mut grad = vec![Vec3::ZERO; rendered.len()];
-    let value = ssim_rgb(
-        rendered,
-        target,
-        width,
-        height,
-        Some(&mut |i, ch, g| grad[i][ch] = g),
-    )?;
-    Ok((value, grad))
-}
-
-/// Mean SSIM of two planar RGB images (all red, then green, then blue; no gradient).
-pub fn ssim_planar(a: &[f32], b: &[f32], width: u32, height: u32) -> Result<f64, BaseError> {
-    let n = width as usize * height as usize;
-    check_len(3 * n, a.len())?;
-    check_len(3 * n, b.len())?;
-    let plane = |img: &[f32], ch: usize| img[ch * n..(ch + 1) * n].to_vec();
-    let (w, h) = (width as usize, height as usize);
-    Ok(ssim_channels(w, h, |ch| (plane(a, ch), plane(b, ch)), None) as f64)
-}
-
-/// Per-pixel gradient sink: `(pixel, channel, ∂SSIM/∂x)`.
-type GradSink<'a> = &'a mut dyn FnMut(usize, usize, f32);
-
-/// The SSIM of three channel pairs, and with `grad` its gradient with respect to the first.
-fn ssim_channels(
+/// The zero-padded "same" blur of `P` planes stored row by row (`[row][plane][x]`) into
+/// `out`, as two 1-D passes through `tmp`. Each output adds its in-range terms in increasing
+/// tap order, exactly as the direct loops do, so the result is bit-identical to them; the
+/// loops run over contiguous memory (taps outside, pixels inside), so they vectorise, and
+/// rows run in parallel.
+fn blur_planes<const P: usize>(
+    src: &[f32],
     w: usize,
     h: usize,
-    channel: impl Fn(usize) -> (Vec<f32>, Vec<f32>),
-    mut grad: Option<GradSink<'_>>,
-) -> f32 {
-    let n = w * h;
+    k: &[f32; SSIM_WINDOW],
+    tmp: &mut Vec<f32>,
+    out: &mut Vec<f32>,
+) {
+    let r = SSIM_WINDOW / 2;
+    let stride = P * w;
+    let tmp = zeroed(tmp, h * stride);
+    tmp.par_chunks_mut(stride)
+        .with_min_len(ROWS_PER_TASK)
+        .zip(src.par_chunks(stride))
+        .for_each(|(t, s)| {
+            for p in 0..P {
+                let (row, out) = (&s[p * w..(p + 1) * w], &mut t[p * w..(p + 1) * w]);
+                for (j, kj) in k.iter().enumerate() {
+                    // Output x reads input x + j − r where that lies in the row.
+                    let x0 = r.saturating_sub(j);
+                    let x1 = (w + r).saturating_sub(j).min(w);
+                    if x0 >= x1 {
+                        continue;
+                    }
+                    let src = &row[x0 + j - r..x1 + j - r];
+                    for (o, v) in out[x0..x1].iter_mut().zip(src) {
+                        *o += kj * v;
+                    }
+                }
+            }
+        });
+    let tmp = &*tmp;
+    zeroed(out, h * stride)
+        .par_chunks_mut(stride)
+        .with_min_len(ROWS_PER_TASK)
+        .enumerate()
+        .for_each(|(y, o)| {
+            for (j, kj) in k.iter().enumerate() {
+                let Some(yy) = (y + j).checked_sub(r).filter(|&yy| yy < h) else {
+                    continue;
+                };
+                for (o, v) in o.iter_mut().zip(&tmp[yy * stride..(yy + 1) * stride]) {
+                    *o += kj * v;
+                }
+            }
+        });
+}
+
+/// One channel: adds its SSIM map to `total` (in pixel order) and, with `grad`, writes the
+/// gradient of `inv_count · Σ map` with respect to `x`.
+#[allow(clippy::too_many_arguments)]
+fn ssim_channel(
+    x: &[f32],
+    y: &[f32],
+    w: usize,
+    h: usize,
+    inv_count: f32,
+    total: &mut f64,
+    grad: Option<&mut [f32]>,
+    work: &mut Work,
+) {
     let k = window();
-    let inv_count = 1.0 / (3 * n) as f32;
-    let mut total = 0.0f64;
-    let mut tmp = vec![0.0f32; n];
-    let mut bufs: Vec<Vec<f32>> = (0..5).map(|_| vec![0.0f32; n]).collect();
-    let mut planes: Vec<Vec<f32>> = (0..5).map(|_| vec![0.0f32; n]).collect();
-    for ch in 0..3 {
-        let (x, y) = channel(ch);
-        for i in 0..n {
-            planes[0][i] = x[i];
-            planes[1][i] = y[i];
-            planes[2][i] = x[i] * x[i];
-            planes[3][i] = y[i] * y[i];
-            planes[4][i] = x[i] * y[i];
-        }
-        for (p, b) in planes.iter().zip(bufs.iter_mut()) {
-            blur(p, w, h, &k, &mut tmp, b);
-        }
-        // Per-pixel derivatives of the SSIM map w.r.t. the blurred statistics μx, E[x²], E[xy],
-        // written back into `planes` and then pulled back through the (self-adjoint) blur.
-        for i in 0..n {
-            let (mx, my) = (bufs[0][i], bufs[1][i]);
-            let vx = bufs[2][i] - mx * mx;
-            let vy = bufs[3][i] - my * my;
-            let cxy = bufs[4][i] - mx * my;
-            let a1 = 2.0 * mx * my + SSIM_C1;
-            let a2 = 2.0 * cxy + SSIM_C2;
-            let b1 = mx * mx + my * my + SSIM_C1;
-            let b2 = vx + vy + SSIM_C2;
-            let s = a1 * a2 / (b1 * b2);
-            total += s as f64;
-            let d_m2 = -s / b2;
-            let d_mxy = 2.0 * a1 / (b1 * b2);
-            let d_mx = 2.0 * my * (a2 - a1) / (b1 * b2) - 2.0 * mx * s / b1 + 2.0 * mx * s / b2;
-            planes[0][i] = d_mx * inv_count;
-            planes[2][i] = d_m2 * inv_count;
-            planes[4][i] = d_mxy * inv_count;
-        }
-        let Some(sink) = grad.as_mut() else {
-            continue;
-        };
-        for p in [0, 2, 4] {
-            blur(&planes[p], w, h, &k, &mut tmp, &mut bufs[p]);
-        }
-        for i in 0..n {
-            sink(
-                i,
-                ch,
-                bufs[0][i] + 2.0 * x[i] * bufs[2][i] + y[i] * bufs[4][i],
-            );
-        }
+    // μx, μy, E[x²], E[y²], E[xy], blurred in one sweep.
+    zeroed(&mut work.stats, 5 * w * h)
+        .par_chunks_mut(5 * w)
+        .with_min_len(ROWS_PER_TASK)
+        .enumerate()
+        .for_each(|(row, s)| {
+            let (xr, yr) = (&x[row * w..(row + 1) * w], &y[row * w..(row + 1) * w]);
+            for i in 0..w {
+                s[i] = xr[i];
+                s[w + i] = yr[i];
+                s[2 * w + i] = xr[i] * xr[i];
+                s[3 * w + i] = yr[i] * yr[i];
+                s[4 * w + i] = xr[i] * yr[i];
+            }
+        });
+    blur_planes::<5>(&work.stats, w, h, &k, &mut work.tmp, &mut work.blurred);
+    // The SSIM map and its derivatives with respect to μx, E[x²], E[xy].
+    let map = zeroed(&mut work.map, w * h);
+    let d = zeroed(&mut work.d, 3 * w * h);
+    map.par_chunks_mut(w)
+        .with_min_len(ROWS_PER_TASK)
+        .zip(d.par_chunks_mut(3 * w))
+        .zip(work.blurred.par_chunks(5 * w))
+        .for_each(|((m, d), b)| {
+            for i in 0..w {
+                let (mx, my) = (b[i], b[w + i]);
+                let vx = b[2 * w + i] - mx * mx;
+                let vy = b[3 * w + i] - my * my;
+                let cxy = b[4 * w + i] - mx * my;
+                let a1 = 2.0 * mx * my + SSIM_C1;
+                let a2 = 2.0 * cxy + SSIM_C2;
+                let b1 = mx * mx + my * my + SSIM_C1;
+                let b2 = vx + vy + SSIM_C2;
+                let s = a1 * a2 / (b1 * b2);
+                m[i] = s;
+                let d_m2 = -s / b2;
+                let d_mxy = 2.0 * a1 / (b1 * b2);
+                let d_mx = 2.0 * my * (a2 - a1) / (b1 * b2) - 2.0 * mx * s / b1 + 2.0 * mx * s / b2;
+                d[i] = d_mx * inv_count;
+                d[w + i] = d_m2 * inv_count;
+                d[2 * w + i] = d_mxy * inv_count;
+            }
+        });
+    // Summed in pixel order, as the direct loops do.
+    for v in work.map.iter() {
+        *total += *v as f64;
     }
-    (total * inv_count as f64) as f32
+    let Some(grad) = grad else {
+        return;
+    };
+    // The blur is symmetric, so it is its own adjoint (its output reuses the stats' memory).
+    blur_planes::<3>(&work.d, w, h, &k, &mut work.tmp, &mut work.stats);
+    let g = &work.stats;
+    grad.par_chunks_mut(w)
+        .with_min_len(ROWS_PER_TASK)
+        .enumerate()
+        .for_each(|(row, out)| {
+            let g = &g[row * 3 * w..(row + 1) * 3 * w];
+            for i in 0..w {
+                let p = row * w + i;
+                out[i] = g[i] + 2.0 * x[p] * g[w + i] + y[p] * g[2 * w + i];
+            }
+        });
 }

@@ -45,3 +45,28 @@ fn identical_images_are_capped_and_mismatches_are_errors() {
     assert!(ssim_value(&a, &a, 5, 3).is_err());
     assert!(ssim_planar(&planar(&a), &planar(&a)[1..], 4, 3).is_err());
 }
+
+#[test]
+fn fast_ssim_is_the_direct_ssim_bit_for_bit() {
+    for (w, h) in [
+        (1usize, 1usize),
+        (3, 17),
+        (10, 10),
+        (11, 12),
+        (37, 5),
+        (64, 48),
+        (131, 97),
+    ] {
+        let (a, b) = (image(w as u64, w * h), image(h as u64 + 100, w * h));
+        let (v, g) = ssim(&a, &b, w as u32, h as u32).unwrap();
+        let (rv, rg) = base::ssim_reference::ssim(&a, &b, w as u32, h as u32);
+        assert_eq!(v.to_bits(), rv.to_bits(), "{w}x{h}: value");
+        assert!(
+            g.iter()
+                .zip(&rg)
+                .all(|(x, y)| x.to_array().map(f32::to_bits) == y.to_array().map(f32::to_bits)),
+            "{w}x{h}: gradient"
+        );
+        assert_eq!(ssim_value(&a, &b, w as u32, h as u32).unwrap(), rv as f64);
+    }
+}

@@ -58,13 +58,15 @@ fn bench(c: &mut Criterion) {
             group.bench_function(BenchmarkId::new("cpu_forward_backward", &id), |b| {
                 b.iter(|| {
                     let (_, s) = cpu.render_for_backward(&cs, &cam, &settings).unwrap();
-                    cpu.backward(&cs, &s, PixelGradients::color(&v_color)).unwrap()
+                    cpu.backward(&cs, &s, PixelGradients::color(&v_color))
+                        .unwrap()
                 })
             });
             group.bench_function(BenchmarkId::new("gpu_forward_backward", &id), |b| {
                 b.iter(|| {
                     let (_, s) = gpu.render_for_backward(&gs, &cam, &settings).unwrap();
-                    gpu.backward(&gs, &s, PixelGradients::color(&v_color)).unwrap()
+                    gpu.backward(&gs, &s, PixelGradients::color(&v_color))
+                        .unwrap()
                 })
             });
         }

@@ -110,3 +110,23 @@ pub fn photometric_loss(
         grad,
     })
 }
+
+/// The value of [`photometric_loss`] alone, with the same arithmetic (so the same bits),
+/// without the SSIM backward: for evaluation and probes that read only the number.
+pub fn photometric_value(
+    rendered: &[Vec3],
+    target: &[Vec3],
+    width: u32,
+    height: u32,
+    dssim_weight: f32,
+) -> Result<f32, SplatError> {
+    check(rendered, target, width, height)?;
+    let inv = 1.0 / (3 * rendered.len()) as f32;
+    let mut sum = 0.0f64;
+    for (r, t) in rendered.iter().zip(target) {
+        sum += (*r - *t).abs().element_sum() as f64;
+    }
+    let l1 = (sum * inv as f64) as f32;
+    let ssim = base::ssim_value(rendered, target, width, height)? as f32;
+    Ok((1.0 - dssim_weight) * l1 + dssim_weight * (1.0 - ssim))
+}

@@ -197,7 +197,7 @@ pub fn train(
         let mut sum = 0.0;
         for &i in &probe {
             let out = device.render(model, &data.train[i].camera, &rs)?;
-            sum += objective.evaluate(&out.color, &data.train[i])?.0.total as f64;
+            sum += objective.value(&out.color, &data.train[i])? as f64;
         }
         Ok(sum / probe.len() as f64)
     };

@@ -52,6 +52,38 @@ impl Objective<'_> {
         Ok(self.blur()?.blur_pixels(rendered)?)
     }
 
+    /// The loss alone (what the SH-band probes read): the same value as [`Self::evaluate`]'s
+    /// total, without the SSIM backward or the blur's adjoint.
+    pub fn value(&self, rendered: &[Vec3], view: &View) -> Result<f32> {
+        let term = |image: &[Vec3], target: &[Vec3]| -> Result<f32> {
+            Ok(splat::loss::photometric_value(
+                image,
+                target,
+                self.width,
+                self.height,
+                self.dssim_weight,
+            )?)
+        };
+        let restored = || {
+            view.restored.as_deref().ok_or_else(|| {
+                TrainError::Invalid(format!("view {} has no restored image", view.name))
+            })
+        };
+        match self.mode {
+            Mode::Plain => term(rendered, &view.observed),
+            Mode::Restored => term(rendered, restored()?),
+            Mode::Aware => {
+                let v_abr = term(&self.as_observed(rendered)?, &view.observed)?;
+                let v_ac = if self.lambda != 0.0 {
+                    term(rendered, restored()?)?
+                } else {
+                    0.0
+                };
+                Ok(v_abr + self.lambda * v_ac)
+            }
+        }
+    }
+
     /// Loss and `∂loss/∂rendered`.
     pub fn evaluate(&self, rendered: &[Vec3], view: &View) -> Result<(LossParts, Vec<Vec3>)> {
         let restored = || {
