@@ -26,8 +26,6 @@ pub struct Splat {
     /// `σ` beyond which `α < 1/255` for certain (`ln(255 o)` plus a rounding margin); lets
     /// most far pairs skip the `exp` without changing any decision.
     sigma_cut: f32,
-    /// `1 / conic.a`, for the per-row span solve.
-    inv_a: f32,
     /// Inclusive pixel range `[x0, x1] × [y0, y1]` whose centres lie within the radius box.
     px: [i32; 4],
 }
@@ -46,7 +44,6 @@ impl Splat {
             color: p.color,
             depth: p.depth,
             sigma_cut: (p.opacity / ALPHA_THRESHOLD).ln() * (1.0 + 1e-4) + 1e-4,
-            inv_a: 1.0 / p.conic[0],
             px: [
                 to_i((p.mean2d.x - rx - 0.5).ceil()),
                 to_i((p.mean2d.x + rx - 0.5).floor()),
@@ -85,48 +82,6 @@ fn local_box(s: &Splat, x0: u32, y0: u32, w: u32, h: u32) -> Option<[usize; 4]> 
     let ly0 = (s.px[2] - y0 as i32).max(0);
     let ly1 = (s.px[3] - y0 as i32).min(h as i32 - 1);
     (lx0 <= lx1 && ly0 <= ly1).then_some([lx0 as usize, lx1 as usize, ly0 as usize, ly1 as usize])
-}
-
-/// Inclusive tile-local x-range of row `ly` that can hold pixels with `σ ≤ sigma_cut`: the
-/// root interval of the row's quadratic in `dx`, widened for rounding and clipped to `bx`.
-/// Only a superset matters, since every pixel in it still gets the exact test.
-#[inline]
-fn row_span(s: &Splat, qy: f32, x0: u32, bx: [usize; 2]) -> Option<(usize, usize)> {
-    let dy = s.mean.y - qy;
-    let [a, b, c] = s.conic;
-    let bb = b * dy;
-    let disc = bb * bb - 2.0 * a * (0.5 * c * dy * dy - s.sigma_cut);
-    if disc < -1e-6 * (bb * bb + a * s.sigma_cut) {
-        return None;
-    }
-    let r = disc.max(0.0).sqrt();
-    let pad = 1e-3 + 1e-4 * (r + bb.abs()) * s.inv_a;
-    let lo = s.mean.x + (bb - r) * s.inv_a - pad - 0.5 - x0 as f32;
-    let hi = s.mean.x + (bb + r) * s.inv_a + pad - 0.5 - x0 as f32;
-    if !(lo.is_finite() && hi.is_finite()) {
-        return Some((bx[0], bx[1]));
-    }
-    // Clamping first keeps the values small enough for the integer rounding below (the
-    // baseline x86-64 target has no rounding instruction, so `ceil`/`floor` are libm calls).
-    let lo = lo.clamp(bx[0] as f32 - 1.0, bx[1] as f32 + 1.0);
-    let hi = hi.clamp(bx[0] as f32 - 1.0, bx[1] as f32 + 1.0);
-    let lo = ceil_i32(lo).max(bx[0] as i32);
-    let hi = floor_i32(hi).min(bx[1] as i32);
-    (lo <= hi).then_some((lo as usize, hi as usize))
-}
-
-/// `ceil` for finite values well inside the i32 range.
-#[inline]
-fn ceil_i32(v: f32) -> i32 {
-    let t = v as i32;
-    if (t as f32) < v { t + 1 } else { t }
-}
-
-/// `floor` for finite values well inside the i32 range.
-#[inline]
-fn floor_i32(v: f32) -> i32 {
-    let t = v as i32;
-    if (t as f32) > v { t - 1 } else { t }
 }
 
 #[inline]
@@ -178,9 +133,9 @@ pub fn forward_tile(
         };
         for ly in ly0..=ly1 {
             let qy = (y0 as usize + ly) as f32 + 0.5;
-            let Some((sx0, sx1)) = row_span(s, qy, x0, [lx0, lx1]) else {
-                continue;
-            };
+            // Every pixel of the box row gets the exact test: a per-row span of the quadratic
+            // costs more than the pixels it spares.
+            let (sx0, sx1) = (lx0, lx1);
             for lx in sx0..=sx1 {
                 let li = ly * w as usize + lx;
                 if done[li] {
@@ -308,9 +263,9 @@ pub fn backward_tile(
         let mut g = IsectGrad::default();
         for ly in ly0..=ly1 {
             let qy = (y0 as usize + ly) as f32 + 0.5;
-            let Some((sx0, sx1)) = row_span(s, qy, x0, [lx0, lx1]) else {
-                continue;
-            };
+            // Every pixel of the box row gets the exact test: a per-row span of the quadratic
+            // costs more than the pixels it spares.
+            let (sx0, sx1) = (lx0, lx1);
             for lx in sx0..=sx1 {
                 let li = ly * w as usize + lx;
                 if k >= last[li] {
