@@ -9,6 +9,8 @@ pub mod camera;
 pub mod conventions;
 pub mod densify;
 pub mod error;
+pub mod files;
+pub mod glb;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod loss;

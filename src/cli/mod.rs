@@ -4,6 +4,7 @@ mod aberrate;
 mod deconvolve;
 mod demo;
 mod experiment;
+mod export;
 mod progress;
 mod psf;
 mod render;
@@ -38,8 +39,10 @@ enum Command {
     Scene(scene::SceneCommand),
     /// Train a splat scene from an (aberrated) capture: aware, restored or plain.
     Train(metasplat::run::RunRequest),
-    /// Render a PLY from a capture's cameras or its spiral path.
+    /// Render a splat scene (PLY or GLB) from a capture's cameras or its spiral path.
     Render(render::RenderArgs),
+    /// Convert a splat scene between PLY and glTF (GLB with KHR_gaussian_splatting).
+    Export(export::ExportArgs),
     /// The paper's comparison (plain, restored, aware) on a capture, with speed against error.
     #[command(subcommand)]
     Experiment(experiment::ExperimentCommand),
@@ -71,6 +74,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Scene(c) => scene::run(c),
         Command::Train(a) => train::run(a),
         Command::Render(a) => render::run(a),
+        Command::Export(a) => export::run(a),
         Command::Experiment(c) => experiment::run(c),
         Command::Restorer(c) => restorer::run(c),
         Command::Restore(a) => restorer::run_restore(a),

@@ -8,8 +8,8 @@ use std::path::PathBuf;
 
 #[derive(Args)]
 pub struct RenderArgs {
-    /// Splat scene (INRIA PLY layout).
-    #[arg(long)]
+    /// Splat scene (.ply in the INRIA layout, or .glb with KHR_gaussian_splatting).
+    #[arg(long, visible_alias = "scene-file")]
     pub ply: PathBuf,
     /// Capture whose cameras (or spiral) to render from.
     #[arg(long)]
@@ -28,7 +28,7 @@ pub struct RenderArgs {
 
 pub fn run(a: RenderArgs) -> Result<()> {
     let (device, note) = Device::choose(a.device)?;
-    let model = splat::ply::read_ply(&a.ply)?;
+    let model = splat::files::read_splats(&a.ply)?;
     let capture = super::open_scene(&a.scene, a.downsample)?;
     let cameras = match a.spiral {
         Some(n) => metasplat::spiral::spiral(&capture.cameras, &capture.bounds, n),

@@ -1,0 +1,49 @@
+//! Splat files by their extension: `.ply` (INRIA layout) and `.glb` (`KHR_gaussian_splatting`).
+
+use std::path::Path;
+
+use crate::error::SplatError;
+use crate::model::Gaussians;
+
+/// The formats a scene can be read from and written to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    Ply,
+    Glb,
+}
+
+impl Format {
+    /// The format of `path`, from its extension.
+    pub fn of(path: &Path) -> Result<Format, SplatError> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        match ext.as_deref() {
+            Some("ply") => Ok(Format::Ply),
+            Some("glb") => Ok(Format::Glb),
+            _ => Err(SplatError::Ply {
+                path: path.to_path_buf(),
+                problem: "unknown splat file type (use .ply or .glb)".into(),
+            }),
+        }
+    }
+}
+
+/// Reads a splat scene of any supported format.
+pub fn read_splats(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
+    let path = path.as_ref();
+    match Format::of(path)? {
+        Format::Ply => crate::ply::read_ply(path),
+        Format::Glb => crate::glb::read_glb(path),
+    }
+}
+
+/// Writes a splat scene in the format its extension names (atomically).
+pub fn write_splats(path: impl AsRef<Path>, g: &Gaussians) -> Result<(), SplatError> {
+    let path = path.as_ref();
+    match Format::of(path)? {
+        Format::Ply => crate::ply::write_ply(path, g),
+        Format::Glb => crate::glb::write_glb(path, g),
+    }
+}

@@ -1,0 +1,62 @@
+//! `metasplat export`: a splat scene from one file format to another (PLY ↔ GLB).
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+
+#[derive(Args)]
+pub struct ExportArgs {
+    /// The scene to convert (.ply or .glb).
+    #[arg(long = "in", visible_alias = "ply")]
+    pub input: PathBuf,
+    /// The file to write; its extension (.ply or .glb) picks the format.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Keep SH bands up to this degree (default: all the input has).
+    #[arg(long)]
+    pub sh_degree: Option<u32>,
+}
+
+pub fn run(a: ExportArgs) -> Result<()> {
+    splat::files::Format::of(&a.out)?;
+    if same_file(&a.input, &a.out) {
+        bail!(
+            "--out {} is the input file: refusing to write over it",
+            a.out.display()
+        );
+    }
+    let mut g = splat::files::read_splats(&a.input)?;
+    if let Some(d) = a.sh_degree {
+        if d > g.sh_degree {
+            bail!(
+                "--sh-degree {d}: {} has SH degree {} only",
+                a.input.display(),
+                g.sh_degree
+            );
+        }
+        g.set_sh_degree(d);
+    }
+    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    splat::files::write_splats(&a.out, &g)?;
+    let size = std::fs::metadata(&a.out).map(|m| m.len()).unwrap_or(0);
+    println!(
+        "Wrote {} splats (SH degree {}) to {}: {} bytes, {:.1} per splat.",
+        g.len(),
+        g.sh_degree,
+        a.out.display(),
+        size,
+        size as f64 / g.len().max(1) as f64
+    );
+    Ok(())
+}
+
+/// Whether two paths name one file (the second need not exist).
+fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
+}
