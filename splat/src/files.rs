@@ -1,4 +1,5 @@
-//! Splat files by their extension: `.ply` (INRIA layout) and `.glb` (`KHR_gaussian_splatting`).
+//! Splat files by their extension: `.ply` (INRIA layout), `.glb` (`KHR_gaussian_splatting`) and
+//! `.spz` (Niantic's compressed format).
 
 use std::path::Path;
 
@@ -10,6 +11,7 @@ use crate::model::Gaussians;
 pub enum Format {
     Ply,
     Glb,
+    Spz,
 }
 
 impl Format {
@@ -22,9 +24,10 @@ impl Format {
         match ext.as_deref() {
             Some("ply") => Ok(Format::Ply),
             Some("glb") => Ok(Format::Glb),
+            Some("spz") => Ok(Format::Spz),
             _ => Err(SplatError::Ply {
                 path: path.to_path_buf(),
-                problem: "unknown splat file type (use .ply or .glb)".into(),
+                problem: "unknown splat file type (use .ply, .glb or .spz)".into(),
             }),
         }
     }
@@ -36,6 +39,7 @@ pub fn read_splats(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
     match Format::of(path)? {
         Format::Ply => crate::ply::read_ply(path),
         Format::Glb => crate::glb::read_glb(path),
+        Format::Spz => crate::spz::read_spz(path),
     }
 }
 
@@ -45,5 +49,6 @@ pub fn write_splats(path: impl AsRef<Path>, g: &Gaussians) -> Result<(), SplatEr
     match Format::of(path)? {
         Format::Ply => crate::ply::write_ply(path, g),
         Format::Glb => crate::glb::write_glb(path, g),
+        Format::Spz => crate::spz::write_spz(path, g),
     }
 }

@@ -22,6 +22,7 @@ pub mod rasterizer;
 pub mod reference;
 pub mod render;
 pub mod sh;
+pub mod spz;
 pub mod synthetic;
 
 // The CPU kernels: documented for whoever ports them, but not API.

@@ -1,4 +1,4 @@
-//! `metasplat export`: a splat scene from one file format to another (PLY ↔ GLB).
+//! `metasplat export`: a splat scene from one file format to another (PLY, GLB, SPZ).
 
 use std::path::PathBuf;
 
@@ -7,10 +7,10 @@ use clap::Args;
 
 #[derive(Args)]
 pub struct ExportArgs {
-    /// The scene to convert (.ply or .glb).
+    /// The scene to convert (.ply, .glb or .spz).
     #[arg(long = "in", visible_alias = "ply")]
     pub input: PathBuf,
-    /// The file to write; its extension (.ply or .glb) picks the format.
+    /// The file to write; its extension (.ply, .glb or .spz) picks the format.
     #[arg(long)]
     pub out: PathBuf,
     /// Keep SH bands up to this degree (default: all the input has).

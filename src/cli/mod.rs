@@ -39,9 +39,9 @@ enum Command {
     Scene(scene::SceneCommand),
     /// Train a splat scene from an (aberrated) capture: aware, restored or plain.
     Train(metasplat::run::RunRequest),
-    /// Render a splat scene (PLY or GLB) from a capture's cameras or its spiral path.
+    /// Render a splat scene (PLY, GLB or SPZ) from a capture's cameras or its spiral path.
     Render(render::RenderArgs),
-    /// Convert a splat scene between PLY and glTF (GLB with KHR_gaussian_splatting).
+    /// Convert a splat scene between PLY, glTF (GLB with KHR_gaussian_splatting) and SPZ.
     Export(export::ExportArgs),
     /// The paper's comparison (plain, restored, aware) on a capture, with speed against error.
     #[command(subcommand)]

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 #[derive(Args)]
 pub struct RenderArgs {
-    /// Splat scene (.ply in the INRIA layout, or .glb with KHR_gaussian_splatting).
+    /// Splat scene (.ply in the INRIA layout, .glb with KHR_gaussian_splatting, or .spz).
     #[arg(long, visible_alias = "scene-file")]
     pub ply: PathBuf,
     /// Capture whose cameras (or spiral) to render from.

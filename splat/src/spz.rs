@@ -1,0 +1,254 @@
+//! SPZ (Niantic's compressed splat format), versions 2 and 3, read and written (version 3).
+//!
+//! A gzip stream holding a 16-byte header (magic `NGSP`, version, count, SH degree,
+//! fractional bits, flags) and then, attribute by attribute: positions as 24-bit fixed point
+//! (12 fractional bits, so ±2048 units at 0.25 mm), opacity after the sigmoid in 8 bits, the
+//! DC colour as `dc · 0.15 · 255 + 127.5`, log scales as `(s + 10) · 16`, orientation as
+//! "smallest three" (version 3: the largest component's index in 2 bits and the others in
+//! 10 bits each; version 2: x, y, z in 8 bits with w ≥ 0) and SH coefficients in 8 bits
+//! (`x · 128 + 128`, per splat, coefficient by coefficient, RGB innermost).
+//!
+//! Frame: values are stored in the PLY's frame, as PlayCanvas' splat-transform reads and
+//! writes them (Niantic's own converter turns PLY data into its right-up-back frame; its
+//! files open here turned by half a turn about x). Version 4 (ZSTD streams, splat-transform's
+//! default) is refused with a message saying how to get a version 3 file.
+
+use std::io::{Read, Write};
+use std::path::Path;
+
+use glam::Vec3;
+
+use crate::error::SplatError;
+use crate::model::{Gaussians, MAX_SH_DEGREE, logit, sh_rest_count, sigmoid};
+
+const MAGIC: u32 = 0x5053_474e;
+const HEADER: usize = 16;
+const FRACTIONAL_BITS: u8 = 12;
+const COLOR_SCALE: f32 = 0.15;
+/// More than any scene we make, and a bound on what a hostile header can make us allocate.
+const MAX_POINTS: u64 = 50_000_000;
+
+fn to_u8(x: f32) -> u8 {
+    x.round().clamp(0.0, 255.0) as u8
+}
+
+/// Encodes a unit quaternion (x, y, z, w) as "smallest three" in 32 bits.
+fn pack_quat(q: [f32; 4]) -> u32 {
+    let largest = (0..4)
+        .max_by(|&a, &b| q[a].abs().total_cmp(&q[b].abs()))
+        .expect("four components");
+    let negate = q[largest] < 0.0;
+    let mut comp = largest as u32;
+    for (i, v) in q.iter().enumerate() {
+        if i != largest {
+            let neg = ((*v < 0.0) ^ negate) as u32;
+            let mag = (511.0 * (v.abs() / std::f32::consts::FRAC_1_SQRT_2) + 0.5) as u32;
+            comp = (comp << 10) | (neg << 9) | mag.min(511);
+        }
+    }
+    comp
+}
+
+fn unpack_quat(mut comp: u32) -> [f32; 4] {
+    let largest = (comp >> 30) as usize;
+    let mut q = [0.0f32; 4];
+    let mut sum = 0.0;
+    for i in (0..4).rev() {
+        if i != largest {
+            let mag = comp & 511;
+            let neg = (comp >> 9) & 1;
+            comp >>= 10;
+            let v = std::f32::consts::FRAC_1_SQRT_2 * mag as f32 / 511.0;
+            q[i] = if neg == 1 { -v } else { v };
+            sum += q[i] * q[i];
+        }
+    }
+    q[largest] = (1.0 - sum).max(0.0).sqrt();
+    q
+}
+
+/// The SPZ (version 3) bytes of `g`.
+pub fn to_spz(g: &Gaussians) -> Result<Vec<u8>, SplatError> {
+    let bad = |m: String| SplatError::InvalidModel(m);
+    let n = g.len();
+    let limit = (1 << 23) as f32 / (1 << FRACTIONAL_BITS) as f32;
+    if let Some(m) = g
+        .means
+        .iter()
+        .find(|m| !m.is_finite() || m.abs().max_element() >= limit)
+    {
+        return Err(bad(format!(
+            "position {m} cannot be stored in SPZ (24-bit fixed point: |x| < {limit})"
+        )));
+    }
+    let rc = g.rest_count();
+    let mut raw = Vec::with_capacity(HEADER + n * (9 + 1 + 3 + 3 + 4 + 3 * rc));
+    raw.extend(MAGIC.to_le_bytes());
+    raw.extend(3u32.to_le_bytes());
+    raw.extend((n as u32).to_le_bytes());
+    raw.extend([g.sh_degree as u8, FRACTIONAL_BITS, 0, 0]);
+    let scale = (1 << FRACTIONAL_BITS) as f32;
+    for m in &g.means {
+        for v in m.to_array() {
+            let fixed = (v * scale).round() as i32;
+            raw.extend(&fixed.to_le_bytes()[..3]);
+        }
+    }
+    raw.extend(g.logit_opacities.iter().map(|o| to_u8(sigmoid(*o) * 255.0)));
+    for c in &g.sh_dc {
+        raw.extend(
+            c.to_array()
+                .map(|v| to_u8(v * (COLOR_SCALE * 255.0) + 0.5 * 255.0)),
+        );
+    }
+    for s in &g.log_scales {
+        raw.extend(s.to_array().map(|v| to_u8((v + 10.0) * 16.0)));
+    }
+    for [w, x, y, z] in &g.rotations {
+        let len = (w * w + x * x + y * y + z * z).sqrt();
+        let q = if len > 0.0 && len.is_finite() {
+            [x / len, y / len, z / len, w / len]
+        } else {
+            [0.0, 0.0, 0.0, 1.0]
+        };
+        raw.extend(pack_quat(q).to_le_bytes());
+    }
+    for c in &g.sh_rest {
+        raw.extend(c.to_array().map(|v| to_u8(v * 128.0 + 128.0)));
+    }
+    let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+    enc.write_all(&raw)
+        .and_then(|_| enc.finish())
+        .map_err(|e| bad(format!("cannot compress: {e}")))
+}
+
+/// Writes `g` as an SPZ file (atomically, ordinary permissions).
+pub fn write_spz(path: impl AsRef<Path>, g: &Gaussians) -> Result<(), SplatError> {
+    let path = path.as_ref();
+    let bytes = to_spz(g)?;
+    base::write_bytes_atomically(path, &bytes).map_err(|source| SplatError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+pub fn read_spz(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
+    let path = path.as_ref();
+    let bytes = std::fs::read(path).map_err(|source| SplatError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    parse_spz(path, &bytes)
+}
+
+/// Parses SPZ bytes (`path` only names the file in errors).
+pub fn parse_spz(path: &Path, bytes: &[u8]) -> Result<Gaussians, SplatError> {
+    let bad = |problem: String| SplatError::Ply {
+        path: path.to_path_buf(),
+        problem,
+    };
+    if bytes.len() >= 8 && bytes[..4] == MAGIC.to_le_bytes() {
+        let version = u32::from_le_bytes(bytes[4..8].try_into().expect("4 bytes"));
+        return Err(bad(format!(
+            "SPZ version {version} (ZSTD streams) is not read yet; write a version 3 file with \
+             `splat-transform --spz-version 3`"
+        )));
+    }
+    let mut dec = flate2::read::GzDecoder::new(bytes);
+    let mut header = [0u8; HEADER];
+    dec.read_exact(&mut header).map_err(|e| {
+        bad(format!(
+            "not an SPZ file (no gzip stream with a header): {e}"
+        ))
+    })?;
+    let u32_at = |i: usize| u32::from_le_bytes(header[i..i + 4].try_into().expect("4 bytes"));
+    if u32_at(0) != MAGIC {
+        return Err(bad("not an SPZ file (no NGSP magic)".into()));
+    }
+    let version = u32_at(4);
+    if !(2..=3).contains(&version) {
+        return Err(bad(format!(
+            "SPZ version {version} is not read (2 and 3 are)"
+        )));
+    }
+    let n = u32_at(8) as u64;
+    let degree = header[12] as u32;
+    let frac = header[13];
+    let flags = header[14];
+    if n > MAX_POINTS {
+        return Err(bad(format!(
+            "{n} splats declared, more than the {MAX_POINTS} read"
+        )));
+    }
+    if degree > MAX_SH_DEGREE {
+        return Err(bad(format!(
+            "SH degree {degree} (at most {MAX_SH_DEGREE} is read)"
+        )));
+    }
+    if frac > 23 {
+        return Err(bad(format!("{frac} fractional bits for 24-bit positions")));
+    }
+    if flags & 2 != 0 {
+        return Err(bad("SPZ extensions are not read".into()));
+    }
+    let rc = sh_rest_count(degree);
+    let rot_bytes = if version >= 3 { 4 } else { 3 };
+    let per = 9 + 1 + 3 + 3 + rot_bytes + 3 * rc;
+    let expected = n as usize * per;
+    let mut body = Vec::with_capacity(expected);
+    dec.take(expected as u64 + 1)
+        .read_to_end(&mut body)
+        .map_err(|e| bad(format!("corrupt compressed data: {e}")))?;
+    if body.len() != expected {
+        return Err(bad(format!(
+            "{n} splats need {expected} bytes after the header, the file has {}{}",
+            body.len().min(expected),
+            if body.len() > expected {
+                " and more"
+            } else {
+                ""
+            }
+        )));
+    }
+    let n = n as usize;
+    let (pos, rest) = body.split_at(9 * n);
+    let (alpha, rest) = rest.split_at(n);
+    let (color, rest) = rest.split_at(3 * n);
+    let (scale, rest) = rest.split_at(3 * n);
+    let (rot, sh) = rest.split_at(rot_bytes * n);
+    let step = 1.0 / (1u32 << frac) as f32;
+    let mut g = Gaussians::new(degree);
+    let mut coeffs = vec![Vec3::ZERO; rc];
+    for i in 0..n {
+        let p: [f32; 3] = std::array::from_fn(|k| {
+            let b = &pos[9 * i + 3 * k..9 * i + 3 * k + 3];
+            // Sign-extend 24 bits.
+            (i32::from_le_bytes([b[0], b[1], b[2], 0]) << 8 >> 8) as f32 * step
+        });
+        let v3 = |a: &[u8], f: &dyn Fn(u8) -> f32| {
+            Vec3::new(f(a[3 * i]), f(a[3 * i + 1]), f(a[3 * i + 2]))
+        };
+        let q = if version >= 3 {
+            unpack_quat(u32::from_le_bytes(
+                rot[4 * i..4 * i + 4].try_into().expect("4 bytes"),
+            ))
+        } else {
+            let c = |b: u8| b as f32 / 127.5 - 1.0;
+            let (x, y, z) = (c(rot[3 * i]), c(rot[3 * i + 1]), c(rot[3 * i + 2]));
+            [x, y, z, (1.0 - x * x - y * y - z * z).max(0.0).sqrt()]
+        };
+        for (k, c) in coeffs.iter_mut().enumerate() {
+            let b = &sh[(i * rc + k) * 3..(i * rc + k) * 3 + 3];
+            *c = Vec3::new(b[0] as f32, b[1] as f32, b[2] as f32) / 128.0 - Vec3::ONE;
+        }
+        g.push(
+            Vec3::from_array(p),
+            v3(scale, &|b| b as f32 / 16.0 - 10.0),
+            [q[3], q[0], q[1], q[2]],
+            logit(alpha[i] as f32 / 255.0),
+            v3(color, &|b| (b as f32 / 255.0 - 0.5) / COLOR_SCALE),
+            &coeffs,
+        );
+    }
+    Ok(g)
+}

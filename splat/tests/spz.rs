@@ -1,0 +1,106 @@
+//! SPZ both ways: values within the format's quantisation, renders close, bad files refused.
+
+mod common;
+
+use common::{random_scene, test_camera};
+use glam::Vec3;
+use splat::spz::{parse_spz, read_spz, to_spz, write_spz};
+use splat::{RenderSettings, render};
+
+#[test]
+fn round_trip_is_within_the_quantisation() {
+    let dir = tempfile::tempdir().unwrap();
+    for deg in 0..=3 {
+        let g = random_scene(60 + deg as u64, 400, deg, (0.02, 0.3), 1.2);
+        let path = dir.path().join(format!("s{deg}.spz"));
+        write_spz(&path, &g).unwrap();
+        let back = read_spz(&path).unwrap();
+        assert_eq!((back.len(), back.sh_degree), (g.len(), deg));
+        for i in 0..g.len() {
+            // 12 fractional bits: half a step.
+            assert!((back.means[i] - g.means[i]).abs().max_element() <= 0.5 / 4096.0 + 1e-6);
+            // Log scale in steps of 1/16.
+            assert!(
+                (back.log_scales[i] - g.log_scales[i]).abs().max_element() <= 0.5 / 16.0 + 1e-6
+            );
+            let (a, b) = (
+                splat::model::sigmoid(back.logit_opacities[i]),
+                splat::model::sigmoid(g.logit_opacities[i]),
+            );
+            assert!((a - b).abs() <= 0.5 / 255.0 + 1e-6, "opacity {a} vs {b}");
+            assert!(
+                (back.sh_dc[i] - g.sh_dc[i]).abs().max_element() <= 0.5 / (255.0 * 0.15) + 1e-5
+            );
+            // Smallest three at 9 bits: the rotation angle moves by well under a degree.
+            let q = g.rotations[i];
+            let len = q.iter().map(|v| v * v).sum::<f32>().sqrt();
+            let dot: f32 = back.rotations[i]
+                .iter()
+                .zip(q)
+                .map(|(a, b)| a * b / len)
+                .sum();
+            assert!(
+                dot.abs() > 0.9999,
+                "rotation {:?} vs {q:?}",
+                back.rotations[i]
+            );
+        }
+        for (a, b) in back.sh_rest.iter().zip(&g.sh_rest) {
+            let clamped = b.clamp(Vec3::splat(-1.0), Vec3::splat(127.0 / 128.0));
+            assert!((*a - clamped).abs().max_element() <= 0.5 / 128.0 + 1e-6);
+        }
+        let cam = test_camera(48, 36, 40.0);
+        let s = RenderSettings {
+            sh_degree: deg,
+            background: Vec3::new(0.1, 0.2, 0.3),
+            antialiased: false,
+        };
+        let p = base::psnr_rgb(
+            &render(&back, &cam, &s).unwrap().color,
+            &render(&g, &cam, &s).unwrap().color,
+        )
+        .unwrap();
+        assert!(p >= 38.0, "degree {deg}: {p} dB");
+    }
+}
+
+#[test]
+fn bad_files_are_refused_with_the_problem() {
+    let p = std::path::Path::new("scene.spz");
+    let g = random_scene(5, 50, 1, (0.05, 0.2), 1.0);
+    let bytes = to_spz(&g).unwrap();
+    for cut in [0, 5, 10, bytes.len() / 2, bytes.len() - 1] {
+        let err = parse_spz(p, &bytes[..cut]).unwrap_err().to_string();
+        assert!(err.contains("scene.spz"), "{err}");
+    }
+    let mut rng = base::SplitMix64::new(2);
+    for _ in 0..300 {
+        let mut b = bytes.clone();
+        for _ in 0..3 {
+            let i = (rng.next_u64() % b.len() as u64) as usize;
+            b[i] = rng.next_u64() as u8;
+        }
+        let _ = parse_spz(p, &b);
+    }
+    // A hostile header: a billion splats in a tiny file is refused before any allocation.
+    let mut raw = Vec::new();
+    raw.extend(0x5053_474e_u32.to_le_bytes());
+    raw.extend(3u32.to_le_bytes());
+    raw.extend(1_000_000_000u32.to_le_bytes());
+    raw.extend([0u8, 12, 0, 0]);
+    let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+    std::io::Write::write_all(&mut enc, &raw).unwrap();
+    let err = parse_spz(p, &enc.finish().unwrap())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("1000000000"), "{err}");
+    // Version 4 gets a message that says what to do.
+    let err = parse_spz(p, b"NGSP\x04\x00\x00\x00\x00\x00\x00\x00")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("--spz-version 3"), "{err}");
+    // Positions beyond 24-bit fixed point are refused on writing.
+    let mut far = g.clone();
+    far.means[0].x = 1e4;
+    assert!(to_spz(&far).is_err());
+}
