@@ -22,6 +22,36 @@ pub const LOG_FILE: &str = "train_log.csv";
 pub const CHECKPOINT_FILE: &str = "checkpoint.bin";
 pub const CONFIG_FILE: &str = "config.json";
 pub const PSNR_PLOT: &str = "psnr_vs_time.png";
+/// Everything a run writes into its folder (folders end in `/`).
+pub const RUN_FILES: [&str; 8] = [
+    PLY_FILE,
+    CHECKPOINT_FILE,
+    METRICS_FILE,
+    LOG_FILE,
+    CONFIG_FILE,
+    PSNR_PLOT,
+    "test/",
+    "spiral/",
+];
+
+/// Removes a previous run's outputs from `dir` (`--overwrite`), and nothing else.
+pub fn clear_run(dir: &Path) -> Result<()> {
+    for f in RUN_FILES {
+        let p = dir.join(f.trim_end_matches('/'));
+        let r = if f.ends_with('/') {
+            std::fs::remove_dir_all(&p)
+        } else {
+            std::fs::remove_file(&p)
+        };
+        match r {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(TrainError::io(&p, e));
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
 
 /// Creates the run folder and proves it writable before any training time is spent.
 pub fn prepare_run_dir(dir: &Path) -> Result<()> {

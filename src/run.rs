@@ -31,8 +31,11 @@ pub struct RunRequest {
     #[command(flatten)]
     pub training: TrainSettings,
     /// Continue from RUN/checkpoint.bin (same settings required).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "overwrite")]
     pub resume: bool,
+    /// Replace the run already in the run folder (its PLY, checkpoint, metrics and renders).
+    #[arg(long)]
+    pub overwrite: bool,
     /// Spiral frames to render at the end.
     #[arg(long, default_value_t = 30)]
     pub spiral: usize,
@@ -112,11 +115,24 @@ pub struct PreparedRun {
 /// Checks and loads everything a run needs, before any training time is spent.
 pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
     let out = &request.out;
+    let mut inputs = vec![("--scene", request.scene.as_path())];
+    if let Some(p) = &request.data.psf {
+        inputs.push(("--psf", p));
+    }
+    if let data::RestorerChoice::Weights(w) = &request.data.restorer {
+        inputs.push(("--restorer", w));
+    }
+    crate::guard::refuse_overwrite("--out", out, &inputs)?;
+    check_run_folder(request)?;
     let (device, device_note) = Device::choose(request.device)?;
-    outputs::prepare_run_dir(out)
-        .map_err(|e| e.context(format!("cannot use {} as the run folder", out.display())))?;
+    // Every input is checked before the run folder is made.
     let data = data::load(&request.scene, request.training.mode, &request.data)
         .map_err(|e| e.context(format!("cannot load the scene {}", request.scene.display())))?;
+    outputs::prepare_run_dir(out)
+        .map_err(|e| e.context(format!("cannot use {} as the run folder", out.display())))?;
+    if request.overwrite {
+        outputs::clear_run(out)?;
+    }
     let config = TrainConfig::build(&request.training, request.data.seed, &data);
     outputs::write_json(&out.join(outputs::CONFIG_FILE), &config)?;
     Ok(PreparedRun {
@@ -128,18 +144,38 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
     })
 }
 
+/// A run folder that holds a run is continued (`--resume`) or replaced (`--overwrite`), never
+/// mixed with a new one; `--resume` needs a checkpoint to continue.
+fn check_run_folder(request: &RunRequest) -> Result<()> {
+    let out = &request.out;
+    let ckpt = out.join(CHECKPOINT_FILE);
+    if request.resume && !ckpt.exists() {
+        return Err(TrainError::file(
+            out,
+            format!("--resume: there is no {CHECKPOINT_FILE} to continue"),
+        ));
+    }
+    let existing = outputs::RUN_FILES.iter().find(|f| out.join(f).exists());
+    if let Some(f) = existing
+        && !request.resume
+        && !request.overwrite
+    {
+        return Err(TrainError::file(
+            out,
+            format!(
+                "the folder already holds a run ({f}): continue it with --resume or replace it with --overwrite"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 impl PreparedRun {
     /// Trains (resuming if asked), then writes the run folder: PLY, metrics, log, renders and
     /// the PSNR-vs-time plot.
     pub fn run(&self, on_event: &mut dyn FnMut(Event)) -> Result<(RunSummary, Outcome)> {
         let out = &self.request.out;
         let ckpt = out.join(CHECKPOINT_FILE);
-        // A fresh run must not leave an older run's checkpoint for a later --resume to pick up.
-        if !self.request.resume && ckpt.exists() {
-            std::fs::remove_file(&ckpt).map_err(|e| {
-                TrainError::io(&ckpt, e).context(format!("cannot replace {}", ckpt.display()))
-            })?;
-        }
         let outcome = train::train(
             &self.config,
             &self.data,

@@ -744,3 +744,263 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
     ]);
     assert!(err.contains("missing.bin"), "{err}");
 }
+
+/// Every file under `dir` (recursively) with its bytes, to prove inputs survive a command.
+fn snapshot(dir: &Path) -> Vec<(std::path::PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let bytes = std::fs::read(&p).unwrap();
+                out.push((p, bytes));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn outputs_that_alias_inputs_are_refused_and_inputs_survive() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let psf = d.join("psf.npy");
+    let mut args = vec!["psf", "simulate", "--out", s(&psf)];
+    args.extend_from_slice(SMALL_LENS);
+    ok(&args);
+    let scene = d.join("scene");
+    ok(&[
+        "scene",
+        "procedural",
+        "--out",
+        s(&scene),
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--views",
+        "5",
+    ]);
+    let photo = scene.join("images/view000.png");
+    let ply = d.join("model.ply");
+    splat::ply::write_ply(&ply, &splat::synthetic::random_box_scene(1, 50, 0)).unwrap();
+    let weights = Path::new(env!("CARGO_MANIFEST_DIR")).join("restore/weights/tiny.bin");
+    let before = snapshot(d);
+    let images = scene.join("images");
+    let out_png = d.join("fresh.png");
+    let cases: Vec<Vec<&str>> = vec![
+        vec!["psf", "show", s(&psf), "--out", s(&psf)],
+        vec![
+            "aberrate",
+            "--psf",
+            s(&psf),
+            "--in",
+            s(&photo),
+            "--out",
+            s(&photo),
+        ],
+        vec![
+            "aberrate",
+            "--psf",
+            s(&psf),
+            "--in",
+            s(&photo),
+            "--out",
+            s(&psf),
+        ],
+        vec![
+            "deconvolve",
+            "--psf",
+            s(&psf),
+            "--in",
+            s(&photo),
+            "--out",
+            s(&photo),
+        ],
+        vec![
+            "deconvolve",
+            "--psf",
+            s(&psf),
+            "--in",
+            s(&photo),
+            "--out",
+            s(&out_png),
+            "--bank",
+            s(&psf),
+        ],
+        vec![
+            "restore",
+            "--psf",
+            s(&psf),
+            "--weights",
+            weights.to_str().unwrap(),
+            "--in",
+            s(&photo),
+            "--out",
+            s(&photo),
+        ],
+        vec![
+            "render",
+            "--ply",
+            s(&ply),
+            "--scene",
+            s(&scene),
+            "--out",
+            s(&images),
+            "--downsample",
+            "1",
+        ],
+        vec![
+            "render",
+            "--ply",
+            s(&ply),
+            "--scene",
+            s(&scene),
+            "--out",
+            s(&scene),
+            "--downsample",
+            "1",
+        ],
+        vec!["export", "--in", s(&ply), "--out", s(&ply)],
+        vec![
+            "scene",
+            "aberrate",
+            "--scene",
+            s(&scene),
+            "--psf",
+            s(&psf),
+            "--out",
+            s(&scene),
+            "--downsample",
+            "1",
+        ],
+        vec![
+            "train",
+            "--scene",
+            s(&scene),
+            "--out",
+            s(&scene),
+            "--downsample",
+            "1",
+            "--iters",
+            "5",
+        ],
+        vec![
+            "train",
+            "--scene",
+            s(&scene),
+            "--out",
+            s(&images),
+            "--downsample",
+            "1",
+            "--iters",
+            "5",
+        ],
+        vec![
+            "experiment",
+            "llff",
+            "--scene",
+            s(&scene),
+            "--out",
+            s(&scene),
+            "--iters",
+            "5",
+        ],
+    ];
+    for case in &cases {
+        let err = fails(case);
+        assert!(
+            err.contains("--out") || err.contains("--bank"),
+            "metasplat {case:?} does not name the flag:\n{err}"
+        );
+        assert!(err.contains("refusing"), "metasplat {case:?}:\n{err}");
+    }
+    assert!(snapshot(d) == before, "an input changed");
+    eprintln!(
+        "{} aliasing outputs refused, every input unchanged",
+        cases.len()
+    );
+}
+
+#[test]
+fn a_run_folder_is_continued_or_replaced_never_mixed() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("scene");
+    ok(&[
+        "scene",
+        "procedural",
+        "--out",
+        s(&scene),
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--views",
+        "5",
+    ]);
+    let run = d.join("run");
+    let train = |extra: &[&str]| -> Vec<String> {
+        let mut a: Vec<String> = [
+            "train",
+            "--scene",
+            s(&scene),
+            "--out",
+            s(&run),
+            "--mode",
+            "plain",
+            "--downsample",
+            "1",
+            "--iters",
+            "10",
+            "--spiral",
+            "2",
+        ]
+        .iter()
+        .map(|x| x.to_string())
+        .collect();
+        a.extend(extra.iter().map(|x| x.to_string()));
+        a
+    };
+    fn as_str(v: &[String]) -> Vec<&str> {
+        v.iter().map(String::as_str).collect()
+    }
+    // --resume with nothing to resume says so and makes no folder.
+    let err = fails(&as_str(&train(&["--resume"])));
+    assert!(
+        err.contains("--resume") && err.contains("checkpoint"),
+        "{err}"
+    );
+    assert!(!run.exists(), "a refused run left its folder");
+    ok(&as_str(&train(&[])));
+    let first = std::fs::read(run.join("point_cloud.ply")).unwrap();
+    // A second fresh run into the same folder is refused and changes nothing.
+    let err = fails(&as_str(&train(&[])));
+    assert!(
+        err.contains("--overwrite") && err.contains("--resume"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(run.join("point_cloud.ply")).unwrap(), first);
+    // --overwrite replaces the run: no stale spiral frames survive.
+    std::fs::write(run.join("spiral/stale.png"), b"old").unwrap();
+    ok(&as_str(&train(&["--overwrite"])));
+    assert!(!run.join("spiral/stale.png").exists());
+    assert!(run.join("point_cloud.ply").exists());
+    // A bad capture leaves no run folder behind.
+    let other = d.join("run_bad");
+    let err = fails(&[
+        "train",
+        "--scene",
+        s(&d.join("missing")),
+        "--out",
+        s(&other),
+        "--downsample",
+        "1",
+    ]);
+    assert!(err.contains("missing"), "{err}");
+    assert!(!other.exists(), "a refused run left its folder");
+}

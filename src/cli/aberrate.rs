@@ -46,6 +46,7 @@ impl ImagingArgs {
 }
 
 pub fn run(a: AberrateArgs) -> Result<()> {
+    metasplat::guard::refuse_overwrite("--out", &a.out, &[("--in", &a.input), ("--psf", &a.psf)])?;
     let psf = PsfGrid::load_npy(&a.psf)?;
     let clean = Image::load(&a.input)?;
     let im = &a.imaging;

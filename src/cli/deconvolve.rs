@@ -31,6 +31,14 @@ pub struct DeconvolveArgs {
 }
 
 pub fn run(a: DeconvolveArgs) -> Result<()> {
+    let mut inputs = vec![("--in", a.input.as_path()), ("--psf", a.psf.as_path())];
+    if let Some(r) = &a.reference {
+        inputs.push(("--reference", r));
+    }
+    metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
+    if let Some(bank) = &a.bank {
+        metasplat::guard::refuse_overwrite("--bank", bank, &inputs)?;
+    }
     let native = PsfGrid::load_npy(&a.psf)?;
     let blurred = Image::load(&a.input)?;
     let psf = native.for_image(blurred.width, blurred.height, a.sensor_px);

@@ -101,6 +101,8 @@ pub fn run(a: DemoArgs) -> Result<()> {
         args.training.mode = mode;
         args.training.iters = iters;
         args.training.checkpoint_every = Some(0);
+        // The demo's own folders under --out: a second demo replaces them.
+        args.overwrite = true;
         if a.quick {
             args.spiral = 4;
         }

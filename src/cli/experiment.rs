@@ -45,10 +45,18 @@ pub struct LlffArgs {
     /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu`.
     #[arg(long, value_enum, default_value_t = metasplat::device::DeviceChoice::Auto)]
     pub device: metasplat::device::DeviceChoice,
+    /// Replace runs already in --out (otherwise a folder holding a run is refused).
+    #[arg(long)]
+    pub overwrite: bool,
 }
 
 pub fn run(cmd: ExperimentCommand) -> Result<()> {
     let ExperimentCommand::Llff(a) = cmd;
+    let mut inputs = vec![("--scene", a.scene.as_path())];
+    if let Some(p) = &a.psf {
+        inputs.push(("--psf", p));
+    }
+    metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let psf_path = match &a.psf {
@@ -84,6 +92,7 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
         args.data.downsample = a.downsample;
         args.data.seed = a.seed;
         args.device = a.device;
+        args.overwrite = a.overwrite;
         args.training.mode = mode;
         args.training.iters = a.iters;
         args.training.lambda = a.lambda;

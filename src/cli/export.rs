@@ -20,12 +20,7 @@ pub struct ExportArgs {
 
 pub fn run(a: ExportArgs) -> Result<()> {
     splat::files::Format::of(&a.out)?;
-    if same_file(&a.input, &a.out) {
-        bail!(
-            "--out {} is the input file: refusing to write over it",
-            a.out.display()
-        );
-    }
+    metasplat::guard::refuse_overwrite("--out", &a.out, &[("--in", &a.input)])?;
     let mut g = splat::files::read_splats(&a.input)?;
     if let Some(d) = a.sh_degree {
         if d > g.sh_degree {
@@ -51,12 +46,4 @@ pub fn run(a: ExportArgs) -> Result<()> {
         size as f64 / g.len().max(1) as f64
     );
     Ok(())
-}
-
-/// Whether two paths name one file (the second need not exist).
-fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
-    match (a.canonicalize(), b.canonicalize()) {
-        (Ok(x), Ok(y)) => x == y,
-        _ => false,
-    }
 }

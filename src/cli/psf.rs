@@ -134,6 +134,7 @@ pub fn run(cmd: PsfCommand) -> Result<()> {
             Ok(())
         }
         PsfCommand::Show(a) => {
+            metasplat::guard::refuse_overwrite("--out", &a.out, &[("the PSF file", &a.psf)])?;
             let grid = PsfGrid::load_npy(&a.psf)?;
             save_rgb8_png(&psf_grid_picture(&grid), &a.out)?;
             println!(

@@ -27,6 +27,8 @@ pub struct RenderArgs {
 }
 
 pub fn run(a: RenderArgs) -> Result<()> {
+    let inputs = [("--ply", a.ply.as_path()), ("--scene", a.scene.as_path())];
+    metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
     let (device, note) = Device::choose(a.device)?;
     let model = splat::files::read_splats(&a.ply)?;
     let capture = super::open_scene(&a.scene, a.downsample)?;

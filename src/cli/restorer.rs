@@ -189,6 +189,15 @@ fn config_from(a: &TrainRestorerArgs) -> Result<RestorerConfig> {
 }
 
 fn run_train(a: TrainRestorerArgs) -> Result<()> {
+    let mut inputs = vec![
+        ("--images", a.images.as_path()),
+        ("--val", a.val.as_path()),
+        ("--psf", a.psf.as_path()),
+    ];
+    if let Some(i) = &a.init {
+        inputs.push(("--init", i));
+    }
+    metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
     let device = a.backend.device()?;
     let cfg = config_from(&a)?;
     let native =
@@ -384,6 +393,14 @@ struct Row {
 }
 
 fn run_eval(a: EvalArgs) -> Result<()> {
+    if let Some(out) = &a.out {
+        let inputs = [
+            ("--val", a.val.as_path()),
+            ("--weights", a.net.weights.as_path()),
+            ("--psf", a.net.psf.as_path()),
+        ];
+        metasplat::guard::refuse_overwrite("--out", out, &inputs)?;
+    }
     let (native, restorer) = a.net.load()?;
     let photos = load_folder(&a.val, 1)?;
     let noise = NoiseModel::default();
@@ -516,6 +533,15 @@ fn strip(images: &[&Image]) -> Image {
 }
 
 pub fn run_restore(a: RestoreArgs) -> Result<()> {
+    let mut inputs = vec![
+        ("--in", a.input.as_path()),
+        ("--weights", a.net.weights.as_path()),
+        ("--psf", a.net.psf.as_path()),
+    ];
+    if let Some(r) = &a.reference {
+        inputs.push(("--reference", r));
+    }
+    metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
     let (native, restorer) = a.net.load()?;
     let blurred =
         Image::load(&a.input).with_context(|| format!("cannot read {}", a.input.display()))?;

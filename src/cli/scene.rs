@@ -100,6 +100,11 @@ pub fn run(cmd: SceneCommand) -> Result<()> {
 }
 
 fn aberrate(a: SceneAberrateArgs) -> Result<()> {
+    metasplat::guard::refuse_overwrite(
+        "--out",
+        &a.out,
+        &[("--scene", &a.scene), ("--psf", &a.psf)],
+    )?;
     let capture = super::open_scene(&a.scene, a.downsample)?;
     let options = scenes::AberrateOptions {
         mode: a.imaging.mode,
