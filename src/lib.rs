@@ -8,6 +8,7 @@ pub mod convert;
 pub mod device;
 pub mod error;
 pub mod eval;
+pub mod flags;
 pub mod guard;
 pub mod init;
 pub mod outputs;

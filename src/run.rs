@@ -37,8 +37,8 @@ pub struct RunRequest {
     #[arg(long)]
     pub overwrite: bool,
     /// Spiral frames to render at the end.
-    #[arg(long, default_value_t = 30)]
-    pub spiral: usize,
+    #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u32).range(0..=10_000))]
+    pub spiral: u32,
     /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu` (any
     /// adapter, software ones included). Results do not depend on it.
     #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
@@ -52,14 +52,14 @@ pub struct TrainSettings {
     pub mode: Mode,
     /// Weight of L(render, I_ac) in aware mode; default 0.75 (the paper's) with a trained
     /// restorer, 0.25 with the median-Wiener stand-in.
-    #[arg(long)]
+    #[arg(long, value_parser = crate::flags::weight, allow_negative_numbers = true)]
     pub lambda: Option<f32>,
-    #[arg(long, default_value_t = 7000)]
+    #[arg(long, default_value_t = 7000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub iters: u64,
     /// Splat budget; default: one per two pixels of a view.
-    #[arg(long)]
-    pub max_splats: Option<usize>,
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
+    pub max_splats: Option<u64>,
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=3))]
     pub max_sh_degree: u32,
     /// Reset opacities as 3DGS does (the paper turned this off for LLFF scenes).
     #[arg(long)]
@@ -189,7 +189,7 @@ impl PreparedRun {
             &self.data,
             &self.config,
             &outcome,
-            self.request.spiral,
+            self.request.spiral as usize,
             &self.device,
         )
         .and_then(|s| outputs::plot_log(out, &outcome.log).map(|_| s))

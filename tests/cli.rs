@@ -1004,3 +1004,135 @@ fn a_run_folder_is_continued_or_replaced_never_mixed() {
     assert!(err.contains("missing"), "{err}");
     assert!(!other.exists(), "a refused run left its folder");
 }
+
+#[test]
+fn nonsense_numbers_are_refused_naming_the_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("out");
+    let o = s(&out);
+    let cases: Vec<(&str, Vec<&str>)> = vec![
+        (
+            "--lambda",
+            vec!["train", "--scene", "x", "--out", o, "--lambda", "-1"],
+        ),
+        (
+            "--lambda",
+            vec!["train", "--scene", "x", "--out", o, "--lambda", "NaN"],
+        ),
+        (
+            "--max-splats",
+            vec!["train", "--scene", "x", "--out", o, "--max-splats", "0"],
+        ),
+        (
+            "--downsample",
+            vec!["train", "--scene", "x", "--out", o, "--downsample", "0"],
+        ),
+        (
+            "--max-sh-degree",
+            vec!["train", "--scene", "x", "--out", o, "--max-sh-degree", "9"],
+        ),
+        (
+            "--iters",
+            vec!["train", "--scene", "x", "--out", o, "--iters", "0"],
+        ),
+        (
+            "--llffhold",
+            vec!["train", "--scene", "x", "--out", o, "--llffhold", "1"],
+        ),
+        (
+            "--spiral",
+            vec![
+                "train",
+                "--scene",
+                "x",
+                "--out",
+                o,
+                "--spiral",
+                "4294967296",
+            ],
+        ),
+        (
+            "--spiral",
+            vec![
+                "render", "--ply", "x.ply", "--scene", "x", "--out", o, "--spiral", "0",
+            ],
+        ),
+        (
+            "--lr",
+            vec![
+                "restorer", "train", "--images", "x", "--val", "x", "--psf", "x", "--out", o,
+                "--lr", "NaN",
+            ],
+        ),
+        (
+            "--batch",
+            vec![
+                "restorer", "train", "--images", "x", "--val", "x", "--psf", "x", "--out", o,
+                "--batch", "0",
+            ],
+        ),
+        (
+            "--steps",
+            vec![
+                "restorer", "train", "--images", "x", "--val", "x", "--psf", "x", "--out", o,
+                "--steps", "0",
+            ],
+        ),
+        (
+            "--fft-size",
+            vec!["psf", "simulate", "--out", o, "--fft-size", "100000"],
+        ),
+        (
+            "--grid",
+            vec!["psf", "simulate", "--out", o, "--grid", "100000"],
+        ),
+        (
+            "--supersample",
+            vec!["psf", "simulate", "--out", o, "--supersample", "0"],
+        ),
+        (
+            "--aperture-um",
+            vec!["psf", "simulate", "--out", o, "--aperture-um", "-5"],
+        ),
+        (
+            "--max-field-deg",
+            vec!["psf", "simulate", "--out", o, "--max-field-deg", "inf"],
+        ),
+        (
+            "--width",
+            vec!["scene", "procedural", "--out", o, "--width", "100000"],
+        ),
+        (
+            "--views",
+            vec!["scene", "procedural", "--out", o, "--views", "0"],
+        ),
+        (
+            "--k",
+            vec![
+                "deconvolve",
+                "--psf",
+                "x",
+                "--in",
+                "x",
+                "--out",
+                o,
+                "--k",
+                "0",
+            ],
+        ),
+        (
+            "--sh-degree",
+            vec!["export", "--in", "x.ply", "--out", o, "--sh-degree", "4"],
+        ),
+    ];
+    for (flag, case) in &cases {
+        let err = fails(case);
+        assert!(
+            err.contains(flag),
+            "metasplat {case:?} does not name {flag}:\n{err}"
+        );
+        assert!(!out.exists(), "metasplat {case:?} left {o}");
+    }
+    eprintln!("{} nonsense flag values refused", cases.len());
+}

@@ -17,7 +17,7 @@ pub struct DeconvolveArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// A single fixed Wiener constant.
-    #[arg(long, conflicts_with = "bank")]
+    #[arg(long, conflicts_with = "bank", value_parser = metasplat::flags::positive_f32, allow_negative_numbers = true)]
     pub k: Option<f32>,
     /// Write all 13 adaptive filters of the MAFG bank into this directory.
     #[arg(long)]

@@ -30,12 +30,12 @@ pub struct LlffArgs {
     /// PSF grid; default: simulate the paper's 9x9 grid.
     #[arg(long)]
     pub psf: Option<PathBuf>,
-    #[arg(long, default_value_t = 3000)]
+    #[arg(long, default_value_t = 3000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub iters: u64,
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
     /// Weight of L(render, I_ac) in aware mode (default: as `train`).
-    #[arg(long)]
+    #[arg(long, value_parser = metasplat::flags::weight, allow_negative_numbers = true)]
     pub lambda: Option<f32>,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,

@@ -14,7 +14,7 @@ pub struct ExportArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Keep SH bands up to this degree (default: all the input has).
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(0..=3))]
     pub sh_degree: Option<u32>,
 }
 

@@ -37,47 +37,47 @@ pub enum DispersionArg {
 #[derive(Args, Clone)]
 pub struct LensArgs {
     /// Grid side G.
-    #[arg(long, default_value_t = 9)]
-    pub grid: usize,
+    #[arg(long, default_value_t = 9, value_parser = clap::value_parser!(u64).range(1..=33))]
+    pub grid: u64,
     /// PSF side K in pixels.
-    #[arg(long, default_value_t = 135)]
-    pub size: usize,
+    #[arg(long, default_value_t = 135, value_parser = clap::value_parser!(u64).range(3..=1023))]
+    pub size: u64,
     #[arg(long, value_enum, default_value_t = Profile::Neural)]
     pub profile: Profile,
     #[arg(long, value_enum, default_value_t = DispersionArg::MetaAtom)]
     pub dispersion: DispersionArg,
     /// Design wavelength (nm) of the hyperbolic profile and of --dispersion scaled.
-    #[arg(long, default_value_t = 452.0)]
+    #[arg(long, default_value_t = 452.0, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
     pub design_nm: f64,
-    #[arg(long, default_value_t = 500.0)]
+    #[arg(long, default_value_t = 500.0, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
     pub aperture_um: f64,
-    #[arg(long, default_value_t = 1000.0)]
+    #[arg(long, default_value_t = 1000.0, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
     pub focal_um: f64,
     /// Meta-atom pitch (µm), also the propagation sampling.
-    #[arg(long, default_value_t = 0.35)]
+    #[arg(long, default_value_t = 0.35, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
     pub pitch_um: f64,
     /// Side of the angular-spectrum grid in samples.
-    #[arg(long, default_value_t = 3000)]
-    pub fft_size: usize,
+    #[arg(long, default_value_t = 3000, value_parser = clap::value_parser!(u64).range(16..=8192))]
+    pub fft_size: u64,
     /// Sensor pixel at the focal plane (µm): 5.86 µm behind a ×8.1 relay.
-    #[arg(long, default_value_t = 5.86 / 8.1)]
+    #[arg(long, default_value_t = 5.86 / 8.1, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
     pub sensor_pitch_um: f64,
     /// Field angle at the grid corners (degrees).
-    #[arg(long, default_value_t = 20.0)]
+    #[arg(long, default_value_t = 20.0, value_parser = metasplat::flags::field_angle, allow_negative_numbers = true)]
     pub max_field_deg: f64,
-    #[arg(long, default_value_t = 4)]
-    pub supersample: usize,
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(1..=16))]
+    pub supersample: u64,
 }
 
 impl LensArgs {
     pub fn config(&self) -> SimConfig {
         let mut cfg = SimConfig {
-            grid: self.grid,
-            psf_size: self.size,
-            fft_size: self.fft_size,
+            grid: self.grid as usize,
+            psf_size: self.size as usize,
+            fft_size: self.fft_size as usize,
             sensor_pitch_um: self.sensor_pitch_um,
             max_field_deg: self.max_field_deg,
-            supersample: self.supersample,
+            supersample: self.supersample as usize,
             ..SimConfig::default()
         };
         cfg.lens.aperture_um = self.aperture_um;

@@ -18,8 +18,9 @@ pub struct RenderArgs {
     pub out: PathBuf,
     /// Render N frames of the LLFF spiral instead of the capture's cameras.
     #[arg(long)]
-    pub spiral: Option<usize>,
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub spiral: Option<u32>,
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
     /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu`.
     #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
@@ -33,7 +34,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
     let model = splat::files::read_splats(&a.ply)?;
     let capture = super::open_scene(&a.scene, a.downsample)?;
     let cameras = match a.spiral {
-        Some(n) => metasplat::spiral::spiral(&capture.cameras, &capture.bounds, n),
+        Some(n) => metasplat::spiral::spiral(&capture.cameras, &capture.bounds, n as usize),
         None => capture.cameras.clone(),
     };
     std::fs::create_dir_all(&a.out)

@@ -36,11 +36,11 @@ pub struct TrainRestorerArgs {
     /// Weights file to write (updated at every validation).
     #[arg(long)]
     pub out: PathBuf,
-    #[arg(long, default_value_t = 2000)]
-    pub steps: usize,
-    #[arg(long, default_value_t = 8)]
-    pub batch: usize,
-    #[arg(long, default_value_t = 3e-4)]
+    #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
+    pub steps: u64,
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=1024))]
+    pub batch: u64,
+    #[arg(long, default_value_t = 3e-4, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
     pub lr: f64,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -58,7 +58,7 @@ pub struct TrainRestorerArgs {
     #[arg(long)]
     pub resume: bool,
     /// Stop after about this many minutes with a checkpoint (continue later with --resume).
-    #[arg(long)]
+    #[arg(long, value_parser = metasplat::flags::non_negative, allow_negative_numbers = true)]
     pub minutes: Option<f64>,
     /// Re-aberrate the training photos (new noise, new random PSF positions) every N steps;
     /// 0: never.
@@ -210,8 +210,8 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         weights::load(p, &device, Some(&cfg), Some(&native))
     };
     let mut schedule = Schedule {
-        steps: a.steps,
-        batch: a.batch,
+        steps: a.steps as usize,
+        batch: a.batch as usize,
         lr: a.lr,
         seed: a.seed,
         refresh_every: a.refresh_every,

@@ -21,12 +21,12 @@ pub enum SceneCommand {
 pub struct ProceduralArgs {
     #[arg(long)]
     pub out: PathBuf,
-    #[arg(long, default_value_t = 160)]
+    #[arg(long, default_value_t = 160, value_parser = clap::value_parser!(u32).range(8..=4096))]
     pub width: u32,
-    #[arg(long, default_value_t = 120)]
+    #[arg(long, default_value_t = 120, value_parser = clap::value_parser!(u32).range(8..=4096))]
     pub height: u32,
-    #[arg(long, default_value_t = 12)]
-    pub views: usize,
+    #[arg(long, default_value_t = 12, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    pub views: u64,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
 }
@@ -82,7 +82,7 @@ pub fn run(cmd: SceneCommand) -> Result<()> {
             let o = metasplat::procedural::ProceduralOptions {
                 width: a.width,
                 height: a.height,
-                views: a.views,
+                views: a.views as usize,
                 seed: a.seed,
             };
             let dir = metasplat::procedural::write_capture(&a.out, &o)

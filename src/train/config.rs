@@ -154,9 +154,10 @@ impl TrainConfig {
             lambda: settings
                 .lambda
                 .unwrap_or_else(|| crate::train::data::default_lambda(data.restorer.as_ref())),
-            max_splats: settings
-                .max_splats
-                .unwrap_or_else(|| default_max_splats(data.width, data.height)),
+            max_splats: settings.max_splats.map_or_else(
+                || default_max_splats(data.width, data.height),
+                |m| m as usize,
+            ),
             max_sh_degree: settings.max_sh_degree,
             seed,
             background: [0.0; 3],

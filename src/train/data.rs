@@ -143,10 +143,10 @@ fn open_restorer(
 #[derive(clap::Args, Clone, Debug)]
 pub struct DataOptions {
     /// Use images_N (1: images/).
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
-    /// Every N-th view is held out for evaluation.
-    #[arg(long, default_value_t = scenes::LLFFHOLD)]
+    /// Every N-th view is held out for evaluation (0: none).
+    #[arg(long, default_value_t = scenes::LLFFHOLD, value_parser = crate::flags::llffhold, allow_negative_numbers = true)]
     pub llffhold: usize,
     /// PSF grid .npy; must match the capture's own psf.npy when it has one.
     #[arg(long)]

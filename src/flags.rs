@@ -1,0 +1,99 @@
+//! Value parsers for numeric command-line flags: a value that makes no sense is refused by
+//! clap with the flag's name, before any work (zero, negative, NaN and infinite where they do
+//! not apply, and sizes beyond the limits written here).
+
+/// Largest image side a flag may ask for (procedural scenes, sensors).
+pub const MAX_SIDE: u32 = 16_384;
+
+fn float(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}' is not a number"))?;
+    if !v.is_finite() {
+        return Err(format!("{v} is not finite"));
+    }
+    Ok(v)
+}
+
+/// A finite number > 0.
+pub fn positive(s: &str) -> Result<f64, String> {
+    let v = float(s)?;
+    if v > 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("{v} must be positive"))
+    }
+}
+
+/// A finite number ≥ 0 (a time budget: 0 stops after the first step).
+pub fn non_negative(s: &str) -> Result<f64, String> {
+    let v = float(s)?;
+    if v >= 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("{v} must not be negative"))
+    }
+}
+
+/// A finite number > 0, as f32.
+pub fn positive_f32(s: &str) -> Result<f32, String> {
+    let v = positive(s)? as f32;
+    if v > 0.0 && v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!("{s} is out of range"))
+    }
+}
+
+/// A finite number ≥ 0, as f32 (a loss weight).
+pub fn weight(s: &str) -> Result<f32, String> {
+    let v = float(s)?;
+    if (0.0..=1e6).contains(&v) {
+        Ok(v as f32)
+    } else {
+        Err(format!("{v} must be in [0, 1e6]"))
+    }
+}
+
+/// A field angle in degrees: in (0, 89].
+pub fn field_angle(s: &str) -> Result<f64, String> {
+    let v = float(s)?;
+    if v > 0.0 && v <= 89.0 {
+        Ok(v)
+    } else {
+        Err(format!("{v} must be in (0, 89]"))
+    }
+}
+
+/// Held-out view spacing: 0 (none held out) or at least 2 (1 would hold out every view).
+pub fn llffhold(s: &str) -> Result<usize, String> {
+    let v: usize = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}' is not a count"))?;
+    if v == 1 {
+        Err("1 would hold out every view: use 0 (none) or at least 2".into())
+    } else {
+        Ok(v)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nonsense_is_refused() {
+        for bad in ["nan", "inf", "-1", "0", "x", ""] {
+            assert!(positive(bad).is_err(), "{bad}");
+        }
+        assert_eq!(positive("3e-4").unwrap(), 3e-4);
+        assert!(positive_f32("1e300").is_err());
+        assert!(weight("-1").is_err() && weight("NaN").is_err());
+        assert_eq!(weight("0").unwrap(), 0.0);
+        assert!(field_angle("90").is_err() && field_angle("0").is_err());
+        assert!(llffhold("1").is_err());
+        assert_eq!(llffhold("0").unwrap(), 0);
+    }
+}
