@@ -370,3 +370,31 @@ fn bad_input_is_reported_clearly() {
         .to_string();
     assert!(err.contains("a-file"), "{err}");
 }
+
+#[test]
+fn the_first_non_finite_value_stops_the_run_and_keeps_the_last_checkpoint() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut data = data::load(&fixture().aberrated, Mode::Plain, &options()).unwrap();
+    let mut cfg = config(Mode::Plain, 40, &data);
+    cfg.checkpoint_every = 100;
+    let ckpt = tmp.path().join("ckpt.bin");
+    // A good run writes its checkpoint; then one NaN pixel in every view.
+    train::train(&cfg, &data, &Device::Cpu, Some(&ckpt), false, &mut |_| {}).unwrap();
+    let good = std::fs::read(&ckpt).unwrap();
+    for v in &mut data.train {
+        v.observed[7] = glam::Vec3::NAN;
+    }
+    let err = train::train(&cfg, &data, &Device::Cpu, Some(&ckpt), false, &mut |_| {})
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("step 1") && err.contains("loss is not finite") && err.contains("checkpoint"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(&ckpt).unwrap(),
+        good,
+        "the checkpoint changed"
+    );
+}

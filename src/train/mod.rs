@@ -143,6 +143,26 @@ fn fresh_state(config: &TrainConfig, data: &Dataset) -> Result<State> {
     })
 }
 
+fn params_finite(g: &Gaussians) -> bool {
+    g.means
+        .iter()
+        .chain(&g.log_scales)
+        .chain(&g.sh_dc)
+        .chain(&g.sh_rest)
+        .all(|v| v.is_finite())
+        && g.rotations.iter().flatten().all(|v| v.is_finite())
+        && g.logit_opacities.iter().all(|v| v.is_finite())
+}
+
+fn gradients_finite(g: &splat::Gradients) -> bool {
+    params_finite(&g.params)
+        && g.means2d
+            .iter()
+            .chain(&g.means2d_abs)
+            .flatten()
+            .all(|v| v.is_finite())
+}
+
 /// Trains on `data`. With `checkpoint_path`, saves there every `checkpoint_every` steps;
 /// with `resume` too, continues from the checkpoint if one exists (same config required).
 pub fn train(
@@ -206,15 +226,43 @@ pub fn train(
         let started = Instant::now();
         let view = &data.train[view_index(config.seed, s.step, n_views)];
         let rs = settings(config, &s.model);
+        // The first non-finite value stops the run before it reaches the model or a checkpoint
+        // (the last checkpoint written stays the last good one).
+        let at = |what: &str, cause: &str| {
+            TrainError::Invalid(format!(
+                "step {}: {what} is not finite (view {}); {cause}. The last checkpoint is kept",
+                s.step + 1,
+                view.name
+            ))
+        };
         let (out, parts, grads) = device.forward_backward(&s.model, &view.camera, &rs, |out| {
-            objective.evaluate(&out.color, view)
+            let (parts, v) = objective.evaluate(&out.color, view)?;
+            if !parts.total.is_finite() {
+                return Err(at(
+                    "the loss",
+                    "a non-finite pixel in the capture's images or I_ac, or a huge --lambda, is the likely cause",
+                ));
+            }
+            Ok((parts, v))
         })?;
+        if !gradients_finite(&grads) {
+            return Err(at(
+                "a gradient",
+                "a degenerate splat or camera is the likely cause",
+            ));
+        }
         s.densifier.after_backward(s.step, &grads, &out);
         s.adam.step(
             &mut s.model,
             &grads.params,
             &lrs.with_means(position_lr.at(s.step)),
         )?;
+        if !params_finite(&s.model) {
+            return Err(at(
+                "a parameter after the update",
+                "a learning rate too large for the scene is the likely cause",
+            ));
+        }
         drop((out, grads));
         s.step += 1;
         let step = s.step;
