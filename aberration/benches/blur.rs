@@ -64,7 +64,7 @@ fn blur(c: &mut Criterion) {
         .measurement_time(Duration::from_secs(4))
         .warm_up_time(Duration::from_secs(1));
     for (w, h) in [(504usize, 378usize), (1215, 1215)] {
-        let psf = native.for_image(w, h, None);
+        let psf = native.for_image(w, h, None).unwrap();
         let x = random_image(w, h, 1);
         for mode in [BlurMode::Tiled, BlurMode::Blend] {
             let plan = BlurPlan::new(&psf, w, h, mode).unwrap();
@@ -104,7 +104,7 @@ fn blur(c: &mut Criterion) {
     group
         .sample_size(10)
         .measurement_time(Duration::from_secs(4));
-    let psf = native.for_image(504, 378, None);
+    let psf = native.for_image(504, 378, None).unwrap();
     let x = random_image(504, 378, 2);
     group.throughput(Throughput::Elements(504 * 378));
     group.bench_function("bank13_504x378", |b| {

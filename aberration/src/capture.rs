@@ -25,7 +25,7 @@ impl ImagingModel {
         sensor_px: Option<usize>,
         noise: NoiseModel,
     ) -> Result<Self> {
-        let psf = native.for_image(width, height, sensor_px);
+        let psf = native.for_image(width, height, sensor_px)?;
         let plan = BlurPlan::new(&psf, width, height, mode)?;
         Ok(Self { psf, plan, noise })
     }

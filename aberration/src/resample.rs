@@ -7,10 +7,14 @@
 //! channel keeps unit sum. The G×G grid is then laid over the whole image (stretched along
 //! the shorter side), exactly as the paper tiles its images.
 
+use crate::error::{AberrationError, Result};
 use crate::psf_grid::PsfGrid;
 use rayon::prelude::*;
 
 /// Output size for resampling `k` pixels by `scale`: odd, and covering all of the input.
+/// Largest PSF side (px) a grid may be mapped to on an image.
+pub const MAX_MAPPED_PSF_PX: usize = 1024;
+
 pub fn resampled_size(k: usize, scale: f64) -> usize {
     let mut n = (k as f64 * scale - 1e-9).ceil().max(1.0) as usize;
     if n.is_multiple_of(2) {
@@ -83,9 +87,31 @@ impl PsfGrid {
     }
 
     /// The grid mapped onto a `width × height` image by the module's rule; `sensor_px`
-    /// overrides the native sensor size `G·K`.
-    pub fn for_image(&self, width: usize, height: usize, sensor_px: Option<usize>) -> PsfGrid {
-        let sensor = sensor_px.unwrap_or(self.native_sensor_px()).max(1);
-        self.resampled(width.max(height) as f64 / sensor as f64)
+    /// overrides the native sensor size `G·K`. Refused, before anything is allocated, when the
+    /// mapped PSFs would be larger than [`MAX_MAPPED_PSF_PX`] or than twice the image (a sensor
+    /// size far below the image's is a mistake, not an optical system).
+    pub fn for_image(
+        &self,
+        width: usize,
+        height: usize,
+        sensor_px: Option<usize>,
+    ) -> Result<PsfGrid> {
+        let sensor = sensor_px.unwrap_or(self.native_sensor_px());
+        if sensor == 0 {
+            return Err(AberrationError::BadParameter("a sensor of 0 px".into()));
+        }
+        let scale = width.max(height) as f64 / sensor as f64;
+        let n = resampled_size(self.size(), scale);
+        let limit = MAX_MAPPED_PSF_PX.min(2 * width.max(height)).max(1);
+        if n > limit {
+            return Err(AberrationError::BadParameter(format!(
+                "a {}x{} image on a sensor of {sensor} px maps the grid's {} px PSFs to {n} px \
+                 (at most {limit}): check the sensor size",
+                width,
+                height,
+                self.size()
+            )));
+        }
+        Ok(self.resampled(scale))
     }
 }

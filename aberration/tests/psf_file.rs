@@ -149,7 +149,7 @@ fn resolution_mapping_preserves_energy_centre_and_width() {
         })
         .collect();
     let grid = PsfGrid::uniform(9, k, [&kernel, &kernel, &kernel]).unwrap();
-    let mapped = grid.for_image(504, 378, None);
+    let mapped = grid.for_image(504, 378, None).unwrap();
     let scale = 504.0 / 1215.0;
     let n = mapped.size();
     assert_eq!(n, resampled_size(k, scale));
@@ -175,7 +175,10 @@ fn resolution_mapping_preserves_energy_centre_and_width() {
         "variance {var}, expected {expect}"
     );
     // Identity mapping returns the grid unchanged; upsampling keeps unit sum too.
-    assert_eq!(grid.for_image(1215, 1215, None), grid);
+    assert_eq!(grid.for_image(1215, 1215, None).unwrap(), grid);
+    // A sensor far smaller than the image is refused before anything is allocated.
+    let err = grid.for_image(64, 48, Some(1)).unwrap_err().to_string();
+    assert!(err.contains("sensor") && err.contains("at most"), "{err}");
     let up = grid.resampled(1.7);
     let s: f64 = up.kernel(0, 0).iter().map(|v| *v as f64).sum();
     assert!((s - 1.0).abs() < 1e-5);

@@ -75,7 +75,7 @@ impl Sample {
         adaptive: bool,
         seed: u64,
     ) -> Result<Self> {
-        let psf = native.for_image(clean.width, clean.height, None);
+        let psf = native.for_image(clean.width, clean.height, None)?;
         let psf = match blur {
             Blur::Grid => psf,
             Blur::Position(g) => {
@@ -198,10 +198,11 @@ impl TrainSet {
                 r
             })
             .collect::<Result<Vec<_>>>()?;
-        let sizes = photos
-            .iter()
-            .map(|p| native.for_image(p.width, p.height, None).size());
-        let psf_px = sizes.fold([usize::MAX, 0], |[lo, hi], k| [lo.min(k), hi.max(k)]);
+        let mut psf_px = [usize::MAX, 0];
+        for p in photos {
+            let k = native.for_image(p.width, p.height, None)?.size();
+            psf_px = [psf_px[0].min(k), psf_px[1].max(k)];
+        }
         Ok(Self { samples, psf_px })
     }
 

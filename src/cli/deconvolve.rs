@@ -41,7 +41,7 @@ pub fn run(a: DeconvolveArgs) -> Result<()> {
     }
     let native = PsfGrid::load_npy(&a.psf)?;
     let blurred = Image::load(&a.input)?;
-    let psf = native.for_image(blurred.width, blurred.height, a.sensor_px);
+    let psf = native.for_image(blurred.width, blurred.height, a.sensor_px)?;
     let reference = a.reference.as_deref().map(Image::load).transpose()?;
     if let Some(r) = &reference
         && (r.width, r.height) != (blurred.width, blurred.height)

@@ -545,7 +545,7 @@ pub fn run_restore(a: RestoreArgs) -> Result<()> {
     let (native, restorer) = a.net.load()?;
     let blurred =
         Image::load(&a.input).with_context(|| format!("cannot read {}", a.input.display()))?;
-    let psf = native.for_image(blurred.width, blurred.height, a.sensor_px);
+    let psf = native.for_image(blurred.width, blurred.height, a.sensor_px)?;
     let (restored, secs) = step("restoring", || restorer.restore(&blurred, &psf));
     let restored = restored?;
     restored
