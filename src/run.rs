@@ -70,6 +70,9 @@ pub struct TrainSettings {
     /// Checkpoint every N steps (default: 5 times per run).
     #[arg(long)]
     pub checkpoint_every: Option<u64>,
+    /// Start from this splat scene (.ply, .glb or .spz) instead of the capture's points.
+    #[arg(long)]
+    pub init: Option<PathBuf>,
 }
 
 /// Parses `args` into `T` alone: the defaults of its clap attributes, with `args` on top.
@@ -122,12 +125,23 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
     if let data::RestorerChoice::Weights(w) = &request.data.restorer {
         inputs.push(("--restorer", w));
     }
+    if let Some(i) = &request.training.init {
+        inputs.push(("--init", i));
+    }
     crate::guard::refuse_overwrite("--out", out, &inputs)?;
     check_run_folder(request)?;
     let (device, device_note) = Device::choose(request.device)?;
     // Every input is checked before the run folder is made.
-    let data = data::load(&request.scene, request.training.mode, &request.data)
+    let mut data = data::load(&request.scene, request.training.mode, &request.data)
         .map_err(|e| e.context(format!("cannot load the scene {}", request.scene.display())))?;
+    if let Some(path) = &request.training.init {
+        let g = splat::files::read_splats(path)
+            .map_err(|e| TrainError::from(e).context(format!("--init {}", path.display())))?;
+        if g.is_empty() {
+            return Err(TrainError::file(path, "--init: the scene has no splats"));
+        }
+        data.initial = Some(g);
+    }
     outputs::prepare_run_dir(out)
         .map_err(|e| e.context(format!("cannot use {} as the run folder", out.display())))?;
     if request.overwrite {

@@ -990,6 +990,57 @@ fn a_run_folder_is_continued_or_replaced_never_mixed() {
     ok(&as_str(&train(&["--overwrite"])));
     assert!(!run.join("spiral/stale.png").exists());
     assert!(run.join("point_cloud.ply").exists());
+    // Another run starts from this one's splats, in any splat format.
+    let glb = d.join("start.glb");
+    ok(&[
+        "export",
+        "--in",
+        s(&run.join("point_cloud.ply")),
+        "--out",
+        s(&glb),
+    ]);
+    let from = d.join("run_from");
+    let text = ok(&[
+        "train",
+        "--scene",
+        s(&scene),
+        "--out",
+        s(&from),
+        "--mode",
+        "plain",
+        "--downsample",
+        "1",
+        "--iters",
+        "5",
+        "--spiral",
+        "0",
+        "--init",
+        s(&glb),
+    ]);
+    assert!(
+        text.contains("Starting from the") && text.contains("start.glb"),
+        "{text}"
+    );
+    let config = std::fs::read_to_string(from.join("config.json")).unwrap();
+    assert!(config.contains("start.glb"), "{config}");
+    let err = fails(&[
+        "train",
+        "--scene",
+        s(&scene),
+        "--out",
+        s(&d.join("run_x")),
+        "--mode",
+        "plain",
+        "--downsample",
+        "1",
+        "--init",
+        s(&d.join("nothing.ply")),
+    ]);
+    assert!(
+        err.contains("--init") && err.contains("nothing.ply"),
+        "{err}"
+    );
+    assert!(!d.join("run_x").exists());
     // A bad capture leaves no run folder behind.
     let other = d.join("run_bad");
     let err = fails(&[

@@ -29,6 +29,14 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             config.max_splats
         );
         println!("{}", prepared.device_note);
+        if let (Some(g), Some(path)) = (&data.initial, &t.init) {
+            println!(
+                "Starting from the {} splats (SH degree {}) of {}.",
+                g.len(),
+                g.sh_degree,
+                path.display()
+            );
+        }
         if let Some(note) = &data.restorer_note {
             println!("{note}");
         }

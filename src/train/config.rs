@@ -127,6 +127,9 @@ pub struct TrainConfig {
     /// Where `I_ac` comes from ([`crate::train::data::Restorer::identity`]); None in `plain`.
     #[serde(default)]
     pub i_ac: Option<String>,
+    /// The splat scene the run started from (`--init`); None: the capture's points.
+    #[serde(default)]
+    pub init: Option<String>,
 }
 
 /// The paper's weight of `L(render, I_ac)` for LLFF scenes with its trained restorer.
@@ -165,6 +168,7 @@ impl TrainConfig {
             checkpoint_every: settings.checkpoint_every.unwrap_or((iters / 5).max(100)),
             recipe: Recipe::for_iters(iters, settings.opacity_reset),
             i_ac: data.restorer.as_ref().map(|r| r.identity()),
+            init: settings.init.as_ref().map(|p| p.display().to_string()),
         }
     }
 }

@@ -184,6 +184,8 @@ pub struct Dataset {
     /// 3DGS scene extent (camera radius × 1.1): scales position lr and size thresholds.
     pub extent: f32,
     pub points: PointCloud,
+    /// A splat scene to start from instead of the points (`train --init`).
+    pub initial: Option<splat::Gaussians>,
 }
 
 impl Dataset {
@@ -363,6 +365,7 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
         restorer_note,
         extent,
         points,
+        initial: None,
         capture,
     })
 }

@@ -122,10 +122,19 @@ fn config_differences(a: &TrainConfig, b: &TrainConfig) -> Vec<String> {
 }
 
 fn fresh_state(config: &TrainConfig, data: &Dataset) -> Result<State> {
-    if data.points.is_empty() {
-        return Err(TrainError::file(&data.capture.root, "no initial points"));
-    }
-    let model = crate::init::from_points(&data.points, 0);
+    let model = match &data.initial {
+        Some(g) => {
+            let mut g = g.clone();
+            if g.sh_degree > config.max_sh_degree {
+                g.set_sh_degree(config.max_sh_degree);
+            }
+            g
+        }
+        None if data.points.is_empty() => {
+            return Err(TrainError::file(&data.capture.root, "no initial points"));
+        }
+        None => crate::init::from_points(&data.points, 0),
+    };
     let n = model.len();
     Ok(State {
         config: config.clone(),
