@@ -94,6 +94,20 @@ fn our_glb_passes_the_khronos_validator() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(report.contains("\"errors\":0"), "{report}");
+    // The same document as .gltf text with its buffer embedded.
+    let text = dir.path().join("scene.gltf");
+    splat::glb::write_gltf(&text, &scene()).unwrap();
+    let out = Command::new("node")
+        .arg(&script)
+        .arg(&text)
+        .env("NODE_PATH", tools.join("node_modules"))
+        .output()
+        .unwrap();
+    let report = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && report.contains("\"errors\":0"),
+        "{report}"
+    );
 }
 
 #[test]

@@ -1,5 +1,5 @@
-//! Splat files by their extension: `.ply` (INRIA layout), `.glb` (`KHR_gaussian_splatting`) and
-//! `.spz` (Niantic's compressed format).
+//! Splat files by their extension: `.ply` (INRIA layout), `.glb` and `.gltf`
+//! (`KHR_gaussian_splatting`) and `.spz` (Niantic's compressed format).
 
 use std::path::Path;
 
@@ -11,6 +11,7 @@ use crate::model::Gaussians;
 pub enum Format {
     Ply,
     Glb,
+    Gltf,
     Spz,
 }
 
@@ -24,10 +25,11 @@ impl Format {
         match ext.as_deref() {
             Some("ply") => Ok(Format::Ply),
             Some("glb") => Ok(Format::Glb),
+            Some("gltf") => Ok(Format::Gltf),
             Some("spz") => Ok(Format::Spz),
             _ => Err(SplatError::Ply {
                 path: path.to_path_buf(),
-                problem: "unknown splat file type (use .ply, .glb or .spz)".into(),
+                problem: "unknown splat file type (use .ply, .glb, .gltf or .spz)".into(),
             }),
         }
     }
@@ -39,6 +41,7 @@ pub fn read_splats(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
     match Format::of(path)? {
         Format::Ply => crate::ply::read_ply(path),
         Format::Glb => crate::glb::read_glb(path),
+        Format::Gltf => crate::glb::read_gltf(path),
         Format::Spz => crate::spz::read_spz(path),
     }
 }
@@ -49,6 +52,7 @@ pub fn write_splats(path: impl AsRef<Path>, g: &Gaussians) -> Result<(), SplatEr
     match Format::of(path)? {
         Format::Ply => crate::ply::write_ply(path, g),
         Format::Glb => crate::glb::write_glb(path, g),
+        Format::Gltf => crate::glb::write_gltf(path, g),
         Format::Spz => crate::spz::write_spz(path, g),
     }
 }

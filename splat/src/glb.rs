@@ -93,6 +93,37 @@ fn srgb_to_linear(c: f32) -> f32 {
 
 /// The GLB bytes of `g`.
 pub fn to_glb(g: &Gaussians) -> Result<Vec<u8>, SplatError> {
+    let (doc, bin) = document(g)?;
+    let json = serde_json::to_vec(&doc).map_err(|e| SplatError::InvalidModel(e.to_string()))?;
+    let glb = gltf::binary::Glb {
+        header: gltf::binary::Header {
+            magic: *b"glTF",
+            version: 2,
+            length: 0,
+        },
+        json: json.into(),
+        bin: Some(bin.into()),
+    };
+    glb.to_vec()
+        .map_err(|e| SplatError::InvalidModel(format!("cannot encode GLB: {e}")))
+}
+
+const DATA_URI: &str = "data:application/octet-stream;base64,";
+
+/// The `.gltf` text of `g`: the same document with its buffer embedded as a base64 data URI.
+pub fn to_gltf(g: &Gaussians) -> Result<String, SplatError> {
+    use base64::Engine;
+    let (mut doc, bin) = document(g)?;
+    let uri = format!(
+        "{DATA_URI}{}",
+        base64::engine::general_purpose::STANDARD.encode(&bin)
+    );
+    doc["buffers"][0]["uri"] = Value::String(uri);
+    serde_json::to_string(&doc).map_err(|e| SplatError::InvalidModel(e.to_string()))
+}
+
+/// The glTF document of `g` and its binary buffer.
+fn document(g: &Gaussians) -> Result<(Value, Vec<u8>), SplatError> {
     let finite = g.means.iter().all(|m| m.is_finite())
         && g.log_scales.iter().all(|s| s.is_finite())
         && g.rotations.iter().flatten().all(|v| v.is_finite())
@@ -228,18 +259,43 @@ pub fn to_glb(g: &Gaussians) -> Result<Vec<u8>, SplatError> {
         "scenes": [{"nodes": [0]}],
         "scene": 0,
     });
-    let json = serde_json::to_vec(&doc).map_err(|e| SplatError::InvalidModel(e.to_string()))?;
-    let glb = gltf::binary::Glb {
-        header: gltf::binary::Header {
-            magic: *b"glTF",
-            version: 2,
-            length: 0,
-        },
-        json: json.into(),
-        bin: Some(bin.into()),
+    Ok((doc, bin))
+}
+
+/// Writes `g` as a `.gltf` file with its buffer embedded (atomically, ordinary permissions).
+pub fn write_gltf(path: impl AsRef<Path>, g: &Gaussians) -> Result<(), SplatError> {
+    let path = path.as_ref();
+    let text = to_gltf(g)?;
+    base::write_bytes_atomically(path, text.as_bytes()).map_err(|source| SplatError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Reads a `.gltf` file whose buffer is embedded as a data URI.
+pub fn read_gltf(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
+    use base64::Engine;
+    let path = path.as_ref();
+    let bad = |problem: String| SplatError::Ply {
+        path: path.to_path_buf(),
+        problem,
     };
-    glb.to_vec()
-        .map_err(|e| SplatError::InvalidModel(format!("cannot encode GLB: {e}")))
+    let bytes = std::fs::read(path).map_err(|source| SplatError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let doc: Value =
+        serde_json::from_slice(&bytes).map_err(|e| bad(format!("bad glTF JSON: {e}")))?;
+    let uri = doc["buffers"][0]["uri"]
+        .as_str()
+        .ok_or_else(|| bad("no buffer URI".into()))?;
+    let data = uri.strip_prefix(DATA_URI).ok_or_else(|| {
+        bad("only buffers embedded as base64 data URIs are read (export a .glb instead)".into())
+    })?;
+    let bin = base64::engine::general_purpose::STANDARD
+        .decode(data)
+        .map_err(|e| bad(format!("bad base64 buffer: {e}")))?;
+    parse_document(path, &doc, &bin)
 }
 
 /// Writes `g` as a GLB file (atomically, ordinary permissions).
@@ -286,6 +342,15 @@ pub fn parse_glb(path: &Path, bytes: &[u8]) -> Result<Gaussians, SplatError> {
         .bin
         .as_deref()
         .ok_or_else(|| bad("no binary chunk (external buffers are not read)".into()))?;
+    parse_document(path, &doc, bin)
+}
+
+/// The scene of a glTF document with its buffer 0 in `bin`.
+fn parse_document(path: &Path, doc: &Value, bin: &[u8]) -> Result<Gaussians, SplatError> {
+    let bad = |problem: String| SplatError::Ply {
+        path: path.to_path_buf(),
+        problem,
+    };
     let prim = doc["meshes"]
         .as_array()
         .into_iter()

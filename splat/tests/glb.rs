@@ -173,3 +173,29 @@ fn bad_files_are_refused_with_the_problem() {
     .to_string();
     assert!(err.contains("scene.glb"), "{err}");
 }
+
+#[test]
+fn gltf_with_an_embedded_buffer_reads_as_the_glb_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = random_scene(9, 120, 2, (0.02, 0.3), 1.0);
+    let (a, b) = (dir.path().join("s.glb"), dir.path().join("s.gltf"));
+    write_glb(&a, &g).unwrap();
+    splat::glb::write_gltf(&b, &g).unwrap();
+    let (x, y) = (read_glb(&a).unwrap(), splat::glb::read_gltf(&b).unwrap());
+    assert_eq!(x.means, y.means);
+    assert_eq!(x.log_scales, y.log_scales);
+    assert_eq!(x.rotations, y.rotations);
+    assert_eq!(x.logit_opacities, y.logit_opacities);
+    assert_eq!(x.sh_rest, y.sh_rest);
+    // The text is plain glTF JSON; an external buffer is refused with the way out.
+    let text = std::fs::read_to_string(&b).unwrap();
+    assert!(text.contains("KHR_gaussian_splatting") && text.contains("base64,"));
+    let ext = dir.path().join("ext.gltf");
+    std::fs::write(
+        &ext,
+        text.replacen("data:application/octet-stream;base64,", "x.bin#", 1),
+    )
+    .unwrap();
+    let err = splat::glb::read_gltf(&ext).unwrap_err().to_string();
+    assert!(err.contains("ext.gltf") && err.contains(".glb"), "{err}");
+}

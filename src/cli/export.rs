@@ -7,10 +7,10 @@ use clap::Args;
 
 #[derive(Args)]
 pub struct ExportArgs {
-    /// The scene to convert (.ply, .glb or .spz).
+    /// The scene to convert (.ply, .glb, .gltf or .spz).
     #[arg(long = "in", visible_alias = "ply")]
     pub input: PathBuf,
-    /// The file to write; its extension (.ply, .glb or .spz) picks the format.
+    /// The file to write; its extension (.ply, .glb, .gltf or .spz) picks the format.
     #[arg(long)]
     pub out: PathBuf,
     /// Keep SH bands up to this degree (default: all the input has).

@@ -1,4 +1,4 @@
-// Validates a GLB with Khronos' glTF-Validator; the extension's own attribute names are
+// Validates a GLB or .gltf with Khronos' glTF-Validator; the extension's own attribute names are
 // reported as MESH_PRIMITIVE_INVALID_ATTRIBUTE (the validator does not know the extension
 // yet), so that one code is informational. Prints the report; exits 1 on any error.
 const fs = require('fs');
