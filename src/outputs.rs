@@ -209,7 +209,7 @@ pub fn write_run(
     Ok(summary)
 }
 
-/// Renders `cameras` to `dir/<name>.png`.
+/// Renders a capture's `cameras` to `dir/<name>.png`.
 pub fn render_frames(
     model: &splat::Gaussians,
     settings: &splat::RenderSettings,
@@ -217,16 +217,31 @@ pub fn render_frames(
     dir: &Path,
     device: &Device,
 ) -> Result<Vec<PathBuf>> {
+    let named: Vec<(String, splat::Camera)> = cameras
+        .iter()
+        .map(|c| (c.name.clone(), splat_camera(c)))
+        .collect();
+    render_named(model, settings, &named, dir, device)
+}
+
+/// Renders each `(name, camera)` to `dir/<name>.png`.
+pub fn render_named(
+    model: &splat::Gaussians,
+    settings: &splat::RenderSettings,
+    cameras: &[(String, splat::Camera)],
+    dir: &Path,
+    device: &Device,
+) -> Result<Vec<PathBuf>> {
     let mut written = Vec::with_capacity(cameras.len());
     // A few frames at a time: rendered together, then encoded in parallel.
     for chunk in cameras.chunks(8) {
-        let cams: Vec<splat::Camera> = chunk.iter().map(splat_camera).collect();
+        let cams: Vec<splat::Camera> = chunk.iter().map(|(_, c)| c.clone()).collect();
         let frames = device.render_views(model, &cams, settings)?;
         let paths = chunk
             .par_iter()
             .zip(frames)
-            .map(|(c, out)| {
-                let path = dir.join(format!("{}.png", c.name));
+            .map(|((name, _), out)| {
+                let path = dir.join(format!("{name}.png"));
                 save_pixels(&path, &out.color, out.width, out.height)?;
                 Ok(path)
             })

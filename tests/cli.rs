@@ -1187,3 +1187,66 @@ fn nonsense_numbers_are_refused_naming_the_flag() {
     }
     eprintln!("{} nonsense flag values refused", cases.len());
 }
+
+#[test]
+fn render_without_a_capture_frames_the_splats() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ply = d.join("model.glb");
+    splat::glb::write_glb(&ply, &splat::synthetic::random_box_scene(2, 2000, 1)).unwrap();
+    let out = d.join("orbit");
+    let text = ok(&[
+        "render",
+        "--ply",
+        s(&ply),
+        "--out",
+        s(&out),
+        "--orbit",
+        "3",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--device",
+        "cpu",
+    ]);
+    assert!(text.contains("3 images 64x48"), "{text}");
+    for k in 0..3 {
+        let img = image::open(out.join(format!("orbit{k:03}.png")))
+            .unwrap()
+            .to_rgb8();
+        let lit = img.pixels().filter(|p| p.0.iter().any(|c| *c > 10)).count();
+        // The orbit frames the splats: they cover a good part of the image, not all of it.
+        assert!(
+            lit > 64 * 48 / 10 && lit < 64 * 48,
+            "frame {k}: {lit} lit pixels"
+        );
+    }
+    let one = d.join("one");
+    ok(&[
+        "render",
+        "--ply",
+        s(&ply),
+        "--out",
+        s(&one),
+        "--camera",
+        "0,0,-1,0,0,1",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--device",
+        "cpu",
+    ]);
+    assert!(one.join("camera.png").exists());
+    let err = fails(&[
+        "render",
+        "--ply",
+        s(&ply),
+        "--out",
+        s(&one),
+        "--camera",
+        "1,2,3",
+    ]);
+    assert!(err.contains("--camera"), "{err}");
+}

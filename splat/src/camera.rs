@@ -77,6 +77,36 @@ impl Camera {
         }
     }
 
+    /// A camera circling `center` at `distance`: `angle` radians around the vertical axis and
+    /// `elevation` radians above the horizon, looking at the centre with a vertical field of
+    /// view of `fov_y` radians. Up is −y, as in captures (OpenCV frames have +y down).
+    #[allow(clippy::too_many_arguments)]
+    pub fn orbit(
+        center: Vec3,
+        distance: f32,
+        angle: f32,
+        elevation: f32,
+        fov_y: f32,
+        width: u32,
+        height: u32,
+    ) -> Self {
+        let dir = Vec3::new(
+            elevation.cos() * angle.sin(),
+            -elevation.sin(),
+            -elevation.cos() * angle.cos(),
+        );
+        let f = 0.5 * height as f32 / (0.5 * fov_y).tan();
+        Self::look_at(
+            center + dir * distance,
+            center,
+            Vec3::NEG_Y,
+            f,
+            f,
+            width,
+            height,
+        )
+    }
+
     /// Camera centre in world space.
     pub fn position(&self) -> Vec3 {
         -(self.rotation.transpose() * self.translation)
@@ -125,4 +155,22 @@ impl Camera {
         }
         Ok(())
     }
+}
+
+/// Centre and radius of the region most splats occupy: the box between the 2nd and 98th
+/// percentiles of their means per axis, so a few stray splats do not push a framing camera
+/// away. `None` when there are no finite means.
+pub fn scene_bounds(means: &[Vec3]) -> Option<(Vec3, f32)> {
+    let finite: Vec<Vec3> = means.iter().copied().filter(|m| m.is_finite()).collect();
+    if finite.is_empty() {
+        return None;
+    }
+    let pick = |axis: usize, q: f64| {
+        let mut v: Vec<f32> = finite.iter().map(|m| m[axis]).collect();
+        let i = ((v.len() - 1) as f64 * q).round() as usize;
+        *v.select_nth_unstable_by(i, f32::total_cmp).1
+    };
+    let lo = Vec3::new(pick(0, 0.02), pick(1, 0.02), pick(2, 0.02));
+    let hi = Vec3::new(pick(0, 0.98), pick(1, 0.98), pick(2, 0.98));
+    Some(((lo + hi) * 0.5, ((hi - lo) * 0.5).length().max(1e-3)))
 }
