@@ -7,16 +7,7 @@ use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use glam::Vec3;
 
 fn image(seed: u64, n: usize) -> Vec<Vec3> {
-    let mut r = base::SplitMix64::new(seed);
-    (0..n)
-        .map(|_| {
-            Vec3::new(
-                r.next_f64() as f32,
-                r.next_f64() as f32,
-                r.next_f64() as f32,
-            )
-        })
-        .collect()
+    base::SplitMix64::new(seed).uniform_rgb(n)
 }
 
 fn bench(c: &mut Criterion) {

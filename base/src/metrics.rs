@@ -198,7 +198,7 @@ fn check(rendered: usize, target: usize, width: u32, height: u32) -> Result<(), 
 }
 
 /// The normalised Gaussian window.
-fn window() -> [f32; SSIM_WINDOW] {
+pub(crate) fn window() -> [f32; SSIM_WINDOW] {
     let mut w = [0.0f32; SSIM_WINDOW];
     let half = (SSIM_WINDOW / 2) as f32;
     for (k, v) in w.iter_mut().enumerate() {

@@ -38,6 +38,18 @@ impl SplitMix64 {
         lo + (hi - lo) * self.next_f64()
     }
 
+    /// `n` RGB values uniform in [0, 1) (test and benchmark images).
+    pub fn uniform_rgb(&mut self, n: usize) -> Vec<glam::Vec3> {
+        (0..n)
+            .map(|_| {
+                let r = self.next_f64() as f32;
+                let g = self.next_f64() as f32;
+                let b = self.next_f64() as f32;
+                glam::Vec3::new(r, g, b)
+            })
+            .collect()
+    }
+
     /// Standard normal via Box-Muller (one value per call; the twin is dropped for simplicity).
     pub fn normal(&mut self) -> f64 {
         // 1 - u keeps the log argument in (0, 1].

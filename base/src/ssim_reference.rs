@@ -3,7 +3,7 @@
 
 use glam::Vec3;
 
-use crate::metrics::{SSIM_C1, SSIM_C2, SSIM_SIGMA, SSIM_WINDOW};
+use crate::metrics::{SSIM_C1, SSIM_C2, SSIM_WINDOW, window};
 
 /// Mean SSIM of `rendered` against `target` and its gradient with respect to `rendered`
 /// (sizes are the caller's to check).
@@ -17,17 +17,6 @@ pub fn ssim(rendered: &[Vec3], target: &[Vec3], width: u32, height: u32) -> (f32
         Some(&mut |i, ch, g| grad[i][ch] = g),
     );
     (value, grad)
-}
-
-pub(crate) fn window() -> [f32; SSIM_WINDOW] {
-    let mut w = [0.0f32; SSIM_WINDOW];
-    let half = (SSIM_WINDOW / 2) as f32;
-    for (k, v) in w.iter_mut().enumerate() {
-        let d = k as f32 - half;
-        *v = (-(d * d) / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp();
-    }
-    let s: f32 = w.iter().sum();
-    w.map(|v| v / s)
 }
 
 /// Separable zero-padded "same" convolution; the kernel is symmetric, so this is also its own

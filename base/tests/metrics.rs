@@ -4,16 +4,7 @@ use base::{psnr, psnr_rgb, ssim, ssim_planar, ssim_value};
 use glam::Vec3;
 
 fn image(seed: u64, n: usize) -> Vec<Vec3> {
-    let mut r = base::SplitMix64::new(seed);
-    (0..n)
-        .map(|_| {
-            Vec3::new(
-                r.next_f64() as f32,
-                r.next_f64() as f32,
-                r.next_f64() as f32,
-            )
-        })
-        .collect()
+    base::SplitMix64::new(seed).uniform_rgb(n)
 }
 
 fn planar(img: &[Vec3]) -> Vec<f32> {

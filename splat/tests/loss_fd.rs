@@ -6,16 +6,7 @@ use glam::Vec3;
 use splat::loss::{l1, photometric_loss, ssim};
 
 fn random_image(seed: u64, n: usize) -> Vec<Vec3> {
-    let mut r = SplitMix64::new(seed);
-    (0..n)
-        .map(|_| {
-            Vec3::new(
-                r.next_f64() as f32,
-                r.next_f64() as f32,
-                r.next_f64() as f32,
-            )
-        })
-        .collect()
+    SplitMix64::new(seed).uniform_rgb(n)
 }
 
 /// Brute-force SSIM in f64: direct 11×11 window sums with zero padding.

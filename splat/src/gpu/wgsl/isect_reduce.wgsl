@@ -1,10 +1,6 @@
 // Per Gaussian: the sum of its (tile, Gaussian) gradient slots, which are contiguous and in
 // row-major tile order (the CPU's order).
 
-struct Len {
-    n: u32,
-}
-
 @group(0) @binding(0) var<uniform> len: Len;
 @group(0) @binding(1) var<storage, read> offsets: array<u32>;
 @group(0) @binding(2) var<storage, read> counts: array<u32>;

@@ -24,6 +24,19 @@ struct Camera {
     cfg: vec4<u32>,
 }
 
+// The element count of a one-dimensional pass.
+struct Len {
+    n: u32,
+}
+
+// One digit pass of the radix sort.
+struct SortPass {
+    n: u32,
+    shift: u32,
+    use_hi: u32,
+    num_blocks: u32,
+}
+
 // Dispatches of more than 65535 workgroups are laid out in two dimensions.
 fn linear_group(wid: vec3<u32>, nwg: vec3<u32>) -> u32 {
     return wid.y * nwg.x + wid.x;

@@ -1,9 +1,5 @@
 // Where each tile's run of sorted keys starts and ends (tiles without keys keep 0..0).
 
-struct Len {
-    n: u32,
-}
-
 @group(0) @binding(0) var<uniform> len: Len;
 @group(0) @binding(1) var<storage, read> keys_hi: array<u32>;
 @group(0) @binding(2) var<storage, read_write> ranges: array<u32>;

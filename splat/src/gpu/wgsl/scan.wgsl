@@ -1,10 +1,6 @@
 // Exclusive prefix sum of u32 within blocks of 256, and each block's total (scanned again
 // one level up until one block remains, then added back by `scan_add`).
 
-struct Len {
-    n: u32,
-}
-
 @group(0) @binding(0) var<uniform> len: Len;
 @group(0) @binding(1) var<storage, read> input: array<u32>;
 @group(0) @binding(2) var<storage, read_write> output: array<u32>;

@@ -1,9 +1,5 @@
 // Adds each block's offset (the scanned block totals) to the block's elements.
 
-struct Len {
-    n: u32,
-}
-
 @group(0) @binding(0) var<uniform> len: Len;
 @group(0) @binding(1) var<storage, read> block_offsets: array<u32>;
 @group(0) @binding(2) var<storage, read_write> output: array<u32>;

@@ -2,13 +2,6 @@
 // holds, stored digit-major so one exclusive scan gives every (digit, block) its offset.
 // Workgroup atomics only: no assumption on subgroup size.
 
-struct SortPass {
-    n: u32,
-    shift: u32,
-    use_hi: u32,
-    num_blocks: u32,
-}
-
 @group(0) @binding(0) var<uniform> pass_: SortPass;
 @group(0) @binding(1) var<storage, read> keys_hi: array<u32>;
 @group(0) @binding(2) var<storage, read> keys_lo: array<u32>;

@@ -3,13 +3,6 @@
 // That rank comes from a workgroup prefix sum of one-hot digit counters packed two to a u32
 // (16 bits each; a block holds at most 256 keys), so no subgroup operation is needed.
 
-struct SortPass {
-    n: u32,
-    shift: u32,
-    use_hi: u32,
-    num_blocks: u32,
-}
-
 @group(0) @binding(0) var<uniform> pass_: SortPass;
 @group(0) @binding(1) var<storage, read> hi_in: array<u32>;
 @group(0) @binding(2) var<storage, read> lo_in: array<u32>;
