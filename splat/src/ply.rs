@@ -52,6 +52,8 @@ const REQUIRED: [&str; 14] = [
 ];
 /// Slot of `f_rest_0`; `f_rest_k` is slot `REST0 + k`.
 const REST0: usize = REQUIRED.len();
+/// Largest log scale read: e^80 is far beyond any scene and still finite in f32 (e^89 is not).
+const MAX_LOG_SCALE: f32 = 80.0;
 const MAX_REST: usize = 3 * sh_rest_count(MAX_SH_DEGREE);
 const SLOTS: usize = REST0 + MAX_REST;
 
@@ -381,6 +383,22 @@ fn parse_reader<R: BufRead>(
             return Err(err(format!("missing required vertex property '{name}'")));
         }
     }
+    // Guard: integer splat properties would be read as raw numbers (a quantised file's 0–255
+    // taken as SH coefficients).
+    let splat_property = |n: &str| REQUIRED.contains(&n) || n.starts_with("f_rest_");
+    if let Some(p) = vertex.properties.values().find(|p| {
+        splat_property(&p.name)
+            && !matches!(
+                p.data_type,
+                PropertyType::Scalar(ScalarType::Float | ScalarType::Double)
+            )
+    }) {
+        return Err(err(format!(
+            "vertex property '{}' is {:?}: splat properties must be float or double \
+             (decompress quantised layouts first)",
+            p.name, p.data_type
+        )));
+    }
 
     let n = vertex.count;
     let binary = header.encoding != Encoding::Ascii;
@@ -399,6 +417,15 @@ fn parse_reader<R: BufRead>(
             return Err(err(format!(
                 "truncated: {n} vertices (and the elements before them) need {need} bytes of \
                  data, file has {have}"
+            )));
+        }
+        // Guard: data past the last declared vertex means the count is smaller than the data
+        // (every vertex property is a scalar here, so the size is exact).
+        if vidx + 1 == header.elements.len() && have > need {
+            return Err(err(format!(
+                "{} bytes follow the {n} declared vertices: the vertex count is smaller than \
+                 the data",
+                have - need
             )));
         }
     }
@@ -512,6 +539,11 @@ fn parse_reader<R: BufRead>(
             )));
         }
         let c = &row.v;
+        if let Some(s) = c[7..10].iter().find(|s| **s > MAX_LOG_SCALE) {
+            return Err(err(format!(
+                "vertex {i} has log scale {s}: its scale overflows (at most {MAX_LOG_SCALE})"
+            )));
+        }
         for (kk, r) in rest.iter_mut().enumerate() {
             *r = Vec3::new(c[REST0 + kk], c[REST0 + k + kk], c[REST0 + 2 * k + kk]);
         }

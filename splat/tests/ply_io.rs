@@ -143,9 +143,11 @@ fn ascii_big_endian_and_extra_elements_read_identically() {
     for v in &floats {
         be.extend(v.to_be_bytes());
     }
-    be.extend(b"element after vertex is ignored");
     let back = parse_ply(Path::new("be.ply"), &be).unwrap();
     assert_eq!(bits(&back), bits(&g));
+    // Bytes past the last declared vertex are a count that lies, not padding to ignore.
+    be.extend(b"trailing bytes");
+    assert!(parse_ply(Path::new("be.ply"), &be).is_err());
 }
 
 #[test]
@@ -490,4 +492,66 @@ fn mutated_files_give_models_or_errors_never_panics() {
         }
     }
     assert!(ok > 100 && errors > 100, "ok {ok}, errors {errors}");
+}
+
+/// A binary little-endian PLY with `n` declared vertices, the given vertex property types
+/// (INRIA names, SH degree 0) and the raw body.
+fn raw_ply(n: usize, dc_type: &str, body: &[u8]) -> Vec<u8> {
+    let mut h = format!("ply\nformat binary_little_endian 1.0\nelement vertex {n}\n");
+    for p in ["x", "y", "z"] {
+        h += &format!("property float {p}\n");
+    }
+    for p in ["f_dc_0", "f_dc_1", "f_dc_2"] {
+        h += &format!("property {dc_type} {p}\n");
+    }
+    for p in [
+        "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3",
+    ] {
+        h += &format!("property float {p}\n");
+    }
+    h += "end_header\n";
+    let mut out = h.into_bytes();
+    out.extend_from_slice(body);
+    out
+}
+
+fn floats(v: &[f32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+#[test]
+fn lying_counts_integer_properties_and_overflowing_scales_are_refused() {
+    let p = std::path::Path::new("scene.ply");
+    let row = |log_scale: f32| {
+        floats(&[
+            0.0, 0.0, 1.0, 0.1, 0.2, 0.3, 1.0, log_scale, -3.0, -3.0, 1.0, 0.0, 0.0, 0.0,
+        ])
+    };
+    let two = [row(-3.0), row(-3.0)].concat();
+    // Sound: both vertices read.
+    assert_eq!(parse_ply(p, &raw_ply(2, "float", &two)).unwrap().len(), 2);
+    // A count smaller than the data.
+    let err = parse_ply(p, &raw_ply(1, "float", &two))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("scene.ply") && err.contains("vertex count is smaller"),
+        "{err}"
+    );
+    // Colour stored as bytes (a quantised layout) is not read as SH coefficients.
+    let mut q = floats(&[0.0, 0.0, 1.0]);
+    q.extend([200u8, 10, 10]);
+    q.extend(floats(&[1.0, -3.0, -3.0, -3.0, 1.0, 0.0, 0.0, 0.0]));
+    let err = parse_ply(p, &raw_ply(1, "uchar", &q))
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("f_dc_0") && err.contains("float"), "{err}");
+    // A log scale whose exponential overflows.
+    let err = parse_ply(p, &raw_ply(1, "float", &row(100.0)))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("vertex 0") && err.contains("log scale"),
+        "{err}"
+    );
 }

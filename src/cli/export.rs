@@ -22,6 +22,9 @@ pub fn run(a: ExportArgs) -> Result<()> {
     splat::files::Format::of(&a.out)?;
     metasplat::guard::refuse_overwrite("--out", &a.out, &[("--in", &a.input)])?;
     let mut g = splat::files::read_splats(&a.input)?;
+    if g.is_empty() {
+        bail!("{}: the scene has no splats", a.input.display());
+    }
     if let Some(d) = a.sh_degree {
         if d > g.sh_degree {
             bail!(
