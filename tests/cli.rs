@@ -1239,6 +1239,13 @@ fn render_without_a_capture_frames_the_splats() {
         "cpu",
     ]);
     assert!(one.join("camera.png").exists());
+    // The frames were staged beside --out and moved in: no staging folder is left.
+    let leftovers: Vec<_> = std::fs::read_dir(d)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().starts_with(".metasplat"))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
     let err = fails(&[
         "render",
         "--ply",

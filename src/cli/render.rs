@@ -85,15 +85,34 @@ pub fn run(a: RenderArgs) -> Result<()> {
         }
         None => free_cameras(&a, &model)?,
     };
-    std::fs::create_dir_all(&a.out)
-        .with_context(|| format!("cannot create {}", a.out.display()))?;
     let settings = splat::RenderSettings {
         sh_degree: model.sh_degree,
         ..Default::default()
     };
     let start = std::time::Instant::now();
     println!("{note}");
-    let written = render_named(&model, &settings, &cameras, &a.out, &device)?;
+    // All or nothing: the frames go to a staging folder beside --out and move in at the end,
+    // so a failure (a full disk) leaves no partial frame set.
+    let parent = match a.out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&parent)
+        .with_context(|| format!("cannot create {}", parent.display()))?;
+    let staging = tempfile::Builder::new()
+        .prefix(".metasplat-frames-")
+        .tempdir_in(&parent)
+        .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
+    let staged = render_named(&model, &settings, &cameras, staging.path(), &device)?;
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("cannot create {}", a.out.display()))?;
+    let mut written = Vec::with_capacity(staged.len());
+    for f in &staged {
+        let to = a.out.join(f.file_name().expect("a frame file"));
+        std::fs::rename(f, &to)
+            .with_context(|| format!("cannot move a frame to {}", to.display()))?;
+        written.push(to);
+    }
     println!(
         "{} splats (SH degree {}) rendered to {} images {}x{} in {:.2} s under {}",
         model.len(),
