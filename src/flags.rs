@@ -66,6 +66,19 @@ pub fn field_angle(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A sensor size in pixels: 8..=65536 (smaller would map PSFs far beyond the image).
+pub fn sensor_px(s: &str) -> Result<usize, String> {
+    let v: usize = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}' is not a pixel count"))?;
+    if (8..=65_536).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{v} px is outside 8..=65536"))
+    }
+}
+
 /// Held-out view spacing: 0 (none held out) or at least 2 (1 would hold out every view).
 pub fn llffhold(s: &str) -> Result<usize, String> {
     let v: usize = s

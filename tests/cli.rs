@@ -1159,6 +1159,20 @@ fn nonsense_numbers_are_refused_naming_the_flag() {
             vec!["scene", "procedural", "--out", o, "--views", "0"],
         ),
         (
+            "--sensor-px",
+            vec![
+                "aberrate",
+                "--psf",
+                "x",
+                "--in",
+                "x",
+                "--out",
+                o,
+                "--sensor-px",
+                "1",
+            ],
+        ),
+        (
             "--k",
             vec![
                 "deconvolve",

@@ -31,7 +31,7 @@ pub struct ImagingArgs {
     #[arg(long)]
     pub no_noise: bool,
     /// Sensor size (px) the grid spans; default G·K.
-    #[arg(long)]
+    #[arg(long, value_parser = metasplat::flags::sensor_px)]
     pub sensor_px: Option<usize>,
 }
 

@@ -23,7 +23,7 @@ pub struct DeconvolveArgs {
     #[arg(long)]
     pub bank: Option<PathBuf>,
     /// Sensor size (px) the grid was made for; default G·K.
-    #[arg(long)]
+    #[arg(long, value_parser = metasplat::flags::sensor_px)]
     pub sensor_px: Option<usize>,
     /// A clean image to report PSNR against (input and every output).
     #[arg(long)]

@@ -150,7 +150,7 @@ pub struct RestoreArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Sensor size (px) the grid was made for; default G·K.
-    #[arg(long)]
+    #[arg(long, value_parser = metasplat::flags::sensor_px)]
     pub sensor_px: Option<usize>,
     /// A clean image to report PSNR/SSIM against.
     #[arg(long)]
