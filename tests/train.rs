@@ -173,6 +173,26 @@ fn resuming_from_a_checkpoint_gives_the_same_splats() {
         .expect("must refuse")
         .to_string();
     assert!(err.contains("lambda") && err.contains("at100.bin"), "{err}");
+    // A damaged checkpoint (one flipped byte, or bytes added) is refused by its checksum.
+    let good = std::fs::read(&kept).unwrap();
+    for damage in [0usize, 1] {
+        let mut bad = good.clone();
+        if damage == 0 {
+            let i = bad.len() / 2;
+            bad[i] ^= 0x10;
+        } else {
+            bad.extend_from_slice(b"garbage");
+        }
+        std::fs::write(&kept, &bad).unwrap();
+        let err = train::train(&cfg, &data, &Device::Cpu, Some(&kept), true, &mut |_| {})
+            .err()
+            .expect("must refuse")
+            .to_string();
+        assert!(
+            err.contains("checksum") && err.contains("at100.bin"),
+            "{err}"
+        );
+    }
     std::fs::write(&kept, b"metasplat-ckpt01 truncated").unwrap();
     let err = train::train(&cfg, &data, &Device::Cpu, Some(&kept), true, &mut |_| {})
         .err()

@@ -4,6 +4,7 @@
 
 pub mod atomic;
 pub mod error;
+pub mod hash;
 pub mod metrics;
 pub mod rng;
 #[doc(hidden)]

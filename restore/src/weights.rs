@@ -48,12 +48,7 @@ impl PsfFingerprint {
 
 /// FNV-1a (64 bit) of `bytes`, hex: identifies PSF grids and weights files.
 pub fn fnv1a(bytes: &[u8]) -> String {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0100_0000_01b3);
-    }
-    format!("{h:016x}")
+    format!("{:016x}", base::hash::fnv1a64(bytes))
 }
 
 /// Everything the file says about the network besides its weights.

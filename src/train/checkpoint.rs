@@ -18,7 +18,10 @@ use crate::train::config::TrainConfig;
 use crate::train::densify::Densifier;
 use crate::train::sh::ShBands;
 
-const MAGIC: &[u8; 16] = b"metasplat-ckpt01";
+/// Version 2 ends with the FNV-1a checksum of everything before it; version 1 (no checksum)
+/// still loads.
+const MAGIC: &[u8; 16] = b"metasplat-ckpt02";
+const MAGIC_V1: &[u8; 16] = b"metasplat-ckpt01";
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 struct Header {
@@ -87,6 +90,8 @@ pub fn save(path: &Path, s: &State) -> Result<()> {
     }
     put_f32s(&mut out, st.max_radius.iter().copied());
     out.extend(s.densifier.seen.iter().map(|&b| b as u8));
+    let sum = base::hash::fnv1a64(&out);
+    out.extend_from_slice(&sum.to_le_bytes());
 
     base::write_bytes_atomically(path, &out).map_err(|e| TrainError::io(path, e))
 }
@@ -98,6 +103,14 @@ struct Reader<'a> {
 }
 
 impl Reader<'_> {
+    /// `count` items of `size` bytes, refused (not wrapped) when the count is absurd.
+    fn take_n(&mut self, count: usize, size: usize, what: &str) -> Result<&[u8]> {
+        let n = count.checked_mul(size).ok_or_else(|| {
+            TrainError::file(self.path, format!("{count} items of {what} overflow"))
+        })?;
+        self.take(n, what)
+    }
+
     fn take(&mut self, n: usize, what: &str) -> Result<&[u8]> {
         let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
         let Some(end) = end else {
@@ -113,15 +126,18 @@ impl Reader<'_> {
 
     fn f32s(&mut self, n: usize, what: &str) -> Result<Vec<f32>> {
         Ok(self
-            .take(n * 4, what)?
+            .take_n(n, 4, what)?
             .chunks_exact(4)
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect())
     }
 
     fn vec3s(&mut self, n: usize, what: &str) -> Result<Vec<Vec3>> {
+        let floats = n.checked_mul(3).ok_or_else(|| {
+            TrainError::file(self.path, format!("{n} vectors of {what} overflow"))
+        })?;
         Ok(self
-            .f32s(n * 3, what)?
+            .f32s(floats, what)?
             .chunks_exact(3)
             .map(Vec3::from_slice)
             .collect())
@@ -133,27 +149,49 @@ impl Reader<'_> {
         g.means = self.vec3s(n, what)?;
         g.log_scales = self.vec3s(n, what)?;
         g.rotations = self
-            .f32s(n * 4, what)?
+            .take_n(n, 16, what)?
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect::<Vec<f32>>()
             .chunks_exact(4)
             .map(|c| [c[0], c[1], c[2], c[3]])
             .collect();
         g.logit_opacities = self.f32s(n, what)?;
         g.sh_dc = self.vec3s(n, what)?;
-        g.sh_rest = self.vec3s(n * rc, what)?;
+        let rest = n
+            .checked_mul(rc)
+            .ok_or_else(|| TrainError::file(self.path, format!("{n} splats of {what} overflow")))?;
+        g.sh_rest = self.vec3s(rest, what)?;
         Ok(g)
     }
 }
 
 pub fn load(path: &Path) -> Result<State> {
-    let bytes = std::fs::read(path).map_err(|e| TrainError::io(path, e))?;
-    let mut r = Reader {
-        path,
-        bytes: &bytes,
-        at: 0,
-    };
-    if r.take(MAGIC.len(), "the magic")? != MAGIC {
+    let file = std::fs::read(path).map_err(|e| TrainError::io(path, e))?;
+    let magic = file.get(..MAGIC.len());
+    let bytes = if magic == Some(MAGIC) {
+        let Some(body_len) = file.len().checked_sub(8) else {
+            return Err(TrainError::file(
+                path,
+                "truncated while reading the checksum",
+            ));
+        };
+        let (body, sum) = file.split_at(body_len);
+        let sum = u64::from_le_bytes(sum.try_into().expect("8 bytes"));
+        if base::hash::fnv1a64(body) != sum {
+            return Err(TrainError::file(
+                path,
+                "the checksum does not match: the checkpoint is damaged (truncated, extended or changed)",
+            ));
+        }
+        body
+    } else if magic == Some(MAGIC_V1) {
+        &file[..]
+    } else {
         return Err(TrainError::file(path, "not a metasplat checkpoint"));
-    }
+    };
+    let mut r = Reader { path, bytes, at: 0 };
+    r.take(MAGIC.len(), "the magic")?;
     let len = u64::from_le_bytes(r.take(8, "the header length")?.try_into().expect("8 bytes"));
     let json = r.take(len as usize, "the header")?;
     let h: Header = serde_json::from_slice(json)
@@ -170,7 +208,7 @@ pub fn load(path: &Path) -> Result<State> {
     let v = r.gaussians(n, h.sh_degree, "Adam's second moments")?;
     let grad_norm_sum = r.f32s(n, "densification statistics")?;
     let count = r
-        .take(n * 4, "densification statistics")?
+        .take_n(n, 4, "densification statistics")?
         .chunks_exact(4)
         .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
         .collect();
