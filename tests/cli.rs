@@ -235,24 +235,16 @@ fn assert_ordinary_modes(dir: &Path, kinds_expected: &[&str]) {
         std::fs::File::create(&probe).unwrap();
         let ordinary = mode(&probe);
         std::fs::remove_file(&probe).unwrap();
-        let mut stack = vec![dir.to_path_buf()];
         let mut kinds = std::collections::BTreeSet::new();
-        while let Some(d) = stack.pop() {
-            for e in std::fs::read_dir(&d).unwrap() {
-                let p = e.unwrap().path();
-                if p.is_dir() {
-                    stack.push(p);
-                    continue;
-                }
-                assert_eq!(
-                    mode(&p),
-                    ordinary,
-                    "{} has mode {:o}",
-                    p.display(),
-                    mode(&p)
-                );
-                kinds.insert(p.extension().map(|x| x.to_string_lossy().into_owned()));
-            }
+        for p in files_under(dir) {
+            assert_eq!(
+                mode(&p),
+                ordinary,
+                "{} has mode {:o}",
+                p.display(),
+                mode(&p)
+            );
+            kinds.insert(p.extension().map(|x| x.to_string_lossy().into_owned()));
         }
         for ext in kinds_expected {
             assert!(
@@ -745,8 +737,8 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
     assert!(err.contains("missing.bin"), "{err}");
 }
 
-/// Every file under `dir` (recursively) with its bytes, to prove inputs survive a command.
-fn snapshot(dir: &Path) -> Vec<(std::path::PathBuf, Vec<u8>)> {
+/// Every file under `dir`, recursively.
+fn files_under(dir: &Path) -> Vec<std::path::PathBuf> {
     let mut out = Vec::new();
     let mut stack = vec![dir.to_path_buf()];
     while let Some(d) = stack.pop() {
@@ -755,11 +747,22 @@ fn snapshot(dir: &Path) -> Vec<(std::path::PathBuf, Vec<u8>)> {
             if p.is_dir() {
                 stack.push(p);
             } else {
-                let bytes = std::fs::read(&p).unwrap();
-                out.push((p, bytes));
+                out.push(p);
             }
         }
     }
+    out
+}
+
+/// Every file under `dir` with its bytes, to prove inputs survive a command.
+fn snapshot(dir: &Path) -> Vec<(std::path::PathBuf, Vec<u8>)> {
+    let mut out: Vec<_> = files_under(dir)
+        .into_iter()
+        .map(|p| {
+            let bytes = std::fs::read(&p).unwrap();
+            (p, bytes)
+        })
+        .collect();
     out.sort();
     out
 }

@@ -124,11 +124,7 @@ pub fn to_gltf(g: &Gaussians) -> Result<String, SplatError> {
 
 /// The glTF document of `g` and its binary buffer.
 fn document(g: &Gaussians) -> Result<(Value, Vec<u8>), SplatError> {
-    let finite = g.means.iter().all(|m| m.is_finite())
-        && g.log_scales.iter().all(|s| s.is_finite())
-        && g.rotations.iter().flatten().all(|v| v.is_finite())
-        && g.sh_dc.iter().chain(&g.sh_rest).all(|c| c.is_finite());
-    if !finite || g.logit_opacities.iter().any(|o| o.is_nan()) {
+    if !g.finite_except_opacity() || g.logit_opacities.iter().any(|o| o.is_nan()) {
         return Err(SplatError::InvalidModel(
             "refusing to write non-finite parameters".into(),
         ));

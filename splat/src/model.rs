@@ -133,6 +133,40 @@ impl Gaussians {
         self.len() * (3 + 3 + 4 + 1 + 3 + 3 * self.rest_count()) * std::mem::size_of::<f32>()
     }
 
+    /// Every parameter is finite, logit opacities excepted (±∞ is a fully opaque or
+    /// transparent splat, which formats storing the opacity itself can represent).
+    pub fn finite_except_opacity(&self) -> bool {
+        self.means
+            .iter()
+            .chain(&self.log_scales)
+            .chain(&self.sh_dc)
+            .chain(&self.sh_rest)
+            .all(|v| v.is_finite())
+            && self.rotations.iter().flatten().all(|v| v.is_finite())
+    }
+
+    /// Every parameter is finite.
+    pub fn is_finite(&self) -> bool {
+        self.finite_except_opacity() && self.logit_opacities.iter().all(|v| v.is_finite())
+    }
+
+    /// The parameters Gaussian by Gaussian: mean, log-scale, quaternion, logit opacity,
+    /// SH DC, SH rest (coefficient-major, RGB innermost); `14 + 3 · rest_count` per Gaussian.
+    pub fn packed(&self) -> Vec<f32> {
+        let mut out = Vec::with_capacity(self.len() * (14 + 3 * self.rest_count()));
+        for i in 0..self.len() {
+            out.extend(self.means[i].to_array());
+            out.extend(self.log_scales[i].to_array());
+            out.extend(self.rotations[i]);
+            out.push(self.logit_opacities[i]);
+            out.extend(self.sh_dc[i].to_array());
+            for c in self.sh_rest_of(i) {
+                out.extend(c.to_array());
+            }
+        }
+        out
+    }
+
     /// Checks that all arrays agree in length (fields are public, so this can be violated).
     pub fn validate(&self) -> Result<(), SplatError> {
         let n = self.len();

@@ -593,16 +593,7 @@ fn header_for(g: &Gaussians) -> Header {
 pub fn write_ply(path: impl AsRef<Path>, g: &Gaussians) -> Result<(), SplatError> {
     let path = path.as_ref();
     g.validate()?;
-    let finite = g
-        .means
-        .iter()
-        .chain(&g.log_scales)
-        .chain(&g.sh_dc)
-        .chain(&g.sh_rest)
-        .all(|v| v.is_finite())
-        && g.rotations.iter().flatten().all(|v| v.is_finite())
-        && g.logit_opacities.iter().all(|v| v.is_finite());
-    if !finite {
+    if !g.is_finite() {
         return Err(ply_err(path, "refusing to write non-finite parameters"));
     }
     let header = header_for(g);

@@ -17,18 +17,7 @@ pub fn params_per_gaussian(sh_degree: u32) -> usize {
 /// All parameters of `g` in f64, Gaussian by Gaussian: mean, log-scale, quaternion, logit
 /// opacity, SH DC, SH rest (coefficient-major, RGB innermost).
 pub fn flatten(g: &Gaussians) -> Vec<f64> {
-    let mut out = Vec::with_capacity(g.len() * params_per_gaussian(g.sh_degree));
-    for i in 0..g.len() {
-        out.extend(g.means[i].to_array().map(f64::from));
-        out.extend(g.log_scales[i].to_array().map(f64::from));
-        out.extend(g.rotations[i].map(f64::from));
-        out.push(g.logit_opacities[i] as f64);
-        out.extend(g.sh_dc[i].to_array().map(f64::from));
-        for c in g.sh_rest_of(i) {
-            out.extend(c.to_array().map(f64::from));
-        }
-    }
-    out
+    g.packed().into_iter().map(f64::from).collect()
 }
 
 /// Renders `g` as [`crate::render`] would, in f64.

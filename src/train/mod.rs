@@ -152,19 +152,8 @@ fn fresh_state(config: &TrainConfig, data: &Dataset) -> Result<State> {
     })
 }
 
-fn params_finite(g: &Gaussians) -> bool {
-    g.means
-        .iter()
-        .chain(&g.log_scales)
-        .chain(&g.sh_dc)
-        .chain(&g.sh_rest)
-        .all(|v| v.is_finite())
-        && g.rotations.iter().flatten().all(|v| v.is_finite())
-        && g.logit_opacities.iter().all(|v| v.is_finite())
-}
-
 fn gradients_finite(g: &splat::Gradients) -> bool {
-    params_finite(&g.params)
+    g.params.is_finite()
         && g.means2d
             .iter()
             .chain(&g.means2d_abs)
@@ -266,7 +255,7 @@ pub fn train(
             &grads.params,
             &lrs.with_means(position_lr.at(s.step)),
         )?;
-        if !params_finite(&s.model) {
+        if !s.model.is_finite() {
             return Err(at(
                 "a parameter after the update",
                 "a learning rate too large for the scene is the likely cause",

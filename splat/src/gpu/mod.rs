@@ -31,7 +31,6 @@ use crate::error::SplatError;
 use crate::model::Gaussians;
 use crate::project::ScreenGrad;
 use crate::rasterizer::{PixelGradients, Rasterizer};
-use crate::reference::flatten;
 use crate::render::{Gradients, RenderOutput, RenderSettings, gradients_from_screen};
 use kernels::Kernels;
 use sort::{KeyBuffers, radix_sort, scan};
@@ -464,7 +463,7 @@ impl Rasterizer for GpuRasterizer {
         let stride = 14 + 3 * g.rest_count() as u32;
         self.ctx
             .check_size("the splat parameters", 4 * stride as u64 * n as u64)?;
-        let params: Vec<f32> = flatten(g).into_iter().map(|v| v as f32).collect();
+        let params = g.packed();
         Ok(GpuScene {
             host: g,
             params: storage_init(&self.ctx.device, "splats", bytemuck::cast_slice(&params)),
