@@ -92,6 +92,24 @@ pub fn llffhold(s: &str) -> Result<usize, String> {
     }
 }
 
+/// A camera pose "ex,ey,ez,tx,ty,tz": eye and target, finite and apart.
+pub fn camera_pose(s: &str) -> Result<[f32; 6], String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f32>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("'{s}' is not six numbers ex,ey,ez,tx,ty,tz"))?;
+    let v: [f32; 6] = v
+        .try_into()
+        .map_err(|_| format!("'{s}' is not six numbers ex,ey,ez,tx,ty,tz"))?;
+    if v.iter().any(|x| !x.is_finite()) || v[..3] == v[3..] {
+        return Err(format!(
+            "'{s}': finite numbers, and the eye apart from the target"
+        ));
+    }
+    Ok(v)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -17,5 +17,6 @@ pub mod procedural;
 pub mod run;
 pub mod spiral;
 pub mod train;
+pub mod view;
 
 pub use error::{Result, TrainError};

@@ -11,6 +11,7 @@ mod render;
 mod restorer;
 mod scene;
 mod train;
+mod view;
 
 use clap::{Parser, Subcommand};
 
@@ -41,6 +42,8 @@ enum Command {
     Train(metasplat::run::RunRequest),
     /// Render a splat scene (PLY, GLB or SPZ) from a capture's cameras or its spiral path.
     Render(render::RenderArgs),
+    /// Open a splat scene in an interactive window; compare it with a capture, follow a run.
+    View(view::ViewArgs),
     /// Convert a splat scene between PLY, glTF (GLB with KHR_gaussian_splatting) and SPZ.
     Export(export::ExportArgs),
     /// The paper's comparison (plain, restored, aware) on a capture, with speed against error.
@@ -74,6 +77,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Scene(c) => scene::run(c),
         Command::Train(a) => train::run(a),
         Command::Render(a) => render::run(a),
+        Command::View(a) => view::run(a),
         Command::Export(a) => export::run(a),
         Command::Experiment(c) => experiment::run(c),
         Command::Restorer(c) => restorer::run(c),

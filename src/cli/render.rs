@@ -29,7 +29,7 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 30, conflicts_with_all = ["scene", "camera"], value_parser = clap::value_parser!(u32).range(1..=10_000))]
     pub orbit: u32,
     /// Without --scene: one frame from EYE looking at TARGET, as "ex,ey,ez,tx,ty,tz".
-    #[arg(long, conflicts_with = "scene", value_parser = parse_camera, allow_hyphen_values = true)]
+    #[arg(long, conflicts_with = "scene", value_parser = metasplat::flags::camera_pose, allow_hyphen_values = true)]
     pub camera: Option<[f32; 6]>,
     /// Image size without --scene.
     #[arg(long, default_value_t = 640, value_parser = clap::value_parser!(u32).range(8..=8192))]
@@ -42,23 +42,6 @@ pub struct RenderArgs {
     /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu`.
     #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
     pub device: DeviceChoice,
-}
-
-fn parse_camera(s: &str) -> Result<[f32; 6], String> {
-    let v: Vec<f32> = s
-        .split(',')
-        .map(|x| x.trim().parse::<f32>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| format!("'{s}' is not six numbers ex,ey,ez,tx,ty,tz"))?;
-    let v: [f32; 6] = v
-        .try_into()
-        .map_err(|_| format!("'{s}' is not six numbers ex,ey,ez,tx,ty,tz"))?;
-    if v.iter().any(|x| !x.is_finite()) || v[..3] == v[3..] {
-        return Err(format!(
-            "'{s}': finite numbers, and the eye apart from the target"
-        ));
-    }
-    Ok(v)
 }
 
 pub fn run(a: RenderArgs) -> Result<()> {
@@ -126,32 +109,26 @@ pub fn run(a: RenderArgs) -> Result<()> {
     Ok(())
 }
 
-/// The viewer's default view without a capture: an orbit framing the splats' bounds, or the
-/// one camera given.
+/// The viewer's default view without a capture: an orbit around the view that frames the
+/// splats' bounds, or the one camera given (both from the viewer's camera code).
 fn free_cameras(a: &RenderArgs, model: &splat::Gaussians) -> Result<Vec<(String, splat::Camera)>> {
     let fov = (a.fov as f32).to_radians();
     if let Some(c) = a.camera {
-        let f = 0.5 * a.height as f32 / (0.5 * fov).tan();
-        let cam = splat::Camera::look_at(
+        let view = viewer::ViewCamera::looking(
             Vec3::new(c[0], c[1], c[2]),
             Vec3::new(c[3], c[4], c[5]),
-            Vec3::NEG_Y,
-            f,
-            f,
-            a.width,
-            a.height,
+            fov,
         );
-        return Ok(vec![("camera".into(), cam)]);
+        return Ok(vec![("camera".into(), view.camera(a.width, a.height))]);
     }
-    let Some((center, radius)) = splat::camera::scene_bounds(&model.means) else {
+    let Some(home) = viewer::ViewCamera::framing(&model.means, fov) else {
         bail!("{}: no splat has a finite position", a.ply.display());
     };
-    let distance = 1.2 * radius / (0.5 * fov).sin();
     Ok((0..a.orbit)
         .map(|k| {
-            let angle = std::f32::consts::TAU * k as f32 / a.orbit as f32;
-            let cam = splat::Camera::orbit(center, distance, angle, 0.3, fov, a.width, a.height);
-            (format!("orbit{k:03}"), cam)
+            let mut view = home.clone();
+            view.yaw = std::f32::consts::TAU * k as f32 / a.orbit as f32;
+            (format!("orbit{k:03}"), view.camera(a.width, a.height))
         })
         .collect())
 }

@@ -262,33 +262,116 @@ fn imaging_settings(
     Ok(Some((psf, mode, sensor, noise)))
 }
 
+/// A capture opened with its imaging model and its source of `I_ac`, before any image is
+/// read: training loads its views from it, and the viewer's comparison asks it for one view
+/// at a time, so both see the same pixels.
+pub struct CaptureModel {
+    pub capture: Capture,
+    pub width: u32,
+    pub height: u32,
+    /// The blur the capture went through (None for a clean capture without `--psf`).
+    pub imaging: Option<ImagingModel>,
+    /// Where `I_ac` comes from, when it was asked for and the capture has a PSF grid.
+    pub restorer: Option<Restorer>,
+    pub restorer_note: Option<String>,
+    network: Option<OpenedRestorer>,
+}
+
+impl CaptureModel {
+    /// Opens the capture, its PSF model, and (with `with_restorer`) the restorer. Errors name
+    /// the file and the problem.
+    pub fn open(dir: &Path, options: &DataOptions, with_restorer: bool) -> Result<Self> {
+        let open = OpenOptions {
+            resolution: Resolution::Downsample(options.downsample),
+            llffhold: options.llffhold,
+            seed: options.seed,
+            ..OpenOptions::default()
+        };
+        let capture = scenes::open(dir, &open)?;
+        if capture.split.train.is_empty() {
+            return Err(TrainError::file(dir, "no training views after the split"));
+        }
+        let (width, height) = (capture.cameras[0].width, capture.cameras[0].height);
+        let settings = imaging_settings(dir, &capture, options.psf.as_deref())?;
+        let imaging = match &settings {
+            Some((psf, blur, sensor, noise)) => Some(
+                ImagingModel::new(psf, width as usize, height as usize, *blur, *sensor, *noise)
+                    .map_err(|e| {
+                        TrainError::file(
+                            options.psf.clone().unwrap_or(dir.join(aberrated::PSF_FILE)),
+                            format!("PSF grid does not fit {width}x{height} images: {e}"),
+                        )
+                    })?,
+            ),
+            None => None,
+        };
+        let (network, restorer_note) = match (&settings, &imaging, with_restorer) {
+            (Some((psf, ..)), Some(model), true) => {
+                open_restorer(&options.restorer, psf, model.psf().size())?
+            }
+            _ => (None, None),
+        };
+        let restorer = (with_restorer && imaging.is_some()).then(|| match &network {
+            Some((r, source)) => Restorer::Network {
+                config: r.config().name.clone(),
+                source: source.clone(),
+                weights: r.weights_hash.clone().unwrap_or_default(),
+            },
+            None => Restorer::MedianWiener,
+        });
+        Ok(Self {
+            capture,
+            width,
+            height,
+            imaging,
+            restorer,
+            restorer_note,
+            network,
+        })
+    }
+
+    /// View `i` with its observed and clean images; `I_ac` is left to [`Self::restore`].
+    pub fn view(&self, i: usize) -> Result<View> {
+        let observed = rgb_to_pixels(&self.capture.load_image(i)?);
+        let clean = aberrated::load_clean_image(&self.capture, i)?.map(|c| rgb_to_pixels(&c));
+        Ok(View {
+            name: self.capture.cameras[i].name.clone(),
+            camera: splat_camera(&self.capture.cameras[i]),
+            observed,
+            restored: None,
+            clean,
+        })
+    }
+
+    /// True when `I_ac` comes from the network (which parallelises inside, so callers
+    /// restore its views one at a time).
+    pub fn restores_with_network(&self) -> bool {
+        self.network.is_some()
+    }
+
+    /// `I_ac` for an observed image: the restorer's output, or None when no restorer was
+    /// asked for or the capture has no PSF grid.
+    pub fn restore(&self, observed: &[Vec3]) -> Result<Option<Vec<Vec3>>> {
+        let (Some(_), Some(model)) = (&self.restorer, &self.imaging) else {
+            return Ok(None);
+        };
+        let blurred = pixels_to_image(observed, self.width, self.height);
+        let restored = match &self.network {
+            Some((net, _)) => net.restore(&blurred, model.psf())?,
+            None => {
+                let mut median = wiener_bank(&blurred, model.psf())?.median().clone();
+                median.clamp01();
+                median
+            }
+        };
+        Ok(Some(image_to_pixels(&restored)))
+    }
+}
+
 /// Loads a capture for training in `mode`. Errors name the file and the problem.
 pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
-    let open = OpenOptions {
-        resolution: Resolution::Downsample(options.downsample),
-        llffhold: options.llffhold,
-        seed: options.seed,
-        ..OpenOptions::default()
-    };
-    let capture = scenes::open(dir, &open)?;
-    if capture.split.train.is_empty() {
-        return Err(TrainError::file(dir, "no training views after the split"));
-    }
-    let (width, height) = (capture.cameras[0].width, capture.cameras[0].height);
-    let settings = imaging_settings(dir, &capture, options.psf.as_deref())?;
-    let imaging = match &settings {
-        Some((psf, blur, sensor, noise)) => Some(
-            ImagingModel::new(psf, width as usize, height as usize, *blur, *sensor, *noise)
-                .map_err(|e| {
-                    TrainError::file(
-                        options.psf.clone().unwrap_or(dir.join(aberrated::PSF_FILE)),
-                        format!("PSF grid does not fit {width}x{height} images: {e}"),
-                    )
-                })?,
-        ),
-        None => None,
-    };
-    if mode.needs_psf() && imaging.is_none() {
+    let model = CaptureModel::open(dir, options, mode.needs_psf())?;
+    if mode.needs_psf() && model.imaging.is_none() {
         return Err(TrainError::file(
             dir,
             format!(
@@ -296,61 +379,42 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
             ),
         ));
     }
-    let (network, restorer_note) = match (&settings, &imaging, mode.needs_psf()) {
-        (Some((psf, ..)), Some(model), true) => {
-            open_restorer(&options.restorer, psf, model.psf().size())?
-        }
-        _ => (None, None),
-    };
-    let restorer = mode.needs_psf().then(|| match &network {
-        Some((r, source)) => Restorer::Network {
-            config: r.config().name.clone(),
-            source: source.clone(),
-            weights: r.weights_hash.clone().unwrap_or_default(),
-        },
-        None => Restorer::MedianWiener,
-    });
-
     let make_view = |i: usize, restore: bool| -> Result<View> {
-        let observed = rgb_to_pixels(&capture.load_image(i)?);
-        let clean = aberrated::load_clean_image(&capture, i)?.map(|c| rgb_to_pixels(&c));
+        let mut v = model.view(i)?;
         // The network restores views one at a time below (it parallelises inside).
-        let restored = match (restore && network.is_none(), &imaging) {
-            (true, Some(model)) => {
-                let blurred = pixels_to_image(&observed, width, height);
-                let mut median = wiener_bank(&blurred, model.psf())?.median().clone();
-                median.clamp01();
-                Some(image_to_pixels(&median))
-            }
-            _ => None,
-        };
-        Ok(View {
-            name: capture.cameras[i].name.clone(),
-            camera: splat_camera(&capture.cameras[i]),
-            observed,
-            restored,
-            clean,
-        })
+        if restore && !model.restores_with_network() {
+            v.restored = model.restore(&v.observed)?;
+        }
+        Ok(v)
     };
-    let mut train = capture
+    let mut train = model
+        .capture
         .split
         .train
         .par_iter()
-        .map(|&i| make_view(i, restorer.is_some()))
+        .map(|&i| make_view(i, true))
         .collect::<Result<Vec<_>>>()?;
-    if let (Some((net, _)), Some(model)) = (&network, &imaging) {
+    if model.restores_with_network() {
         for v in &mut train {
-            let blurred = pixels_to_image(&v.observed, width, height);
-            let restored = net.restore(&blurred, model.psf())?;
-            v.restored = Some(image_to_pixels(&restored));
+            v.restored = model.restore(&v.observed)?;
         }
     }
-    let test = capture
+    let test = model
+        .capture
         .split
         .test
         .par_iter()
         .map(|&i| make_view(i, false))
         .collect::<Result<Vec<_>>>()?;
+    let CaptureModel {
+        capture,
+        width,
+        height,
+        imaging,
+        restorer,
+        restorer_note,
+        ..
+    } = model;
     // One camera (or all at one spot) has no radius; 1 keeps the thresholds meaningful.
     let radius = capture.normalization().radius as f32;
     let extent = if radius > 0.0 { radius } else { 1.0 };

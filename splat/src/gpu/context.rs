@@ -38,6 +38,18 @@ impl GpuContext {
         })
     }
 
+    /// A device somebody else opened (a window's renderer), so the splats render where they
+    /// are shown, without a copy between devices.
+    pub fn from_parts(device: wgpu::Device, queue: wgpu::Queue, info: wgpu::AdapterInfo) -> Self {
+        let limits = device.limits();
+        Self {
+            device,
+            queue,
+            info,
+            limits,
+        }
+    }
+
     /// "NAME (BACKEND, TYPE)", for logs.
     pub fn describe(&self) -> String {
         format!(

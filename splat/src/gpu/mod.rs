@@ -47,9 +47,11 @@ pub struct GpuRasterizer {
 }
 
 /// A model resident on the GPU: its parameters in one buffer, Gaussian by Gaussian, and the
-/// host model it came from (the projection backward still runs on the CPU).
+/// host model it came from (the projection backward still runs on the CPU). Training borrows
+/// the host model; a viewer, which keeps one scene for as long as it shows it, hands it over
+/// ([`GpuRasterizer::upload_owned`]).
 pub struct GpuScene<'a> {
-    host: &'a Gaussians,
+    host: std::borrow::Cow<'a, Gaussians>,
     params: wgpu::Buffer,
     n: u32,
     sh_degree: u32,
@@ -95,6 +97,35 @@ impl GpuRasterizer {
 
     pub fn context(&self) -> &GpuContext {
         &self.ctx
+    }
+
+    /// [`Rasterizer::upload`] of a model the scene then owns, so it can live as long as the
+    /// caller keeps it.
+    pub fn upload_owned(&self, g: Gaussians) -> Result<GpuScene<'static>, SplatError> {
+        self.upload_cow(std::borrow::Cow::Owned(g))
+    }
+
+    fn upload_cow<'a>(
+        &self,
+        g: std::borrow::Cow<'a, Gaussians>,
+    ) -> Result<GpuScene<'a>, SplatError> {
+        g.validate()?;
+        let n = u32::try_from(g.len()).map_err(|_| {
+            SplatError::Gpu(format!("{} splats are too many for one scene", g.len()))
+        })?;
+        let stride = 14 + 3 * g.rest_count() as u32;
+        self.ctx
+            .check_size("the splat parameters", 4 * stride as u64 * n as u64)?;
+        let params = g.packed();
+        let params = storage_init(&self.ctx.device, "splats", bytemuck::cast_slice(&params));
+        let sh_degree = g.sh_degree;
+        Ok(GpuScene {
+            host: g,
+            params,
+            n,
+            sh_degree,
+            stride,
+        })
     }
 
     fn forward(
@@ -280,7 +311,7 @@ impl GpuRasterizer {
         st: &GpuSaved,
         pixel: PixelGradients<'_>,
     ) -> Result<Gradients, SplatError> {
-        let g = scene.host;
+        let g = &*scene.host;
         if g.len() != st.n as usize {
             return Err(SplatError::InvalidInput(format!(
                 "backward called with {} Gaussians, the forward pass rendered {}",
@@ -456,21 +487,7 @@ impl Rasterizer for GpuRasterizer {
     }
 
     fn upload<'a>(&'a self, g: &'a Gaussians) -> Result<GpuScene<'a>, SplatError> {
-        g.validate()?;
-        let n = u32::try_from(g.len()).map_err(|_| {
-            SplatError::Gpu(format!("{} splats are too many for one scene", g.len()))
-        })?;
-        let stride = 14 + 3 * g.rest_count() as u32;
-        self.ctx
-            .check_size("the splat parameters", 4 * stride as u64 * n as u64)?;
-        let params = g.packed();
-        Ok(GpuScene {
-            host: g,
-            params: storage_init(&self.ctx.device, "splats", bytemuck::cast_slice(&params)),
-            n,
-            sh_degree: g.sh_degree,
-            stride,
-        })
+        self.upload_cow(std::borrow::Cow::Borrowed(g))
     }
 
     fn render(

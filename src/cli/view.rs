@@ -1,0 +1,171 @@
+//! `metasplat view`: the interactive viewer on a splat scene, with a capture to compare against
+//! and a training run to follow.
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use glam::Vec3;
+use metasplat::train::data::{DataOptions, RestorerChoice};
+use metasplat::view::{CaptureComparison, RunWatch};
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct ViewArgs {
+    /// Splat scene (.ply, .glb/.gltf or .spz). With --run and no file: the run's newest model.
+    pub file: Option<PathBuf>,
+    /// Capture whose cameras to jump between and whose photos, PSF model and restorer the
+    /// comparison mode shows.
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
+    /// Use the capture's images_N (1: images/).
+    #[arg(long, default_value_t = 8, requires = "scene", value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub downsample: u32,
+    /// Source of I_ac in the comparison: `auto`, `wiener` or a restorer weights file.
+    #[arg(long, default_value = "auto", requires = "scene")]
+    pub restorer: RestorerChoice,
+    /// A training run folder to follow: its newest checkpoint or PLY is shown as it changes.
+    #[arg(long)]
+    pub run: Option<PathBuf>,
+    /// Open at this capture camera (its name or its index).
+    #[arg(long, requires = "scene", conflicts_with = "camera")]
+    pub at: Option<String>,
+    /// Open at EYE looking at TARGET, as "ex,ey,ez,tx,ty,tz".
+    #[arg(long, value_parser = metasplat::flags::camera_pose, allow_hyphen_values = true)]
+    pub camera: Option<[f32; 6]>,
+    /// Vertical field of view (degrees) of the free camera.
+    #[arg(long, default_value_t = 50.0, value_parser = metasplat::flags::field_angle, allow_negative_numbers = true)]
+    pub fov: f64,
+    /// Window size; at a capture camera with --screenshot, the capture's image size.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(64..=8192))]
+    pub width: Option<u32>,
+    #[arg(long, value_parser = clap::value_parser!(u32).range(64..=8192))]
+    pub height: Option<u32>,
+    /// Save a picture of the window after --frames frames, then close it.
+    #[arg(long)]
+    pub screenshot: Option<PathBuf>,
+    #[arg(long, default_value_t = 3, requires = "screenshot", value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub frames: u32,
+    /// With --screenshot: keep the side panel in the picture.
+    #[arg(long, requires = "screenshot")]
+    pub with_panel: bool,
+    /// Open in comparison mode (needs --scene and --at).
+    #[arg(long, requires = "at")]
+    pub compare: bool,
+}
+
+pub fn run(a: ViewArgs) -> Result<()> {
+    if let Some(shot) = &a.screenshot {
+        let mut inputs = Vec::new();
+        if let Some(f) = &a.file {
+            inputs.push(("the scene file", f.as_path()));
+        }
+        if let Some(s) = &a.scene {
+            inputs.push(("--scene", s.as_path()));
+        }
+        if let Some(r) = &a.run {
+            inputs.push(("--run", r.as_path()));
+        }
+        metasplat::guard::refuse_overwrite("--screenshot", shot, &inputs)?;
+    }
+    let mut watch = a.run.as_deref().map(RunWatch::new);
+    let (model, source) = match (&a.file, watch.as_mut()) {
+        (Some(f), _) => (splat::files::read_splats(f)?, f.display().to_string()),
+        (None, Some(w)) => match w.check() {
+            Some(Ok((g, what))) => (g, what),
+            Some(Err(e)) => bail!(e),
+            None => bail!(
+                "--run {}: the run has no checkpoint or PLY yet; wait for its first checkpoint",
+                a.run.as_ref().expect("watch implies --run").display()
+            ),
+        },
+        (None, None) => bail!("give a splat scene file, or --run to follow a training run"),
+    };
+    if model.is_empty() {
+        bail!("{source}: the scene has no splats");
+    }
+    let comparison = match &a.scene {
+        Some(dir) => {
+            let options = DataOptions {
+                downsample: a.downsample,
+                restorer: a.restorer.clone(),
+                ..Default::default()
+            };
+            Some(
+                CaptureComparison::open(dir, &options)
+                    .with_context(|| format!("cannot open the scene {}", dir.display()))?,
+            )
+        }
+        None => None,
+    };
+    let captures: Vec<viewer::CaptureView> = comparison.as_ref().map_or(Vec::new(), |c| {
+        let cap = c.capture();
+        cap.cameras
+            .iter()
+            .enumerate()
+            .map(|(i, cam)| viewer::CaptureView {
+                name: cam.name.clone(),
+                camera: metasplat::convert::splat_camera(cam),
+                held_out: cap.split.test.contains(&i),
+            })
+            .collect()
+    });
+    let start = match (&a.at, a.camera) {
+        (Some(at), _) => {
+            let i = captures
+                .iter()
+                .position(|c| &c.name == at)
+                .or_else(|| at.parse::<usize>().ok().filter(|&i| i < captures.len()))
+                .with_context(|| {
+                    format!(
+                        "--at {at}: no camera of that name or index (the capture has {} cameras, e.g. {})",
+                        captures.len(),
+                        captures.first().map_or("none", |c| c.name.as_str())
+                    )
+                })?;
+            viewer::Start::Capture(i)
+        }
+        (None, Some(c)) => viewer::Start::LookAt {
+            eye: Vec3::new(c[0], c[1], c[2]),
+            target: Vec3::new(c[3], c[4], c[5]),
+        },
+        (None, None) => viewer::Start::Framing,
+    };
+    let default_size = match (&start, &a.screenshot) {
+        (viewer::Start::Capture(i), Some(_)) => {
+            [captures[*i].camera.width, captures[*i].camera.height]
+        }
+        _ => [960, 640],
+    };
+    if let Some(note) = comparison.as_ref().and_then(|c| c.describe_restorer()) {
+        println!("Comparison: {note}.");
+    }
+    println!(
+        "Viewing {} splats (SH degree {}) from {source}.",
+        model.len(),
+        model.sh_degree
+    );
+    let options = viewer::ViewerOptions {
+        title: format!("metasplat — {source}"),
+        model,
+        captures,
+        start,
+        fov_y: (a.fov as f32).to_radians(),
+        size: [
+            a.width.unwrap_or(default_size[0]),
+            a.height.unwrap_or(default_size[1]),
+        ],
+        background: Vec3::ZERO,
+        compare: comparison.map(|c| Box::new(c) as Box<dyn viewer::CompareSource>),
+        live: watch.map(|w| Box::new(w) as Box<dyn viewer::LiveSource>),
+        screenshot: a.screenshot.clone().map(|path| viewer::Screenshot {
+            path,
+            frames: a.frames,
+            with_panel: a.with_panel,
+            compare: a.compare,
+        }),
+    };
+    viewer::run(options)?;
+    if let Some(p) = &a.screenshot {
+        println!("Saved a screenshot of the viewer to {}.", p.display());
+    }
+    Ok(())
+}
