@@ -46,6 +46,22 @@ pub fn read_splats(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
     }
 }
 
+/// [`read_splats`], reporting `(bytes_read, file_len)` while a PLY streams in; the other
+/// formats are read whole and report once at the end.
+pub fn read_splats_reporting(
+    path: impl AsRef<Path>,
+    progress: &dyn Fn(u64, u64),
+) -> Result<Gaussians, SplatError> {
+    let path = path.as_ref();
+    if Format::of(path)? == Format::Ply {
+        return crate::ply::read_ply_reporting(path, progress);
+    }
+    let g = read_splats(path)?;
+    let len = std::fs::metadata(path).map_or(0, |m| m.len());
+    progress(len, len);
+    Ok(g)
+}
+
 /// Writes a splat scene in the format its extension names (atomically).
 pub fn write_splats(path: impl AsRef<Path>, g: &Gaussians) -> Result<(), SplatError> {
     let path = path.as_ref();

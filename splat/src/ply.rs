@@ -263,7 +263,15 @@ fn min_element_size(e: &ElementDef) -> u64 {
 /// Reads a Gaussian model from a PLY file (see the module docs for what is accepted). The
 /// file is streamed, never held in memory whole.
 pub fn read_ply(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
-    let path = path.as_ref();
+    read_ply_reporting(path.as_ref(), &|_, _| {})
+}
+
+/// [`read_ply`], calling `progress(bytes_read, file_len)` as the file streams in (for a
+/// progress bar on large scenes).
+pub fn read_ply_reporting(
+    path: &Path,
+    progress: &dyn Fn(u64, u64),
+) -> Result<Gaussians, SplatError> {
     let io = |source| SplatError::Io {
         path: path.to_path_buf(),
         source,
@@ -273,11 +281,39 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
     if meta.is_dir() {
         return Err(io(io::ErrorKind::IsADirectory.into()));
     }
+    let counted = Counted {
+        inner: file,
+        read: 0,
+        total: meta.len(),
+        reported: 0,
+        progress,
+    };
     parse_guarded(
         path,
-        BufReader::with_capacity(1 << 20, file),
+        BufReader::with_capacity(1 << 20, counted),
         Some(meta.len()),
     )
+}
+
+/// A reader that reports how far it has got, every few megabytes.
+struct Counted<'a, R> {
+    inner: R,
+    read: u64,
+    total: u64,
+    reported: u64,
+    progress: &'a dyn Fn(u64, u64),
+}
+
+impl<R: Read> Read for Counted<'_, R> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.read += n as u64;
+        if self.read - self.reported >= 4 << 20 || (n == 0 && self.read != self.reported) {
+            self.reported = self.read;
+            (self.progress)(self.read, self.total);
+        }
+        Ok(n)
+    }
 }
 
 /// Parses PLY bytes; `path` is only used in error messages.

@@ -17,6 +17,33 @@ pub fn bar(total: u64, what: &str) -> ProgressBar {
     pb
 }
 
+/// Reads a splat file behind a bar of the bytes read, and says how long it took.
+pub fn read_splats(path: &std::path::Path) -> anyhow::Result<splat::Gaussians> {
+    let pb = ProgressBar::new(std::fs::metadata(path).map_or(0, |m| m.len()));
+    pb.set_style(
+        ProgressStyle::with_template(
+            "{msg:>12} [{bar:40}] {bytes}/{total_bytes} {elapsed_precise} ETA {eta}",
+        )
+        .expect("static template")
+        .progress_chars("=> "),
+    );
+    pb.set_message("reading");
+    let start = Instant::now();
+    let g = splat::files::read_splats_reporting(path, &|done, total| {
+        pb.set_length(total);
+        pb.set_position(done);
+    });
+    pb.finish_and_clear();
+    let g = g?;
+    println!(
+        "Read {} splats from {} in {:.1} s.",
+        g.len(),
+        path.display(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(g)
+}
+
 /// Runs `f` behind a spinner and returns its result with the seconds it took.
 pub fn step<T>(what: &str, f: impl FnOnce() -> T) -> (T, f64) {
     let pb = ProgressBar::new_spinner();

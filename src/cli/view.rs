@@ -68,7 +68,7 @@ pub fn run(a: ViewArgs) -> Result<()> {
     }
     let mut watch = a.run.as_deref().map(RunWatch::new);
     let (model, source) = match (&a.file, watch.as_mut()) {
-        (Some(f), _) => (splat::files::read_splats(f)?, f.display().to_string()),
+        (Some(f), _) => (super::progress::read_splats(f)?, f.display().to_string()),
         (None, Some(w)) => match w.check() {
             Some(Ok((g, what))) => (g, what),
             Some(Err(e)) => bail!(e),
@@ -163,9 +163,16 @@ pub fn run(a: ViewArgs) -> Result<()> {
             compare: a.compare,
         }),
     };
-    viewer::run(options)?;
+    let report = viewer::run(options)?;
     if let Some(p) = &a.screenshot {
         println!("Saved a screenshot of the viewer to {}.", p.display());
+        if let Some(ms) = report.mean_render_ms {
+            println!(
+                "{} frames rendered; after the first, a frame took {ms:.1} ms ({:.1} fps).",
+                report.renders,
+                1e3 / ms
+            );
+        }
     }
     Ok(())
 }

@@ -11,14 +11,14 @@ use splat::gpu::{GpuContext, GpuRasterizer, GpuScene};
 use splat::{Gaussians, Rasterizer, RenderSettings};
 
 use crate::controls::{ViewCamera, nearest_camera};
-use crate::{CaptureView, Panel, Screenshot, Start, ViewerError, ViewerOptions};
+use crate::{CaptureView, Panel, Screenshot, Start, ViewerError, ViewerOptions, ViewerReport};
 
 /// Radians the view turns per pixel dragged.
 const TURN_PER_PIXEL: f32 = 0.006;
 /// How often a live run is checked for a newer model.
 const LIVE_POLL: Duration = Duration::from_secs(1);
 
-pub fn run(options: ViewerOptions) -> Result<(), ViewerError> {
+pub fn run(options: ViewerOptions) -> Result<ViewerReport, ViewerError> {
     check_display()?;
     options.model.validate()?;
     if let Start::Capture(i) = options.start
@@ -41,22 +41,37 @@ pub fn run(options: ViewerOptions) -> Result<(), ViewerError> {
     // The app is built inside the event loop; an error there comes back through this slot.
     let failure: Arc<Mutex<Option<ViewerError>>> = Arc::default();
     let slot = failure.clone();
+    let timings: Arc<Mutex<Vec<f32>>> = Arc::default();
+    let times = timings.clone();
     let result = eframe::run_native(
         &title,
         native,
-        Box::new(move |cc| match Viewer::new(cc, options, slot.clone()) {
-            Ok(v) => Ok(Box::new(v)),
-            Err(e) => {
-                let message = e.to_string();
-                *slot.lock().expect("no panics hold this lock") = Some(e);
-                Err(message.into())
-            }
-        }),
+        Box::new(
+            move |cc| match Viewer::new(cc, options, slot.clone(), times) {
+                Ok(v) => Ok(Box::new(v)),
+                Err(e) => {
+                    let message = e.to_string();
+                    *slot.lock().expect("no panics hold this lock") = Some(e);
+                    Err(message.into())
+                }
+            },
+        ),
     );
     if let Some(e) = failure.lock().expect("no panics hold this lock").take() {
         return Err(e);
     }
-    result.map_err(|e| ViewerError::Window(e.to_string()))
+    let t = timings.lock().expect("no panics hold this lock");
+    let report = ViewerReport {
+        renders: t.len(),
+        mean_render_ms: (t.len() > 1)
+            .then(|| t[1..].iter().map(|&v| v as f64).sum::<f64>() / (t.len() - 1) as f64),
+    };
+    result.map(|()| report).map_err(|e| match e {
+        eframe::Error::Wgpu(e) => ViewerError::Window(format!(
+            "no GPU can draw into the window ({e}); `metasplat render --device cpu` renders frames without one"
+        )),
+        e => ViewerError::Window(e.to_string()),
+    })
 }
 
 /// winit needs an X11 or Wayland display on Unix; without one it would fail deep inside the
@@ -136,6 +151,7 @@ struct Viewer {
     shot: Arc<Mutex<Option<Arc<ColorImage>>>>,
     shot_requested: bool,
     failure: Arc<Mutex<Option<ViewerError>>>,
+    timings: Arc<Mutex<Vec<f32>>>,
 }
 
 impl Viewer {
@@ -143,6 +159,7 @@ impl Viewer {
         cc: &eframe::CreationContext<'_>,
         o: ViewerOptions,
         failure: Arc<Mutex<Option<ViewerError>>>,
+        timings: Arc<Mutex<Vec<f32>>>,
     ) -> Result<Self, ViewerError> {
         let rs = cc
             .wgpu_render_state
@@ -194,6 +211,7 @@ impl Viewer {
             shot: Arc::default(),
             shot_requested: false,
             failure,
+            timings,
         };
         if let Start::Capture(i) = o.start {
             viewer.go_to_capture(i);
@@ -266,6 +284,10 @@ impl Viewer {
         let start = Instant::now();
         let out = self.raster.render(&self.scene, &cam, &settings)?;
         self.render_ms = start.elapsed().as_secs_f32() * 1e3;
+        self.timings
+            .lock()
+            .expect("no panics hold this lock")
+            .push(self.render_ms);
         let image = color_image(w, h, &out.color);
         match &mut self.texture {
             Some(t) => t.set(image, egui::TextureOptions::NEAREST),
@@ -570,6 +592,8 @@ impl Viewer {
             return;
         };
         self.frames += 1;
+        // Every frame renders, so the report measures the frame rate.
+        self.last_key = None;
         ctx.request_repaint();
         if self.frames >= shot.frames && !self.shot_requested {
             let slot = self.shot.clone();

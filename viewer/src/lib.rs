@@ -106,7 +106,17 @@ pub struct ViewerOptions {
     pub screenshot: Option<Screenshot>,
 }
 
+/// What a session measured.
+#[derive(Clone, Debug, Default)]
+pub struct ViewerReport {
+    /// Renders timed (in screenshot mode every frame renders, so this measures the rate).
+    pub renders: usize,
+    /// Mean time of a render after the first (which also builds the GPU pipelines), in
+    /// milliseconds: the rasterizer, the read-back and the texture upload.
+    pub mean_render_ms: Option<f64>,
+}
+
 /// Opens the window and returns when it closes.
-pub fn run(options: ViewerOptions) -> Result<(), ViewerError> {
+pub fn run(options: ViewerOptions) -> Result<ViewerReport, ViewerError> {
     app::run(options)
 }
