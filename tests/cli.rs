@@ -1274,3 +1274,143 @@ fn render_without_a_capture_frames_the_splats() {
     ]);
     assert!(err.contains("--camera"), "{err}");
 }
+
+/// A Kodak validation photo, or None (with the reason printed) when the shared data is absent.
+fn kodak(name: &str) -> Option<std::path::PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../shared/data/images/val/{name}"));
+    if p.exists() {
+        Some(p)
+    } else {
+        eprintln!(
+            "SKIP: {} is absent (the shared data is not here)",
+            p.display()
+        );
+        None
+    }
+}
+
+fn png_psnr(a: &Path, b: &Path) -> f64 {
+    let (a, b) = (
+        aberration::Image::load(a).unwrap(),
+        aberration::Image::load(b).unwrap(),
+    );
+    aberration::psnr(&a, &b).unwrap()
+}
+
+#[test]
+fn the_defaults_improve_a_photo_at_the_papers_noise() {
+    let Some(clean) = kodak("kodim05.png") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // The default PSF grid: the one the shipped restorer was trained for.
+    let psf = d.join("psf.npy");
+    ok(&["psf", "simulate", "--out", s(&psf)]);
+    let blurred = d.join("blurred.png");
+    ok(&[
+        "aberrate",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&clean),
+        "--out",
+        s(&blurred),
+        "--seed",
+        "5",
+    ]);
+    let input_db = png_psnr(&blurred, &clean);
+
+    // deconvolve with no K: the default constant, named, and better than its input.
+    let wiener = d.join("wiener.png");
+    let text = ok(&[
+        "deconvolve",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&blurred),
+        "--out",
+        s(&wiener),
+    ]);
+    assert!(text.contains("(the default)"), "{text}");
+    let wiener_db = png_psnr(&wiener, &clean);
+    assert!(
+        wiener_db > input_db + 1.0,
+        "deconvolve's default: {input_db:.2} -> {wiener_db:.2} dB"
+    );
+
+    // restore with no --weights: the shipped network, said so, far better than its input.
+    let restored = d.join("restored.png");
+    let text = ok(&[
+        "restore",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&blurred),
+        "--out",
+        s(&restored),
+    ]);
+    assert!(text.contains("shipped"), "{text}");
+    let restored_db = png_psnr(&restored, &clean);
+    assert!(
+        restored_db > input_db + 3.0,
+        "restore's default: {input_db:.2} -> {restored_db:.2} dB"
+    );
+    assert!(
+        restored_db > wiener_db,
+        "the network {restored_db:.2} dB, Wiener {wiener_db:.2} dB"
+    );
+
+    // Another PSF grid has no shipped network: the refusal names --weights.
+    let other = d.join("other.npy");
+    let mut args = vec!["psf", "simulate", "--out", s(&other)];
+    args.extend_from_slice(SMALL_LENS);
+    ok(&args);
+    let err = fails(&[
+        "restore",
+        "--psf",
+        s(&other),
+        "--in",
+        s(&blurred),
+        "--out",
+        s(&d.join("x.png")),
+    ]);
+    assert!(err.contains("--weights"), "{err}");
+    assert!(!d.join("x.png").exists());
+}
+
+#[test]
+fn render_finds_the_image_folder_a_capture_has() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("scene");
+    ok(&[
+        "scene",
+        "procedural",
+        "--out",
+        s(&scene),
+        "--width",
+        "48",
+        "--height",
+        "32",
+        "--views",
+        "3",
+    ]);
+    assert!(scene.join("images").is_dir() && !scene.join("images_8").exists());
+    let ply = d.join("truth.ply");
+    splat::ply::write_ply(&ply, &metasplat::procedural::ground_truth(0)).unwrap();
+    let frames = d.join("frames");
+    let text = ok(&[
+        "render",
+        "--ply",
+        s(&ply),
+        "--scene",
+        s(&scene),
+        "--out",
+        s(&frames),
+        "--device",
+        "cpu",
+    ]);
+    assert!(text.contains("Using images/"), "{text}");
+    assert_eq!(std::fs::read_dir(&frames).unwrap().count(), 3);
+}

@@ -32,6 +32,12 @@ pub fn bank_constants() -> [f32; BANK_SIZE] {
     std::array::from_fn(|m| 10f64.powf(-2.0 - 3.0 * m as f64 / (BANK_SIZE - 1) as f64) as f32)
 }
 
+/// The fixed Wiener constant `metasplat deconvolve` uses when none is given: the bank's
+/// largest. On the Kodak validation photos aberrated at the default noise it improves every
+/// one and scores best of the bank's constants (sweep in RESULTS.md); smaller constants
+/// amplify noise and tile seams more than they sharpen.
+pub const DEFAULT_K: f32 = 1e-2;
+
 /// How the regulariser K is chosen per tile and channel.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Regularizer {

@@ -16,10 +16,15 @@ pub const TINY_NAME: &str = "restore/weights/tiny.bin (shipped)";
 
 /// The shipped restorer when it was trained for `native`; `Ok(None)` for another grid.
 pub fn for_psf(native: &PsfGrid) -> Result<Option<Restorer>> {
+    for_psf_on(native, burn::tensor::Device::flex())
+}
+
+/// [`for_psf`] on a given device.
+pub fn for_psf_on(native: &PsfGrid, device: burn::tensor::Device) -> Result<Option<Restorer>> {
     let name = Path::new(TINY_NAME);
     let (header, _) = weights::parse(TINY, name)?;
     if header.psf != PsfFingerprint::of(native) {
         return Ok(None);
     }
-    Restorer::from_bytes(TINY, name, native).map(Some)
+    Restorer::from_bytes_on(TINY, name, native, device).map(Some)
 }

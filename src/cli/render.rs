@@ -23,8 +23,10 @@ pub struct RenderArgs {
     /// Render N frames of the LLFF spiral instead of the capture's cameras.
     #[arg(long, requires = "scene", value_parser = clap::value_parser!(u32).range(1..=10_000))]
     pub spiral: Option<u32>,
-    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
-    pub downsample: u32,
+    /// Use the capture's images_N (1: images/); default images_8/ when it exists, else the
+    /// folder there is.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub downsample: Option<u32>,
     /// Without --scene: frames of an orbit around the splats' bounds.
     #[arg(long, default_value_t = 30, conflicts_with_all = ["scene", "camera"], value_parser = clap::value_parser!(u32).range(1..=10_000))]
     pub orbit: u32,
@@ -57,7 +59,12 @@ pub fn run(a: RenderArgs) -> Result<()> {
     }
     let cameras: Vec<(String, splat::Camera)> = match &a.scene {
         Some(dir) => {
-            let capture = super::open_scene(dir, a.downsample)?;
+            let downsample = a.downsample.unwrap_or_else(|| {
+                let (d, note) = super::default_downsample(dir);
+                println!("{note}");
+                d
+            });
+            let capture = super::open_scene(dir, downsample)?;
             let cams = match a.spiral {
                 Some(n) => metasplat::spiral::spiral(&capture.cameras, &capture.bounds, n as usize),
                 None => capture.cameras.clone(),

@@ -106,9 +106,10 @@ impl Tiling {
 /// load them.
 #[derive(Args)]
 pub struct Inference {
-    /// Restorer weights (`restore/weights/tiny.bin` is the shipped network).
+    /// Restorer weights; without it, the network shipped in the binary
+    /// (`restore/weights/tiny.bin`), when it was trained for this PSF grid.
     #[arg(long)]
-    pub weights: PathBuf,
+    pub weights: Option<PathBuf>,
     /// PSF grid (`.npy`, from `psf simulate`) the images were aberrated with.
     #[arg(long)]
     pub psf: PathBuf,
@@ -124,8 +125,33 @@ impl Inference {
     fn load(&self) -> Result<(PsfGrid, Restorer)> {
         let native = PsfGrid::load_npy(&self.psf)
             .with_context(|| format!("cannot read {}", self.psf.display()))?;
-        let net = Restorer::load_on(&self.weights, &native, self.backend.device()?)?;
+        let device = self.backend.device()?;
+        let net = match &self.weights {
+            Some(w) => Restorer::load_on(w, &native, device)?,
+            None => match restore::shipped::for_psf_on(&native, device)? {
+                Some(net) => {
+                    println!(
+                        "Using the restorer shipped in the binary ({}).",
+                        restore::shipped::TINY_NAME
+                    );
+                    net
+                }
+                None => bail!(
+                    "--weights: none given, and the shipped restorer was trained for the default simulated PSF grid, not {}; train one with `metasplat restorer train` and pass it",
+                    self.psf.display()
+                ),
+            },
+        };
         Ok((native, self.tiling.apply(net)?))
+    }
+
+    /// The files this reads, for the output-aliasing guard.
+    fn inputs(&self) -> Vec<(&'static str, &Path)> {
+        let mut v = vec![("--psf", self.psf.as_path())];
+        if let Some(w) = &self.weights {
+            v.push(("--weights", w.as_path()));
+        }
+        v
     }
 }
 
@@ -394,11 +420,8 @@ struct Row {
 
 fn run_eval(a: EvalArgs) -> Result<()> {
     if let Some(out) = &a.out {
-        let inputs = [
-            ("--val", a.val.as_path()),
-            ("--weights", a.net.weights.as_path()),
-            ("--psf", a.net.psf.as_path()),
-        ];
+        let mut inputs = a.net.inputs();
+        inputs.push(("--val", a.val.as_path()));
         metasplat::guard::refuse_overwrite("--out", out, &inputs)?;
     }
     let (native, restorer) = a.net.load()?;
@@ -533,11 +556,8 @@ fn strip(images: &[&Image]) -> Image {
 }
 
 pub fn run_restore(a: RestoreArgs) -> Result<()> {
-    let mut inputs = vec![
-        ("--in", a.input.as_path()),
-        ("--weights", a.net.weights.as_path()),
-        ("--psf", a.net.psf.as_path()),
-    ];
+    let mut inputs = a.net.inputs();
+    inputs.push(("--in", a.input.as_path()));
     if let Some(r) = &a.reference {
         inputs.push(("--reference", r));
     }

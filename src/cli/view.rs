@@ -16,9 +16,10 @@ pub struct ViewArgs {
     /// comparison mode shows.
     #[arg(long)]
     pub scene: Option<PathBuf>,
-    /// Use the capture's images_N (1: images/).
-    #[arg(long, default_value_t = 8, requires = "scene", value_parser = clap::value_parser!(u32).range(1..=64))]
-    pub downsample: u32,
+    /// Use the capture's images_N (1: images/); default images_8/ when it exists, else the
+    /// folder there is.
+    #[arg(long, requires = "scene", value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub downsample: Option<u32>,
     /// Source of I_ac in the comparison: `auto`, `wiener` or a restorer weights file.
     #[arg(long, default_value = "auto", requires = "scene")]
     pub restorer: RestorerChoice,
@@ -84,8 +85,13 @@ pub fn run(a: ViewArgs) -> Result<()> {
     }
     let comparison = match &a.scene {
         Some(dir) => {
+            let downsample = a.downsample.unwrap_or_else(|| {
+                let (d, note) = super::default_downsample(dir);
+                println!("{note}");
+                d
+            });
             let options = DataOptions {
-                downsample: a.downsample,
+                downsample,
                 restorer: a.restorer.clone(),
                 ..Default::default()
             };
