@@ -152,30 +152,38 @@ fn splat_transform_and_we_agree_on_spz() {
     let p = psnr(&g, &splat::ply::read_ply(&its_ply).unwrap());
     eprintln!("our SPZ through splat-transform: {p:.1} dB");
     assert!(p >= 38.0, "{p} dB");
-    // We read its SPZ (version 3) of our PLY.
-    let its_spz = dir.path().join("its.spz");
-    let out = Command::new(tools.join("node_modules/.bin/splat-transform"))
-        .args(["-w", "--spz-version", "3"])
-        .arg(&ours_ply)
-        .arg(&its_spz)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let theirs = splat::spz::read_spz(&its_spz).unwrap();
-    assert_eq!(theirs.len(), g.len());
-    // Its own decoding of its file is the reference for our reader; against the original
-    // scene its SPZ loses more than ours (it quantises SH to 5 and 4 bits, we keep 8).
-    let its_decoding = dir.path().join("its_decoding.ply");
-    splat_transform(&tools, &its_spz, &its_decoding);
-    let same = psnr(&splat::ply::read_ply(&its_decoding).unwrap(), &theirs);
-    let lossy = psnr(&g, &theirs);
-    eprintln!(
-        "splat-transform's SPZ read by us: {same:.1} dB against its own reading, {lossy:.1} dB against the scene"
-    );
-    assert!(same >= 50.0, "{same} dB");
-    assert!(lossy >= 30.0, "{lossy} dB");
+    // We read its SPZ of our PLY, in version 3 (gzip) and its default version 4 (ZSTD).
+    for version in ["3", "4"] {
+        let its_spz = dir.path().join(format!("its_v{version}.spz"));
+        let out = Command::new(tools.join("node_modules/.bin/splat-transform"))
+            .args(["-w", "--spz-version", version])
+            .arg(&ours_ply)
+            .arg(&its_spz)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let head = std::fs::read(&its_spz).unwrap();
+        assert_eq!(
+            head[..2] == [0x1f, 0x8b],
+            version == "3",
+            "v{version}: gzip or not"
+        );
+        let theirs = splat::spz::read_spz(&its_spz).unwrap();
+        assert_eq!(theirs.len(), g.len());
+        // Its own decoding of its file is the reference for our reader; against the original
+        // scene its SPZ loses more than ours (it quantises SH to 5 and 4 bits, we keep 8).
+        let its_decoding = dir.path().join(format!("its_decoding_v{version}.ply"));
+        splat_transform(&tools, &its_spz, &its_decoding);
+        let same = psnr(&splat::ply::read_ply(&its_decoding).unwrap(), &theirs);
+        let lossy = psnr(&g, &theirs);
+        eprintln!(
+            "splat-transform's SPZ v{version} read by us: {same:.1} dB against its own reading, {lossy:.1} dB against the scene"
+        );
+        assert!(same >= 50.0, "v{version}: {same} dB");
+        assert!(lossy >= 30.0, "v{version}: {lossy} dB");
+    }
 }

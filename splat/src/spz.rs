@@ -1,6 +1,6 @@
-//! SPZ (Niantic's compressed splat format), versions 2 and 3, read and written (version 3).
+//! SPZ (Niantic's compressed splat format), versions 2, 3 and 4 read, version 3 written.
 //!
-//! A gzip stream holding a 16-byte header (magic `NGSP`, version, count, SH degree,
+//! Versions 2 and 3: a gzip stream holding a 16-byte header (magic `NGSP`, version, count, SH degree,
 //! fractional bits, flags) and then, attribute by attribute: positions as 24-bit fixed point
 //! (12 fractional bits, so ±2048 units at 0.25 mm), opacity after the sigmoid in 8 bits, the
 //! DC colour as `dc · 0.15 · 255 + 127.5`, log scales as `(s + 10) · 16`, orientation as
@@ -10,8 +10,14 @@
 //!
 //! Frame: values are stored in the PLY's frame, as PlayCanvas' splat-transform reads and
 //! writes them (Niantic's own converter turns PLY data into its right-up-back frame; its
-//! files open here turned by half a turn about x). Version 4 (ZSTD streams, splat-transform's
-//! default) is refused with a message saying how to get a version 3 file.
+//! files open here turned by half a turn about x).
+//!
+//! Version 4 (splat-transform's default) keeps the same attribute encodings but compresses
+//! each attribute on its own: a plain 32-byte header (the 16 above, then the stream count and
+//! the byte offset of a table of contents), optional extensions, the table (per stream: its
+//! compressed and uncompressed sizes, u64 each) and one ZSTD frame per attribute, in the
+//! order above (the SH stream only when the degree is above 0). Written as version 3: every
+//! tool we check reads it, and gzip needs nothing beyond `flate2`.
 
 use std::io::{Read, Write};
 use std::path::Path;
@@ -147,69 +153,14 @@ pub fn parse_spz(path: &Path, bytes: &[u8]) -> Result<Gaussians, SplatError> {
         path: path.to_path_buf(),
         problem,
     };
-    if bytes.len() >= 8 && bytes[..4] == MAGIC.to_le_bytes() {
-        let version = u32::from_le_bytes(bytes[4..8].try_into().expect("4 bytes"));
-        return Err(bad(format!(
-            "SPZ version {version} (ZSTD streams) is not read yet; write a version 3 file with \
-             `splat-transform --spz-version 3`"
-        )));
-    }
-    let mut dec = flate2::read::GzDecoder::new(bytes);
-    let mut header = [0u8; HEADER];
-    dec.read_exact(&mut header).map_err(|e| {
-        bad(format!(
-            "not an SPZ file (no gzip stream with a header): {e}"
-        ))
-    })?;
-    let u32_at = |i: usize| u32::from_le_bytes(header[i..i + 4].try_into().expect("4 bytes"));
-    if u32_at(0) != MAGIC {
-        return Err(bad("not an SPZ file (no NGSP magic)".into()));
-    }
-    let version = u32_at(4);
-    if !(2..=3).contains(&version) {
-        return Err(bad(format!(
-            "SPZ version {version} is not read (2 and 3 are)"
-        )));
-    }
-    let n = u32_at(8) as u64;
-    let degree = header[12] as u32;
-    let frac = header[13];
-    let flags = header[14];
-    if n > MAX_POINTS {
-        return Err(bad(format!(
-            "{n} splats declared, more than the {MAX_POINTS} read"
-        )));
-    }
-    if degree > MAX_SH_DEGREE {
-        return Err(bad(format!(
-            "SH degree {degree} (at most {MAX_SH_DEGREE} is read)"
-        )));
-    }
-    if frac > 23 {
-        return Err(bad(format!("{frac} fractional bits for 24-bit positions")));
-    }
-    if flags & 2 != 0 {
-        return Err(bad("SPZ extensions are not read".into()));
-    }
-    let rc = sh_rest_count(degree);
+    let (header, body) = if bytes.len() >= 8 && bytes[..4] == MAGIC.to_le_bytes() {
+        read_v4(bytes).map_err(bad)?
+    } else {
+        read_gzipped(bytes).map_err(bad)?
+    };
+    let (version, n, degree, frac) = header;
     let rot_bytes = if version >= 3 { 4 } else { 3 };
-    let per = 9 + 1 + 3 + 3 + rot_bytes + 3 * rc;
-    let expected = n as usize * per;
-    let mut body = Vec::with_capacity(expected);
-    dec.take(expected as u64 + 1)
-        .read_to_end(&mut body)
-        .map_err(|e| bad(format!("corrupt compressed data: {e}")))?;
-    if body.len() != expected {
-        return Err(bad(format!(
-            "{n} splats need {expected} bytes after the header, the file has {}{}",
-            body.len().min(expected),
-            if body.len() > expected {
-                " and more"
-            } else {
-                ""
-            }
-        )));
-    }
+    let rc = sh_rest_count(degree);
     let n = n as usize;
     let (pos, rest) = body.split_at(9 * n);
     let (alpha, rest) = rest.split_at(n);
@@ -251,4 +202,140 @@ pub fn parse_spz(path: &Path, bytes: &[u8]) -> Result<Gaussians, SplatError> {
         );
     }
     Ok(g)
+}
+
+/// Version, splat count, SH degree and fractional bits of a header, checked.
+type Header = (u32, usize, u32, u8);
+
+/// The per-splat bytes of each attribute: positions, alpha, colour, scales, rotation, SH.
+fn stream_sizes(version: u32, n: usize, degree: u32) -> [usize; 6] {
+    let rot_bytes = if version >= 3 { 4 } else { 3 };
+    [
+        9 * n,
+        n,
+        3 * n,
+        3 * n,
+        rot_bytes * n,
+        3 * sh_rest_count(degree) * n,
+    ]
+}
+
+fn check_header(h: &[u8], versions: std::ops::RangeInclusive<u32>) -> Result<Header, String> {
+    let u32_at = |i: usize| u32::from_le_bytes(h[i..i + 4].try_into().expect("4 bytes"));
+    if u32_at(0) != MAGIC {
+        return Err("not an SPZ file (no NGSP magic)".into());
+    }
+    let version = u32_at(4);
+    if !versions.contains(&version) {
+        return Err(format!(
+            "SPZ version {version} is not read (2, 3 and 4 are)"
+        ));
+    }
+    let n = u32_at(8) as u64;
+    let (degree, frac, flags) = (h[12] as u32, h[13], h[14]);
+    if n > MAX_POINTS {
+        return Err(format!(
+            "{n} splats declared, more than the {MAX_POINTS} read"
+        ));
+    }
+    if degree > MAX_SH_DEGREE {
+        return Err(format!(
+            "SH degree {degree} (at most {MAX_SH_DEGREE} is read)"
+        ));
+    }
+    if frac > 23 {
+        return Err(format!("{frac} fractional bits for 24-bit positions"));
+    }
+    if version < 4 && flags & 2 != 0 {
+        return Err("SPZ extensions are not read".into());
+    }
+    Ok((version, n as usize, degree, frac))
+}
+
+/// Versions 2 and 3: one gzip stream, header then the attributes back to back.
+fn read_gzipped(bytes: &[u8]) -> Result<(Header, Vec<u8>), String> {
+    let mut dec = flate2::read::GzDecoder::new(bytes);
+    let mut header = [0u8; HEADER];
+    dec.read_exact(&mut header)
+        .map_err(|e| format!("not an SPZ file (no gzip stream with a header): {e}"))?;
+    let h = check_header(&header, 2..=3)?;
+    let expected: usize = stream_sizes(h.0, h.1, h.2).iter().sum();
+    let mut body = Vec::with_capacity(expected);
+    dec.take(expected as u64 + 1)
+        .read_to_end(&mut body)
+        .map_err(|e| format!("corrupt compressed data: {e}"))?;
+    if body.len() != expected {
+        return Err(format!(
+            "{} splats need {expected} bytes after the header, the file has {}{}",
+            h.1,
+            body.len().min(expected),
+            if body.len() > expected {
+                " and more"
+            } else {
+                ""
+            }
+        ));
+    }
+    Ok((h, body))
+}
+
+/// Version 4: a plain header, a table of contents and one ZSTD frame per attribute,
+/// decompressed into version 3's layout.
+fn read_v4(bytes: &[u8]) -> Result<(Header, Vec<u8>), String> {
+    const HEADER_V4: usize = 32;
+    if bytes.len() < HEADER_V4 {
+        return Err(format!(
+            "truncated: {} bytes, less than an SPZ header",
+            bytes.len()
+        ));
+    }
+    let h = check_header(&bytes[..HEADER_V4], 4..=4)?;
+    let streams = bytes[15] as usize;
+    let toc = u32::from_le_bytes(bytes[16..20].try_into().expect("4 bytes")) as usize;
+    let sizes = stream_sizes(h.0, h.1, h.2);
+    let want = if h.2 == 0 { 5 } else { 6 };
+    if streams != want {
+        return Err(format!(
+            "{streams} compressed streams; SH degree {} needs {want}",
+            h.2
+        ));
+    }
+    let data_start = toc
+        .checked_add(16 * streams)
+        .filter(|&e| toc >= HEADER_V4 && e <= bytes.len())
+        .ok_or_else(|| format!("table of contents at byte {toc} lies outside the file"))?;
+    let mut body = Vec::with_capacity(sizes.iter().sum());
+    let mut at = data_start;
+    for (k, &expected) in sizes.iter().enumerate().take(streams) {
+        let entry = &bytes[toc + 16 * k..toc + 16 * k + 16];
+        let compressed = u64::from_le_bytes(entry[..8].try_into().expect("8 bytes"));
+        let stated = u64::from_le_bytes(entry[8..].try_into().expect("8 bytes"));
+        if stated != expected as u64 {
+            return Err(format!(
+                "stream {k} says it holds {stated} bytes; {} splats need {expected}",
+                h.1
+            ));
+        }
+        let end = usize::try_from(compressed)
+            .ok()
+            .and_then(|c| at.checked_add(c))
+            .filter(|&e| e <= bytes.len())
+            .ok_or_else(|| {
+                format!("stream {k} ({compressed} bytes) runs past the end of the file")
+            })?;
+        let before = body.len();
+        let dec = ruzstd::decoding::StreamingDecoder::new(&bytes[at..end])
+            .map_err(|e| format!("stream {k} is not ZSTD data: {e}"))?;
+        dec.take(expected as u64 + 1)
+            .read_to_end(&mut body)
+            .map_err(|e| format!("stream {k} is corrupt: {e}"))?;
+        if body.len() - before != expected {
+            return Err(format!(
+                "stream {k} decompresses to {} bytes, not {expected}",
+                body.len() - before
+            ));
+        }
+        at = end;
+    }
+    Ok((h, body))
 }

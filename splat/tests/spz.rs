@@ -94,13 +94,81 @@ fn bad_files_are_refused_with_the_problem() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("1000000000"), "{err}");
-    // Version 4 gets a message that says what to do.
-    let err = parse_spz(p, b"NGSP\x04\x00\x00\x00\x00\x00\x00\x00")
-        .unwrap_err()
-        .to_string();
-    assert!(err.contains("--spz-version 3"), "{err}");
+    // Version 4 headers that lie are refused with what is wrong.
+    let v4 = to_v4(&to_spz(&g).unwrap());
+    for (bytes, says) in [
+        (v4[..20].to_vec(), "truncated"),
+        (with(&v4, 15, &[9]), "streams"),
+        (
+            with(&v4, 16, &1_000_000u32.to_le_bytes()),
+            "table of contents",
+        ),
+        (
+            with(&v4, 8, &(g.len() as u32 + 1).to_le_bytes()),
+            "splats need",
+        ),
+        (with(&v4, 32, &u64::MAX.to_le_bytes()), "past the end"),
+        (v4[..v4.len() - 3].to_vec(), "past the end"),
+    ] {
+        let err = parse_spz(p, &bytes).unwrap_err().to_string();
+        assert!(err.contains(says), "expected '{says}': {err}");
+    }
     // Positions beyond 24-bit fixed point are refused on writing.
     let mut far = g.clone();
     far.means[0].x = 1e4;
     assert!(to_spz(&far).is_err());
+}
+
+/// `bytes` with `patch` written at `at`.
+fn with(bytes: &[u8], at: usize, patch: &[u8]) -> Vec<u8> {
+    let mut v = bytes.to_vec();
+    v[at..at + patch.len()].copy_from_slice(patch);
+    v
+}
+
+/// A version 4 file with the same content as a version 3 one, laid out as splat-transform
+/// writes it (a 32-byte header, the table of contents, one ZSTD frame per attribute).
+fn to_v4(v3: &[u8]) -> Vec<u8> {
+    use std::io::Read;
+    let mut raw = Vec::new();
+    flate2::read::GzDecoder::new(v3)
+        .read_to_end(&mut raw)
+        .unwrap();
+    let n = u32::from_le_bytes(raw[8..12].try_into().unwrap()) as usize;
+    let degree = raw[12] as usize;
+    let rest = [0, 3, 8, 15][degree];
+    let sizes = [9 * n, n, 3 * n, 3 * n, 4 * n, 3 * rest * n];
+    let streams = if degree == 0 { 5 } else { 6 };
+    let mut out = raw[..16].to_vec();
+    out[4] = 4;
+    out[15] = streams as u8;
+    out.extend(32u32.to_le_bytes());
+    out.resize(32, 0);
+    let mut body = &raw[16..];
+    let mut frames = Vec::new();
+    for &size in &sizes[..streams] {
+        let (part, tail) = body.split_at(size);
+        body = tail;
+        let frame =
+            ruzstd::encoding::compress_to_vec(part, ruzstd::encoding::CompressionLevel::Fastest);
+        out.extend((frame.len() as u64).to_le_bytes());
+        out.extend((size as u64).to_le_bytes());
+        frames.push(frame);
+    }
+    for f in frames {
+        out.extend(f);
+    }
+    out
+}
+
+#[test]
+fn version_4_reads_as_its_version_3_twin() {
+    for deg in [0, 3] {
+        let g = random_scene(80 + deg as u64, 300, deg, (0.02, 0.3), 1.2);
+        let v3 = to_spz(&g).unwrap();
+        let p = std::path::Path::new("twin.spz");
+        let a = parse_spz(p, &v3).unwrap();
+        let b = parse_spz(p, &to_v4(&v3)).unwrap();
+        assert_eq!(a, b, "SH degree {deg}");
+    }
 }
