@@ -161,7 +161,6 @@ pub fn parse_spz(path: &Path, bytes: &[u8]) -> Result<Gaussians, SplatError> {
     let (version, n, degree, frac) = header;
     let rot_bytes = if version >= 3 { 4 } else { 3 };
     let rc = sh_rest_count(degree);
-    let n = n as usize;
     let (pos, rest) = body.split_at(9 * n);
     let (alpha, rest) = rest.split_at(n);
     let (color, rest) = rest.split_at(3 * n);
