@@ -187,3 +187,121 @@ fn splat_transform_and_we_agree_on_spz() {
         assert!(lossy >= 30.0, "v{version}: {lossy} dB");
     }
 }
+
+/// The npm tools, Node and Chromium for the web-viewer check, or None (with the reason
+/// printed; a failure under `METASPLAT_REQUIRE_TOOLS=1`).
+fn web_tools() -> Option<(PathBuf, PathBuf)> {
+    let dir = tools()?;
+    let chromium = std::env::var_os("METASPLAT_CHROMIUM")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from("/usr/bin/chromium"));
+    let missing: Vec<&str> = ["playwright-core", "three", "@sparkjsdev/spark"]
+        .into_iter()
+        .filter(|m| !dir.join("node_modules").join(m).exists())
+        .collect();
+    if missing.is_empty() && chromium.exists() {
+        return Some((dir, chromium));
+    }
+    let why = format!(
+        "Chromium at {} and the npm packages {:?} under {}",
+        chromium.display(),
+        missing,
+        dir.display()
+    );
+    if std::env::var("METASPLAT_REQUIRE_TOOLS").is_ok_and(|v| v == "1") {
+        panic!("METASPLAT_REQUIRE_TOOLS=1 but there is no {why}");
+    }
+    eprintln!("SKIP: the web-viewer check needs {why}");
+    None
+}
+
+/// Pearson correlation of two images' luminance.
+fn correlation(a: &[Vec3], b: &[Vec3]) -> f64 {
+    let lum = |v: &Vec3| (0.299 * v.x + 0.587 * v.y + 0.114 * v.z) as f64;
+    let (x, y): (Vec<f64>, Vec<f64>) = a.iter().zip(b).map(|(p, q)| (lum(p), lum(q))).unzip();
+    let n = x.len() as f64;
+    let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
+    let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
+    for (p, q) in x.iter().zip(&y) {
+        sxy += (p - mx) * (q - my);
+        sxx += (p - mx) * (p - mx);
+        syy += (q - my) * (q - my);
+    }
+    sxy / (sxx * syy).sqrt().max(1e-30)
+}
+
+/// Lowest correlation accepted between Spark's picture of our file and our render of the same
+/// camera: the two renderers differ in colour handling and antialiasing, not in geometry.
+const WEB_VIEWER_MIN_CORRELATION: f64 = 0.97;
+
+#[test]
+fn a_web_viewer_shows_our_files() {
+    let Some((tools, chromium)) = web_tools() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // An object that is not symmetric, so a flipped or mirrored picture would not pass.
+    let g = scene();
+    let (center, radius) = splat::camera::scene_bounds(&g.means).unwrap();
+    let eye = center + Vec3::new(0.4, -0.5, -2.5) * radius;
+    let (w, h, fov) = (320u32, 240u32, 50.0f32);
+    let cam = viewer::ViewCamera::looking(eye, center, fov.to_radians()).camera(w, h);
+    let ours = splat::render(&g, &cam, &RenderSettings::default())
+        .unwrap()
+        .color;
+    for ext in ["ply", "spz"] {
+        let file = dir.path().join(format!("scene.{ext}"));
+        splat::files::write_splats(&file, &g).unwrap();
+        let shot = dir.path().join(format!("spark_{ext}.png"));
+        let pose: Vec<String> = [eye, center]
+            .iter()
+            .flat_map(|v| v.to_array())
+            .map(|x| x.to_string())
+            .collect();
+        let out = Command::new("node")
+            .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/tools/spark-screenshot.mjs"))
+            .arg(&tools)
+            .arg(&file)
+            .arg(&shot)
+            .args([w.to_string(), h.to_string(), fov.to_string()])
+            .args(&pose)
+            .env("METASPLAT_CHROMIUM", &chromium)
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).to_string()
+            + &String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "Spark on our {ext}: {text}");
+        assert!(
+            text.contains(&format!("splats {}", g.len())),
+            "Spark on our {ext}: {text}"
+        );
+        let picture = image::open(&shot).unwrap().to_rgb8();
+        assert_eq!(picture.dimensions(), (w, h));
+        let theirs: Vec<Vec3> = picture
+            .pixels()
+            .map(|p| Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) / 255.0)
+            .collect();
+        let lit = theirs.iter().filter(|p| p.max_element() > 0.1).count();
+        let r = correlation(&ours, &theirs);
+        eprintln!(
+            "Spark's picture of our {ext}: correlation {r:.3} with our render, {lit} lit pixels"
+        );
+        assert!(
+            lit > (w * h / 20) as usize,
+            "Spark's picture of our {ext} is nearly blank"
+        );
+        assert!(
+            r >= WEB_VIEWER_MIN_CORRELATION,
+            "Spark's picture of our {ext}: correlation {r:.3}"
+        );
+        // The threshold tells pictures apart: the same picture mirrored does not pass.
+        let mirrored: Vec<Vec3> = (0..(w * h) as usize)
+            .map(|i| theirs[i - i % w as usize + (w as usize - 1 - i % w as usize)])
+            .collect();
+        let rm = correlation(&ours, &mirrored);
+        assert!(
+            rm < WEB_VIEWER_MIN_CORRELATION,
+            "a mirrored picture correlates {rm:.3}"
+        );
+    }
+}
