@@ -113,6 +113,8 @@ pub struct PreparedRun {
     pub device: Device,
     /// Which device renders, and why, as a sentence.
     pub device_note: String,
+    /// Where the restorer's images came from or went (the cache), as a sentence.
+    pub cache_note: Option<String>,
 }
 
 /// Checks and loads everything a run needs, before any training time is spent.
@@ -132,7 +134,14 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
     check_run_folder(request)?;
     let (device, device_note) = Device::choose(request.device)?;
     // Every input is checked before the run folder is made.
-    let mut data = data::load(&request.scene, request.training.mode, &request.data)
+    // I_ac is read from (and, once the run folder exists, written to) a cache: the run's own
+    // unless the caller shares one between runs.
+    let mut data_options = request.data.clone();
+    let cache_dir = data_options
+        .iac_cache
+        .get_or_insert_with(|| out.join(crate::train::iac_cache::CACHE_DIR))
+        .clone();
+    let mut data = data::load(&request.scene, request.training.mode, &data_options)
         .map_err(|e| e.context(format!("cannot load the scene {}", request.scene.display())))?;
     if let Some(path) = &request.training.init {
         let g = splat::files::read_splats(path)
@@ -149,12 +158,31 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
     }
     let config = TrainConfig::build(&request.training, request.data.seed, &data);
     outputs::write_json(&out.join(outputs::CONFIG_FILE), &config)?;
+    let restored = data.train.iter().filter(|v| v.restored.is_some()).count();
+    let cache_note = match data.cache_restored(&cache_dir) {
+        Some(failure) => Some(failure),
+        None if restored > 0 => {
+            let fresh = data.restored_fresh.len();
+            let dir = cache_dir.display();
+            Some(if fresh == restored {
+                format!("I_ac: restored all {restored} training views and cached them in {dir}.")
+            } else if fresh == 0 {
+                format!("I_ac: read all {restored} training views from the cache in {dir}.")
+            } else {
+                format!(
+                    "I_ac: restored {fresh} of {restored} training views; the others came from the cache in {dir}."
+                )
+            })
+        }
+        None => None,
+    };
     Ok(PreparedRun {
         request: request.clone(),
         data,
         config,
         device,
         device_note,
+        cache_note,
     })
 }
 

@@ -19,6 +19,8 @@ pub struct CaptureComparison {
     model: CaptureModel,
     /// Views already read and restored: restoring costs seconds per view on a CPU.
     views: HashMap<usize, (View, Option<Vec<Vec3>>)>,
+    /// A run's cache of `I_ac` to read from.
+    cache: Option<PathBuf>,
 }
 
 /// Panel names, in the order they are shown.
@@ -29,10 +31,12 @@ pub const RESTORED: &str = "I_ac (restorer)";
 pub const CLEAN: &str = "clean";
 
 impl CaptureComparison {
+    /// Opens the capture; `I_ac` is read from `options.iac_cache` where it holds it.
     pub fn open(dir: &Path, options: &DataOptions) -> Result<Self> {
         Ok(Self {
             model: CaptureModel::open(dir, options, true)?,
             views: HashMap::new(),
+            cache: options.iac_cache.clone(),
         })
     }
 
@@ -60,7 +64,10 @@ impl CaptureComparison {
         }
         if !self.views.contains_key(&i) {
             let view = self.model.view(i)?;
-            let restored = self.model.restore(&view.observed)?;
+            let restored = self
+                .model
+                .restore_cached(&view.observed, self.cache.as_deref())?
+                .map(|(img, _)| img);
             self.views.insert(i, (view, restored));
         }
         let (view, restored) = &self.views[&i];

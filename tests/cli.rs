@@ -432,8 +432,36 @@ fn train_then_render_and_clear_errors() {
         log.lines().count() >= 2 && log.starts_with("step,seconds"),
         "{log}"
     );
-    assert_ordinary_modes(&run, &["ply", "png", "json", "csv", "bin"]);
+    assert_ordinary_modes(&run, &["ply", "png", "json", "csv", "bin", "iac"]);
     assert_ordinary_modes(&abr, &["npy", "png", "json"]);
+
+    // I_ac was computed once and cached in the run; a rerun reads it and trains identically.
+    assert!(
+        text.contains("I_ac: restored all 7 training views and cached them"),
+        "{text}"
+    );
+    let first = std::fs::read(run.join("point_cloud.ply")).unwrap();
+    let again = ok(&[
+        "train",
+        "--scene",
+        s(&abr),
+        "--out",
+        s(&run),
+        "--mode",
+        "restored",
+        "--iters",
+        "40",
+        "--downsample",
+        "1",
+        "--spiral",
+        "3",
+        "--overwrite",
+    ]);
+    assert!(
+        again.contains("I_ac: read all 7 training views from the cache"),
+        "{again}"
+    );
+    assert_eq!(std::fs::read(run.join("point_cloud.ply")).unwrap(), first);
 
     let frames = d.join("frames");
     let text = ok(&[

@@ -91,6 +91,8 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
         let mut args = RunRequest::new(&aberrated, run_dir);
         args.data.downsample = a.downsample;
         args.data.seed = a.seed;
+        // Restored and aware runs restore the same views: one cache serves both.
+        args.data.iac_cache = Some(a.out.join(metasplat::train::iac_cache::CACHE_DIR));
         args.device = a.device;
         args.overwrite = a.overwrite;
         args.training.mode = mode;

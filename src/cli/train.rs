@@ -29,6 +29,9 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             config.max_splats
         );
         println!("{}", prepared.device_note);
+        if let Some(note) = &prepared.cache_note {
+            println!("{note}");
+        }
         if let (Some(g), Some(path)) = (&data.initial, &t.init) {
             println!(
                 "Starting from the {} splats (SH degree {}) of {}.",
@@ -111,6 +114,7 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
     pb.finish_and_clear();
     if !quiet {
         print_summary(&a.out, &summary, &outcome);
+        print_outputs(&a.out, &a.scene, a.data.downsample, summary.splats);
     }
     Ok((summary, outcome.log))
 }
@@ -144,6 +148,58 @@ fn print_summary(dir: &Path, s: &RunSummary, outcome: &train::Outcome) {
         s.sh_degree,
         outcome.final_pruned,
         dir.join(outputs::PLY_FILE).display()
+    );
+}
+
+fn size(bytes: u64) -> String {
+    match bytes {
+        b if b < 1_000 => format!("{b} B"),
+        b if b < 1_000_000 => format!("{:.1} kB", b as f64 / 1e3),
+        b => format!("{:.1} MB", b as f64 / 1e6),
+    }
+}
+
+/// What the run folder holds, and the command to look at the result.
+fn print_outputs(dir: &Path, scene: &Path, downsample: u32, splats: usize) {
+    let mut entries: Vec<_> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|e| !e.file_name().to_string_lossy().starts_with('.'))
+        .collect();
+    entries.sort_by_key(|e| e.file_name());
+    let listed: Vec<String> = entries
+        .iter()
+        .map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let path = e.path();
+            if path.is_dir() {
+                let n = std::fs::read_dir(&path).map_or(0, |d| d.count());
+                format!("{name}/ ({n} files)")
+            } else {
+                let bytes = e.metadata().map_or(0, |m| m.len());
+                if name == outputs::PLY_FILE && splats > 0 {
+                    format!(
+                        "{name} ({}, {} B per splat)",
+                        size(bytes),
+                        bytes / splats as u64
+                    )
+                } else {
+                    format!("{name} ({})", size(bytes))
+                }
+            }
+        })
+        .collect();
+    println!(
+        "The run folder {} holds {}.",
+        dir.display(),
+        listed.join(", ")
+    );
+    println!(
+        "Look at the result: metasplat view {} --scene {} --downsample {downsample} --run {}",
+        dir.join(outputs::PLY_FILE).display(),
+        scene.display(),
+        dir.display()
     );
 }
 

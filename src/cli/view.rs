@@ -93,6 +93,10 @@ pub fn run(a: ViewArgs) -> Result<()> {
             let options = DataOptions {
                 downsample,
                 restorer: a.restorer.clone(),
+                iac_cache: a
+                    .run
+                    .as_ref()
+                    .map(|r| r.join(metasplat::train::iac_cache::CACHE_DIR)),
                 ..Default::default()
             };
             Some(

@@ -157,6 +157,10 @@ pub struct DataOptions {
     pub restorer: RestorerChoice,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// A folder of cached `I_ac` images to read (and, for a run, to fill): see
+    /// [`crate::train::iac_cache`].
+    #[arg(skip)]
+    pub iac_cache: Option<PathBuf>,
 }
 
 /// λ when the user gives none: the restorer's, or the paper's where no `I_ac` is used.
@@ -186,9 +190,28 @@ pub struct Dataset {
     pub points: PointCloud,
     /// A splat scene to start from instead of the points (`train --init`).
     pub initial: Option<splat::Gaussians>,
+    /// Training views whose `I_ac` was computed (not found in the cache), with their cache
+    /// keys: [`Dataset::cache_restored`] stores them.
+    pub restored_fresh: Vec<(usize, u64)>,
 }
 
 impl Dataset {
+    /// Stores the `I_ac` images computed at load in the cache folder `dir`. The cache only
+    /// saves time, so a failure to write it is reported, not fatal.
+    pub fn cache_restored(&self, dir: &Path) -> Option<String> {
+        for &(i, key) in &self.restored_fresh {
+            if let Some(img) = &self.train[i].restored
+                && let Err(e) = crate::train::iac_cache::put(dir, key, img)
+            {
+                return Some(format!(
+                    "The I_ac images were not cached in {}: {e}.",
+                    dir.display()
+                ));
+            }
+        }
+        None
+    }
+
     /// True when every test view has a clean image to compare against.
     pub fn can_evaluate(&self) -> bool {
         !self.test.is_empty() && self.test.iter().all(|v| v.clean.is_some())
@@ -349,6 +372,35 @@ impl CaptureModel {
         self.network.is_some()
     }
 
+    /// The cache key of `I_ac` for an observed image (None without a restorer).
+    pub fn restored_key(&self, observed: &[Vec3]) -> Option<u64> {
+        let (Some(r), Some(model)) = (&self.restorer, &self.imaging) else {
+            return None;
+        };
+        Some(crate::train::iac_cache::key(
+            &r.identity(),
+            model.psf(),
+            self.width,
+            self.height,
+            observed,
+        ))
+    }
+
+    /// `I_ac` from the cache folder `cache` when it holds it, else computed
+    /// ([`Self::restore`]); the flag says whether it was computed.
+    pub fn restore_cached(
+        &self,
+        observed: &[Vec3],
+        cache: Option<&Path>,
+    ) -> Result<Option<(Vec<Vec3>, bool)>> {
+        if let (Some(dir), Some(key)) = (cache, self.restored_key(observed))
+            && let Some(img) = crate::train::iac_cache::get(dir, key, observed.len())
+        {
+            return Ok(Some((img, false)));
+        }
+        Ok(self.restore(observed)?.map(|img| (img, true)))
+    }
+
     /// `I_ac` for an observed image: the restorer's output, or None when no restorer was
     /// asked for or the capture has no PSF grid.
     pub fn restore(&self, observed: &[Vec3]) -> Result<Option<Vec<Vec3>>> {
@@ -379,32 +431,47 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
             ),
         ));
     }
-    let make_view = |i: usize, restore: bool| -> Result<View> {
+    let cache = options.iac_cache.as_deref();
+    // The network parallelises inside, so its views are restored one at a time below.
+    let make_view = |i: usize, restore: bool| -> Result<(View, bool)> {
         let mut v = model.view(i)?;
-        // The network restores views one at a time below (it parallelises inside).
-        if restore && !model.restores_with_network() {
-            v.restored = model.restore(&v.observed)?;
+        let mut fresh = false;
+        if restore
+            && !model.restores_with_network()
+            && let Some((img, computed)) = model.restore_cached(&v.observed, cache)?
+        {
+            v.restored = Some(img);
+            fresh = computed;
         }
-        Ok(v)
+        Ok((v, fresh))
     };
-    let mut train = model
+    let loaded = model
         .capture
         .split
         .train
         .par_iter()
         .map(|&i| make_view(i, true))
         .collect::<Result<Vec<_>>>()?;
-    if model.restores_with_network() {
-        for v in &mut train {
-            v.restored = model.restore(&v.observed)?;
+    let mut restored_fresh = Vec::new();
+    let mut train = Vec::with_capacity(loaded.len());
+    for (k, (mut v, mut fresh)) in loaded.into_iter().enumerate() {
+        if model.restores_with_network()
+            && let Some((img, computed)) = model.restore_cached(&v.observed, cache)?
+        {
+            v.restored = Some(img);
+            fresh = computed;
         }
+        if fresh && let Some(key) = model.restored_key(&v.observed) {
+            restored_fresh.push((k, key));
+        }
+        train.push(v);
     }
     let test = model
         .capture
         .split
         .test
         .par_iter()
-        .map(|&i| make_view(i, false))
+        .map(|&i| make_view(i, false).map(|(v, _)| v))
         .collect::<Result<Vec<_>>>()?;
     let CaptureModel {
         capture,
@@ -430,6 +497,7 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
         extent,
         points,
         initial: None,
+        restored_fresh,
         capture,
     })
 }

@@ -6,6 +6,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod data;
 pub mod densify;
+pub mod iac_cache;
 pub mod objective;
 pub mod sh;
 

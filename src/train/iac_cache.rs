@@ -1,0 +1,117 @@
+//! A cache of `I_ac`, the restorer's images of the training views: they cost seconds per view
+//! on a CPU and are the same for every run that uses the same restorer on the same photos.
+//! A run keeps its own (`RUN/i_ac_cache/`, reused by `--resume` and by `metasplat view
+//! --run`), and an experiment shares one between its restored and aware runs.
+//!
+//! An entry is named by a hash of everything that decides its pixels: the restorer's identity
+//! (its config and the hash of its weights, or the Wiener stand-in), the PSF grid it was given,
+//! the image size and the observed pixels, and [`CACHE_VERSION`]. Entries end with a checksum;
+//! one that does not check out is ignored and recomputed.
+
+use std::path::Path;
+
+use aberration::PsfGrid;
+use glam::Vec3;
+
+const MAGIC: &[u8; 16] = b"METASPLAT-IAC 1\n";
+/// Part of every key: bump it when restoring changes what it computes for the same inputs.
+pub const CACHE_VERSION: u32 = 1;
+/// The folder a run keeps its cache in.
+pub const CACHE_DIR: &str = "i_ac_cache";
+
+/// The key of `I_ac` for one view.
+pub fn key(restorer: &str, psf: &PsfGrid, width: u32, height: u32, observed: &[Vec3]) -> u64 {
+    let mut bytes = Vec::with_capacity(64 + 4 * (psf.planar().len() + 3 * observed.len()));
+    bytes.extend(CACHE_VERSION.to_le_bytes());
+    bytes.extend((restorer.len() as u64).to_le_bytes());
+    bytes.extend(restorer.as_bytes());
+    bytes.extend(
+        [psf.grid() as u64, psf.size() as u64]
+            .map(u64::to_le_bytes)
+            .concat(),
+    );
+    bytes.extend(psf.planar().iter().flat_map(|v| v.to_le_bytes()));
+    bytes.extend(width.to_le_bytes());
+    bytes.extend(height.to_le_bytes());
+    bytes.extend(
+        observed
+            .iter()
+            .flat_map(|p| p.to_array())
+            .flat_map(f32::to_le_bytes),
+    );
+    base::hash::fnv1a64(&bytes)
+}
+
+fn path(dir: &Path, key: u64) -> std::path::PathBuf {
+    dir.join(format!("{key:016x}.iac"))
+}
+
+/// The cached image for `key`, when there is a whole one of `pixels` pixels.
+pub fn get(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
+    let bytes = std::fs::read(path(dir, key)).ok()?;
+    let payload = bytes.len().checked_sub(MAGIC.len() + 8)?;
+    if !bytes.starts_with(MAGIC) || payload != 12 * pixels {
+        return None;
+    }
+    let (body, sum) = bytes[MAGIC.len()..].split_at(payload);
+    if base::hash::fnv1a64(body).to_le_bytes() != sum {
+        return None;
+    }
+    let floats: Vec<f32> = body
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes")))
+        .collect();
+    if floats.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    Some(floats.chunks_exact(3).map(Vec3::from_slice).collect())
+}
+
+/// Stores an image under `key` (atomically; the folder is made if needed).
+pub fn put(dir: &Path, key: u64, image: &[Vec3]) -> std::io::Result<()> {
+    std::fs::create_dir_all(dir)?;
+    let body: Vec<u8> = image
+        .iter()
+        .flat_map(|p| p.to_array())
+        .flat_map(f32::to_le_bytes)
+        .collect();
+    let mut bytes = Vec::with_capacity(MAGIC.len() + body.len() + 8);
+    bytes.extend(MAGIC);
+    bytes.extend(&body);
+    bytes.extend(base::hash::fnv1a64(&body).to_le_bytes());
+    base::atomic::write_bytes_atomically(&path(dir, key), &bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_entry_comes_back_exactly_and_a_damaged_one_not_at_all() {
+        let dir = tempfile::tempdir().unwrap();
+        let psf = PsfGrid::delta(3, 5);
+        let observed = vec![Vec3::new(0.1, 0.2, 0.3); 12];
+        let image: Vec<Vec3> = (0..12).map(|i| Vec3::splat(i as f32 / 7.0)).collect();
+        let k = key("net a", &psf, 4, 3, &observed);
+        assert!(get(dir.path(), k, 12).is_none());
+        put(dir.path(), k, &image).unwrap();
+        assert_eq!(get(dir.path(), k, 12).unwrap(), image);
+        // Another restorer, PSF, size or photo is another key.
+        assert_ne!(k, key("net b", &psf, 4, 3, &observed));
+        assert_ne!(k, key("net a", &PsfGrid::delta(3, 7), 4, 3, &observed));
+        assert_ne!(k, key("net a", &psf, 3, 4, &observed));
+        let mut other = observed.clone();
+        other[5].y += 1e-6;
+        assert_ne!(k, key("net a", &psf, 4, 3, &other));
+        // The wrong size, a flipped byte or a truncation is a miss, not an image.
+        assert!(get(dir.path(), k, 13).is_none());
+        let p = path(dir.path(), k);
+        let good = std::fs::read(&p).unwrap();
+        let mut bad = good.clone();
+        bad[MAGIC.len() + 7] ^= 1;
+        std::fs::write(&p, &bad).unwrap();
+        assert!(get(dir.path(), k, 12).is_none());
+        std::fs::write(&p, &good[..good.len() - 1]).unwrap();
+        assert!(get(dir.path(), k, 12).is_none());
+    }
+}
