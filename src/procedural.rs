@@ -1,6 +1,12 @@
-//! A procedural forward-facing scene with known ground truth, for the built-in demo and the
-//! end-to-end tests: a textured back wall, a checkered panel and coloured balls, all made of
-//! Gaussians, seen by an LLFF-like grid of cameras. Rendering it gives the clean capture.
+//! Procedural scenes with known ground truth, made of Gaussians; rendering them gives the
+//! clean capture.
+//!
+//! - Forward-facing (the built-in demo and the end-to-end tests): a textured back wall, a
+//!   checkered panel and coloured balls, seen by an LLFF-like grid of cameras, with SfM-like
+//!   points.
+//! - All around ([`write_capture_around`]): a textured object on a ground disc in the middle
+//!   and cameras on a ring around it, without SfM points (training starts from random
+//!   points): the wide-baseline, object-centred geometry of a turntable capture.
 
 use std::path::{Path, PathBuf};
 
@@ -146,16 +152,137 @@ pub fn cameras(o: &ProceduralOptions) -> Vec<Camera> {
         .collect()
 }
 
-/// Writes the clean capture (LLFF layout plus `sparse/0/points3D.txt`: a jittered subset of
-/// the true centres, as SfM would give) and returns its path.
-pub fn write_capture(dest: &Path, o: &ProceduralOptions) -> Result<PathBuf> {
-    let truth = ground_truth(o.seed);
-    let cams = cameras(o);
+/// The all-around scene's splats (SH degree 0): a striped ball, a checkered box beside it
+/// and a ground disc, centred on the origin (world up is −y, as in captures).
+pub fn ground_truth_around(seed: u64) -> Gaussians {
+    let mut g = Gaussians::new(0);
+    let mut rng = SplitMix64::new(seed ^ 0xA120);
+    let dir = |rng: &mut SplitMix64| {
+        Vec3::new(
+            rng.normal() as f32,
+            rng.normal() as f32,
+            rng.normal() as f32,
+        )
+        .normalize_or(Vec3::Z)
+    };
+    // A ball with bands around it: the texture changes with the view direction.
+    let (center, radius) = (Vec3::new(-0.35, -0.2, 0.0), 0.6);
+    for _ in 0..12_000 {
+        let d = dir(&mut rng);
+        let band = ((d.y * 9.0).sin() > 0.0) as u8 as f32;
+        let side = 0.5 + 0.5 * d.x;
+        let color = Vec3::new(0.85 * band + 0.1, 0.25 + 0.5 * side, 0.9 - 0.7 * band);
+        g.push(
+            center + d * radius,
+            Vec3::new(0.035, 0.035, 0.008).ln(),
+            rotation_to(d),
+            logit(0.95),
+            splat::sh::rgb_to_sh_dc(color),
+            &[],
+        );
+    }
+    // A box with a checkered skin.
+    let (bc, half) = (Vec3::new(0.55, 0.05, 0.25), 0.35);
+    for _ in 0..9_000 {
+        let mut p = Vec3::new(
+            rng.uniform(-1.0, 1.0) as f32,
+            rng.uniform(-1.0, 1.0) as f32,
+            rng.uniform(-1.0, 1.0) as f32,
+        );
+        let axis = (rng.next_u64() % 3) as usize;
+        p[axis] = if rng.next_u64() % 2 == 0 { -1.0 } else { 1.0 };
+        let (u, v) = (
+            (p[(axis + 1) % 3] + 1.0) * 3.0,
+            (p[(axis + 2) % 3] + 1.0) * 3.0,
+        );
+        let check = ((u as i32 + v as i32) % 2) as f32;
+        let mut normal = Vec3::ZERO;
+        normal[axis] = p[axis];
+        g.push(
+            bc + p * half,
+            Vec3::new(0.03, 0.03, 0.006).ln(),
+            rotation_to(normal),
+            logit(0.95),
+            splat::sh::rgb_to_sh_dc(Vec3::new(0.9, 0.8, 0.2) * (0.25 + 0.75 * check)),
+            &[],
+        );
+    }
+    // A ground disc below both, with rings.
+    for _ in 0..10_000 {
+        let r = 2.0 * (rng.uniform(0.0, 1.0) as f32).sqrt();
+        let a = rng.uniform(0.0, std::f64::consts::TAU) as f32;
+        let ring = ((r * 6.0).sin() > 0.0) as u8 as f32;
+        push_flat_y(
+            &mut g,
+            Vec3::new(r * a.cos(), 0.42, r * a.sin()),
+            0.04,
+            Vec3::new(0.3 + 0.4 * ring, 0.35, 0.3),
+        );
+    }
+    g
+}
+
+/// A flat splat lying in the y = const plane.
+fn push_flat_y(g: &mut Gaussians, at: Vec3, half: f32, color: Vec3) {
+    g.push(
+        at,
+        Vec3::new(half, half * 0.05, half).ln(),
+        [1.0, 0.0, 0.0, 0.0],
+        logit(0.95),
+        splat::sh::rgb_to_sh_dc(color),
+        &[],
+    );
+}
+
+/// The rotation `(w, x, y, z)` taking +z to the unit vector `n`: a flat splat's normal.
+fn rotation_to(n: Vec3) -> [f32; 4] {
+    let q = glam::Quat::from_rotation_arc(Vec3::Z, n.normalize_or(Vec3::Z));
+    [q.w, q.x, q.y, q.z]
+}
+
+/// Cameras on a ring around the origin, every one looking at it, alternating between two
+/// heights (as a turntable capture walks around an object).
+pub fn cameras_around(o: &ProceduralOptions) -> Vec<Camera> {
+    let mut rng = SplitMix64::new(o.seed ^ 0xA10D);
+    (0..o.views)
+        .map(|i| {
+            let angle =
+                std::f64::consts::TAU * i as f64 / o.views as f64 + rng.uniform(-0.05, 0.05);
+            let elevation: f64 = if i % 2 == 0 { 0.3 } else { 0.6 };
+            let distance = 3.6 + rng.uniform(-0.2, 0.2);
+            let eye = DVec3::new(
+                distance * elevation.cos() * angle.sin(),
+                -distance * elevation.sin(),
+                -distance * elevation.cos() * angle.cos(),
+            );
+            look_at(&format!("view{i:03}"), eye, DVec3::ZERO, o)
+        })
+        .collect()
+}
+
+/// Writes the all-around capture (LLFF layout, no SfM points) and returns its path.
+pub fn write_capture_around(dest: &Path, o: &ProceduralOptions) -> Result<PathBuf> {
+    let truth = ground_truth_around(o.seed);
+    let cams = cameras_around(o);
+    let mut writer = LlffWriter::create(dest, 1, BitDepth::Eight)?;
+    for (c, img) in cams.iter().zip(render_views(&truth, &cams)?) {
+        writer.add(
+            c,
+            Bounds {
+                near: 1.2,
+                far: 6.5,
+            },
+            &img,
+        )?;
+    }
+    Ok(writer.finish()?)
+}
+
+fn render_views(truth: &Gaussians, cams: &[Camera]) -> Result<Vec<scenes::Photo>> {
     let settings = RenderSettings::default();
-    let images = cams
-        .par_iter()
+    cams.par_iter()
         .map(|c| {
-            let out = splat::render(&truth, &splat_camera(c), &settings)?;
+            let out = splat::render(truth, &splat_camera(c), &settings)?;
             Ok(pixels_to_rgb(
                 &out.color
                     .iter()
@@ -165,7 +292,15 @@ pub fn write_capture(dest: &Path, o: &ProceduralOptions) -> Result<PathBuf> {
                 c.height,
             ))
         })
-        .collect::<Result<Vec<_>>>()?;
+        .collect()
+}
+
+/// Writes the clean capture (LLFF layout plus `sparse/0/points3D.txt`: a jittered subset of
+/// the true centres, as SfM would give) and returns its path.
+pub fn write_capture(dest: &Path, o: &ProceduralOptions) -> Result<PathBuf> {
+    let truth = ground_truth(o.seed);
+    let cams = cameras(o);
+    let images = render_views(&truth, &cams)?;
     let mut writer = LlffWriter::create(dest, 1, BitDepth::Eight)?;
     for (c, img) in cams.iter().zip(&images) {
         writer.add(

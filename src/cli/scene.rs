@@ -29,6 +29,10 @@ pub struct ProceduralArgs {
     pub views: u64,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// An object in the middle seen from cameras all around it (no SfM points), instead of
+    /// the forward-facing scene.
+    #[arg(long)]
+    pub around: bool,
 }
 
 #[derive(Args)]
@@ -85,8 +89,12 @@ pub fn run(cmd: SceneCommand) -> Result<()> {
                 views: a.views as usize,
                 seed: a.seed,
             };
-            let dir = metasplat::procedural::write_capture(&a.out, &o)
-                .with_context(|| format!("cannot write {}", a.out.display()))?;
+            let dir = if a.around {
+                metasplat::procedural::write_capture_around(&a.out, &o)
+            } else {
+                metasplat::procedural::write_capture(&a.out, &o)
+            }
+            .with_context(|| format!("cannot write {}", a.out.display()))?;
             println!(
                 "wrote {} views {}x{} to {}",
                 a.views,
