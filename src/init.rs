@@ -89,6 +89,33 @@ pub fn mean_sq_knn(points: &[Vec3], k: usize) -> Vec<f32> {
         .collect()
 }
 
+/// At most `budget` of the cloud's points, a seeded random subset in their original order
+/// (the cloud itself when it fits): a run never starts above its splat budget, so the
+/// budget bounds the model from the first step, not only its growth.
+pub fn within_budget(
+    cloud: &PointCloud,
+    budget: usize,
+    seed: u64,
+) -> std::borrow::Cow<'_, PointCloud> {
+    let n = cloud.len();
+    if n <= budget {
+        return std::borrow::Cow::Borrowed(cloud);
+    }
+    // Partial Fisher–Yates: the first `budget` slots end up a uniform sample.
+    let mut index: Vec<usize> = (0..n).collect();
+    let mut rng = base::SplitMix64::new(seed ^ 0xB0D6E7);
+    for i in 0..budget {
+        let j = i + (rng.next_u64() % (n - i) as u64) as usize;
+        index.swap(i, j);
+    }
+    let mut keep = index[..budget].to_vec();
+    keep.sort_unstable();
+    std::borrow::Cow::Owned(PointCloud {
+        positions: keep.iter().map(|&i| cloud.positions[i]).collect(),
+        colors: keep.iter().map(|&i| cloud.colors[i]).collect(),
+    })
+}
+
 /// Gaussians at the cloud's points, storing SH bands up to `sh_degree` (zero beyond DC).
 pub fn from_points(cloud: &PointCloud, sh_degree: u32) -> Gaussians {
     let means: Vec<Vec3> = cloud
@@ -157,5 +184,30 @@ mod tests {
         }
         assert_eq!(mean_sq_knn(&pts[..1], 3), vec![1e-4]);
         assert_eq!(mean_sq_knn(&pts[..2], 3).len(), 2);
+    }
+}
+
+#[cfg(test)]
+mod budget_tests {
+    use super::*;
+
+    #[test]
+    fn a_cloud_above_the_budget_is_sampled_down_and_one_below_kept() {
+        let cloud = PointCloud {
+            positions: (0..1000).map(|i| DVec3::new(i as f64, 0.0, 0.0)).collect(),
+            colors: (0..1000).map(|i| [i as f32, 0.0, 0.0]).collect(),
+        };
+        assert_eq!(within_budget(&cloud, 1000, 1).len(), 1000);
+        let a = within_budget(&cloud, 100, 7);
+        assert_eq!(a.len(), 100);
+        // Points keep their colours, stay in order, and are spread over the cloud.
+        for (p, c) in a.positions.iter().zip(&a.colors) {
+            assert_eq!(p.x as f32, c[0]);
+        }
+        assert!(a.positions.windows(2).all(|w| w[0].x < w[1].x));
+        assert!(a.positions[0].x < 100.0 && a.positions[99].x > 900.0);
+        // Seeded: the same seed, the same sample; another seed, another one.
+        assert_eq!(a.positions, within_budget(&cloud, 100, 7).positions);
+        assert_ne!(a.positions, within_budget(&cloud, 100, 8).positions);
     }
 }

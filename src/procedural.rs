@@ -190,7 +190,11 @@ pub fn ground_truth_around(seed: u64) -> Gaussians {
             rng.uniform(-1.0, 1.0) as f32,
         );
         let axis = (rng.next_u64() % 3) as usize;
-        p[axis] = if rng.next_u64().is_multiple_of(2) { -1.0 } else { 1.0 };
+        p[axis] = if rng.next_u64().is_multiple_of(2) {
+            -1.0
+        } else {
+            1.0
+        };
         let (u, v) = (
             (p[(axis + 1) % 3] + 1.0) * 3.0,
             (p[(axis + 2) % 3] + 1.0) * 3.0,

@@ -1442,3 +1442,83 @@ fn render_finds_the_image_folder_a_capture_has() {
     assert!(text.contains("Using images/"), "{text}");
     assert_eq!(std::fs::read_dir(&frames).unwrap().count(), 3);
 }
+
+#[test]
+fn the_budget_experiment_writes_its_table_and_plot() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (clean, psf, out) = (d.join("clean"), d.join("psf.npy"), d.join("exp"));
+    let mut args = vec!["psf", "simulate", "--out", s(&psf)];
+    args.extend_from_slice(SMALL_LENS);
+    ok(&args);
+    ok(&[
+        "scene",
+        "procedural",
+        "--around",
+        "--out",
+        s(&clean),
+        "--width",
+        "40",
+        "--height",
+        "40",
+        "--views",
+        "10",
+    ]);
+    let text = ok(&[
+        "experiment",
+        "budget",
+        "--scene",
+        s(&clean),
+        "--out",
+        s(&out),
+        "--psf",
+        s(&psf),
+        "--downsample",
+        "1",
+        "--iters",
+        "30",
+        "--budgets",
+        "500,unbounded",
+        "--mode",
+        "plain",
+        "--device",
+        "cpu",
+    ]);
+    let table = std::fs::read_to_string(out.join("budget.md")).unwrap();
+    let rows: Vec<&str> = table
+        .lines()
+        .filter(|l| l.starts_with("| 500") || l.starts_with("| unbounded"))
+        .collect();
+    assert_eq!(rows.len(), 2, "{table}");
+    // The capped run keeps at most its budget; the reference row compares with itself.
+    let splats = |row: &str| {
+        row.split('|')
+            .nth(2)
+            .unwrap()
+            .trim()
+            .parse::<usize>()
+            .unwrap()
+    };
+    assert!(splats(rows[0]) <= 500, "{table}");
+    assert!(
+        rows[1].contains("+0.00") && rows[1].contains("100 %"),
+        "{table}"
+    );
+    assert!(out.join("budget.png").exists() && out.join("budget_500/point_cloud.ply").exists());
+    assert!(
+        text.contains("Training plain with a budget of 500 splats."),
+        "{text}"
+    );
+    // A budget that is not one is refused by name.
+    let err = fails(&[
+        "experiment",
+        "budget",
+        "--scene",
+        s(&clean),
+        "--out",
+        s(&d.join("x")),
+        "--budgets",
+        "0",
+    ]);
+    assert!(err.contains("'0' is not a splat budget"), "{err}");
+}

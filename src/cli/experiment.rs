@@ -18,6 +18,68 @@ use std::path::PathBuf;
 pub enum ExperimentCommand {
     /// Plain vs restored vs aware on an LLFF capture (e.g. ../shared/data/llff/fern).
     Llff(LlffArgs),
+    /// Held-out PSNR and training time against the splat budget: how many splats a scene
+    /// needs.
+    Budget(BudgetArgs),
+}
+
+/// A splat budget: a count, or `unbounded` (3DGS densification without a cap).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Budget(pub Option<u64>);
+
+impl std::str::FromStr for Budget {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        if s == "unbounded" {
+            return Ok(Budget(None));
+        }
+        match s.parse::<u64>() {
+            Ok(n) if (1..=UNBOUNDED).contains(&n) => Ok(Budget(Some(n))),
+            _ => Err(format!(
+                "'{s}' is not a splat budget (a count from 1 to {UNBOUNDED}, or 'unbounded')"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for Budget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.0 {
+            Some(n) => write!(f, "{n}"),
+            None => write!(f, "unbounded"),
+        }
+    }
+}
+
+/// The cap an `unbounded` run gets: more than densification reaches on any capture we train.
+const UNBOUNDED: u64 = 100_000_000;
+
+#[derive(Args)]
+pub struct BudgetArgs {
+    /// The clean capture.
+    #[arg(long)]
+    pub scene: PathBuf,
+    #[arg(long)]
+    pub out: PathBuf,
+    /// PSF grid; default: simulate the paper's 9x9 grid.
+    #[arg(long)]
+    pub psf: Option<PathBuf>,
+    /// Budgets to train with, in order (`unbounded`: no cap).
+    #[arg(long, value_delimiter = ',', default_values_t = [Budget(Some(10_000)), Budget(Some(20_000)), Budget(Some(40_000)), Budget(Some(95_000)), Budget(None)])]
+    pub budgets: Vec<Budget>,
+    #[arg(long, value_enum, default_value_t = Mode::Aware)]
+    pub mode: Mode,
+    #[arg(long, default_value_t = 3000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
+    pub iters: u64,
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub downsample: u32,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[arg(long, value_enum, default_value_t = metasplat::device::DeviceChoice::Auto)]
+    pub device: metasplat::device::DeviceChoice,
+    /// Replace runs already in --out.
+    #[arg(long)]
+    pub overwrite: bool,
 }
 
 #[derive(Args)]
@@ -51,18 +113,31 @@ pub struct LlffArgs {
 }
 
 pub fn run(cmd: ExperimentCommand) -> Result<()> {
-    let ExperimentCommand::Llff(a) = cmd;
-    let mut inputs = vec![("--scene", a.scene.as_path())];
-    if let Some(p) = &a.psf {
+    match cmd {
+        ExperimentCommand::Llff(a) => llff(a),
+        ExperimentCommand::Budget(a) => budget(a),
+    }
+}
+
+/// Makes (once) the aberrated copy of `scene` under `out`, simulating the PSF grid when none
+/// is given, and returns its path.
+fn aberrated_capture(
+    scene: &std::path::Path,
+    out: &std::path::Path,
+    psf: Option<&std::path::Path>,
+    downsample: u32,
+    seed: u64,
+) -> Result<PathBuf> {
+    let mut inputs = vec![("--scene", scene)];
+    if let Some(p) = psf {
         inputs.push(("--psf", p));
     }
-    metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
-    std::fs::create_dir_all(&a.out)
-        .with_context(|| format!("cannot create {}", a.out.display()))?;
-    let psf_path = match &a.psf {
-        Some(p) => p.clone(),
+    metasplat::guard::refuse_overwrite("--out", out, &inputs)?;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let psf_path = match psf {
+        Some(p) => p.to_path_buf(),
         None => {
-            let path = a.out.join("psf.npy");
+            let path = out.join("psf.npy");
             if !path.exists() {
                 let (psf, report) = simulate(&SimConfig::default())?;
                 print_report(&report);
@@ -71,11 +146,11 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
             path
         }
     };
-    let aberrated = a.out.join("aberrated");
+    let aberrated = out.join("aberrated");
     if !aberrated.join(scenes::aberrated::RECORD_FILE).exists() {
-        let capture = super::open_scene(&a.scene, a.downsample)?;
+        let capture = super::open_scene(scene, downsample)?;
         let options = scenes::AberrateOptions {
-            seed: a.seed,
+            seed,
             ..Default::default()
         };
         let made = scenes::make_aberrated(&capture, &psf_path, &aberrated, &options, &|| {})?;
@@ -84,6 +159,88 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
             made.images, made.width, made.height, made.psf_px, made.mean_psnr
         );
     }
+    Ok(aberrated)
+}
+
+fn budget(a: BudgetArgs) -> Result<()> {
+    let aberrated = aberrated_capture(&a.scene, &a.out, a.psf.as_deref(), a.downsample, a.seed)?;
+    let mut rows = Vec::new();
+    for &b in &a.budgets {
+        let run_dir = a.out.join(format!("budget_{b}"));
+        let mut args = RunRequest::new(&aberrated, run_dir.clone());
+        args.data.downsample = a.downsample;
+        args.data.seed = a.seed;
+        args.data.iac_cache = Some(a.out.join(metasplat::train::iac_cache::CACHE_DIR));
+        args.device = a.device;
+        args.overwrite = a.overwrite;
+        args.training.mode = a.mode;
+        args.training.iters = a.iters;
+        args.training.max_splats = Some(b.0.unwrap_or(UNBOUNDED));
+        args.training.eval_every = Some((a.iters / 10).max(1));
+        println!("Training {} with a budget of {b} splats.", a.mode);
+        let (summary, log) = train_run(&args, false)?;
+        let ply_bytes =
+            std::fs::metadata(run_dir.join(metasplat::outputs::PLY_FILE)).map_or(0, |m| m.len());
+        rows.push((b, summary, log, ply_bytes));
+    }
+    // The reference is the largest budget run (unbounded when it is among them).
+    let reference = rows
+        .iter()
+        .max_by_key(|r| r.0.0.unwrap_or(u64::MAX))
+        .map(|r| {
+            (
+                r.1.metrics.as_ref().map_or(f64::NAN, |m| m.mean_psnr),
+                r.1.splats,
+            )
+        })
+        .unwrap_or((f64::NAN, 0));
+    let mut table = String::new();
+    writeln!(
+        table,
+        "| budget | splats | PSNR (dB) | vs largest | SSIM | splats vs largest | minutes | PLY MB | B/splat | SH |"
+    )?;
+    writeln!(table, "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")?;
+    for (b, s, _, bytes) in &rows {
+        let (p, ss) = s
+            .metrics
+            .as_ref()
+            .map_or((f64::NAN, f64::NAN), |m| (m.mean_psnr, m.mean_ssim));
+        writeln!(
+            table,
+            "| {b} | {} | {p:.2} | {:+.2} | {ss:.4} | {:.0} % | {:.1} | {:.1} | {} | {} |",
+            s.splats,
+            p - reference.0,
+            100.0 * s.splats as f64 / reference.1.max(1) as f64,
+            s.train_seconds / 60.0,
+            *bytes as f64 / 1e6,
+            bytes / s.splats.max(1) as u64,
+            s.sh_degree
+        )?;
+    }
+    println!("\n{table}");
+    let table_path = a.out.join("budget.md");
+    base::write_bytes_atomically(&table_path, table.as_bytes())
+        .with_context(|| format!("cannot write {}", table_path.display()))?;
+    let series = vec![Series {
+        name: format!("{} (held-out PSNR)", a.mode),
+        points: rows
+            .iter()
+            .filter_map(|(_, s, _, _)| s.metrics.as_ref().map(|m| (s.splats as f64, m.mean_psnr)))
+            .collect(),
+    }];
+    line_plot(
+        &a.out.join("budget.png"),
+        "held-out PSNR against the splats kept",
+        "splats at the end of training",
+        "PSNR vs clean (dB)",
+        &series,
+    )?;
+    println!("Wrote {}/budget.md and budget.png.", a.out.display());
+    Ok(())
+}
+
+fn llff(a: LlffArgs) -> Result<()> {
+    let aberrated = aberrated_capture(&a.scene, &a.out, a.psf.as_deref(), a.downsample, a.seed)?;
 
     let mut rows = Vec::new();
     for &mode in &a.modes {

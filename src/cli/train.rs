@@ -23,7 +23,15 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             data.height,
             data.train.len(),
             data.test.len(),
-            data.points.len(),
+            if data.initial.is_none() && data.points.len() > config.max_splats {
+                format!(
+                    "{} (a random {} of them, the budget)",
+                    data.points.len(),
+                    config.max_splats
+                )
+            } else {
+                data.points.len().to_string()
+            },
             t.mode,
             t.iters,
             config.max_splats

@@ -134,7 +134,10 @@ fn fresh_state(config: &TrainConfig, data: &Dataset) -> Result<State> {
         None if data.points.is_empty() => {
             return Err(TrainError::file(&data.capture.root, "no initial points"));
         }
-        None => crate::init::from_points(&data.points, 0),
+        None => crate::init::from_points(
+            &crate::init::within_budget(&data.points, config.max_splats, config.seed),
+            0,
+        ),
     };
     let n = model.len();
     Ok(State {
