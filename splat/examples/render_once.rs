@@ -1,12 +1,14 @@
 //! Renders a synthetic scene (optionally with the backward pass) and prints wall and CPU times
 //! and work counts. Used for peak-memory measurement (`/usr/bin/time -v`) next to the
 //! criterion benchmarks, and for load-insensitive CPU-time comparisons on a shared machine:
-//! `cargo run --release -p splat --example render_once -- 100000 backward [repeats]`.
+//! `cargo run --release -p splat --example render_once -- 100000 backward [repeats] [scalar]`
+//! (`scalar`: the per-splat reference kernels instead of the vectorised pixel blocks).
 
 use std::time::Instant;
 
+use splat::render::{Kernels, render_for_backward_with};
 use splat::synthetic::{benchmark_camera, random_box_scene};
-use splat::{RenderSettings, render_backward, render_for_backward};
+use splat::{RenderSettings, render_backward};
 
 /// On-CPU nanoseconds of all threads of this process (Linux `schedstat`); 0 elsewhere.
 fn cpu_ns() -> u64 {
@@ -24,6 +26,11 @@ fn main() {
     let n: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(100_000);
     let backward = args.get(2).is_some_and(|s| s == "backward");
     let repeats: u32 = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(1).max(1);
+    let kernels = if args.get(4).is_some_and(|s| s == "scalar") {
+        Kernels::Scalar
+    } else {
+        Kernels::Blocks
+    };
     let g = random_box_scene(0, n, 3);
     let cam = benchmark_camera();
     let s = RenderSettings {
@@ -36,7 +43,7 @@ fn main() {
     let mut out = None;
     for _ in 0..repeats {
         let (t, c) = (Instant::now(), cpu_ns());
-        let (o, saved) = render_for_backward(&g, &cam, &s).expect("render");
+        let (o, saved) = render_for_backward_with(&g, &cam, &s, kernels).expect("render");
         fwd_wall += t.elapsed().as_secs_f64();
         fwd_cpu += (cpu_ns() - c) as f64 * 1e-9;
         if backward {

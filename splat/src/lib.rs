@@ -27,6 +27,8 @@ pub mod synthetic;
 
 // The CPU kernels: documented for whoever ports them, but not API.
 #[doc(hidden)]
+pub mod blocks;
+#[doc(hidden)]
 pub mod project;
 #[doc(hidden)]
 pub mod raster;

@@ -31,6 +31,35 @@ pub struct Splat {
 }
 
 impl Splat {
+    #[inline(always)]
+    pub(crate) fn pixel_box(&self) -> [i32; 4] {
+        self.px
+    }
+    #[inline(always)]
+    pub(crate) fn mean(&self) -> Vec2 {
+        self.mean
+    }
+    #[inline(always)]
+    pub(crate) fn conic(&self) -> [f32; 3] {
+        self.conic
+    }
+    #[inline(always)]
+    pub(crate) fn opacity(&self) -> f32 {
+        self.opacity
+    }
+    #[inline(always)]
+    pub(crate) fn sigma_cut(&self) -> f32 {
+        self.sigma_cut
+    }
+    #[inline(always)]
+    pub(crate) fn color(&self) -> Vec3 {
+        self.color
+    }
+    #[inline(always)]
+    pub(crate) fn depth(&self) -> f32 {
+        self.depth
+    }
+
     pub fn new(p: &Projected) -> Self {
         if p.radius == [0, 0] {
             return Self::default();
@@ -54,7 +83,8 @@ impl Splat {
     }
 }
 
-fn gather(bins: &TileBins, splats: &[Splat], t: usize) -> Vec<Splat> {
+/// Tile `t`'s list of splats, front to back, copied out contiguously.
+pub fn gather(bins: &TileBins, splats: &[Splat], t: usize) -> Vec<Splat> {
     bins.ids[bins.range(t)]
         .iter()
         .map(|&g| splats[g as usize])

@@ -9,6 +9,7 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
+use crate::blocks;
 use crate::camera::Camera;
 use crate::error::SplatError;
 use crate::model::Gaussians;
@@ -58,6 +59,7 @@ pub struct RenderOutput {
 /// sorted tile lists. Only [`render_for_backward`] makes one; plain renders drop it.
 #[derive(Clone, Debug)]
 pub struct ForwardState {
+    kernels: Kernels,
     camera: Camera,
     settings: RenderSettings,
     num_gaussians: usize,
@@ -93,6 +95,29 @@ fn check_inputs(g: &Gaussians, cam: &Camera, s: &RenderSettings) -> Result<(), S
     Ok(())
 }
 
+/// Which CPU blending kernels a render uses: the vectorised pixel blocks ([`crate::blocks`],
+/// the default) or the scalar per-splat loops ([`crate::raster`]), kept as their reference
+/// and for side-by-side benchmarks.
+#[doc(hidden)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Kernels {
+    #[default]
+    Blocks,
+    Scalar,
+}
+
+/// [`render_for_backward`] with the given kernels (its backward uses the same).
+#[doc(hidden)]
+pub fn render_for_backward_with(
+    g: &Gaussians,
+    cam: &Camera,
+    settings: &RenderSettings,
+    kernels: Kernels,
+) -> Result<(RenderOutput, ForwardState), SplatError> {
+    let (out, state) = forward(g, cam, settings, true, kernels)?;
+    Ok((out, state.expect("requested")))
+}
+
 /// Renders `g` from `cam` for looking at (evaluation, novel views, a viewer): nothing is kept
 /// for a backward pass. Gaussians with non-finite parameters are treated as culled.
 pub fn render(
@@ -100,7 +125,7 @@ pub fn render(
     cam: &Camera,
     settings: &RenderSettings,
 ) -> Result<RenderOutput, SplatError> {
-    forward(g, cam, settings, false).map(|(out, _)| out)
+    forward(g, cam, settings, false, Kernels::Blocks).map(|(out, _)| out)
 }
 
 /// Renders `g` from `cam` and keeps what [`render_backward`] needs.
@@ -109,8 +134,7 @@ pub fn render_for_backward(
     cam: &Camera,
     settings: &RenderSettings,
 ) -> Result<(RenderOutput, ForwardState), SplatError> {
-    let (out, state) = forward(g, cam, settings, true)?;
-    Ok((out, state.expect("requested")))
+    render_for_backward_with(g, cam, settings, Kernels::Blocks)
 }
 
 fn forward(
@@ -118,6 +142,7 @@ fn forward(
     cam: &Camera,
     settings: &RenderSettings,
     keep: bool,
+    kernels: Kernels,
 ) -> Result<(RenderOutput, Option<ForwardState>), SplatError> {
     check_inputs(g, cam, settings)?;
     let cam_pos = cam.position();
@@ -133,7 +158,14 @@ fn forward(
     let splats: Vec<Splat> = projected.par_iter().map(Splat::new).collect();
     let tile_out: Vec<raster::TileForward> = (0..bins.num_tiles())
         .into_par_iter()
-        .map(|t| raster::forward_tile(&bins, &splats, t, w, h, settings.background))
+        .map(|t| match kernels {
+            Kernels::Blocks => blocks::forward_tile(
+                &raster::gather(&bins, &splats, t),
+                raster::tile_pixels(&bins, t, w, h),
+                settings.background,
+            ),
+            Kernels::Scalar => raster::forward_tile(&bins, &splats, t, w, h, settings.background),
+        })
         .collect();
 
     let n_pix = cam.num_pixels();
@@ -166,6 +198,7 @@ fn forward(
         .map(|p| p.radius[0] > 0 || p.radius[1] > 0)
         .collect();
     let state = keep.then(|| ForwardState {
+        kernels,
         camera: cam.clone(),
         settings: settings.clone(),
         num_gaussians: g.len(),
@@ -260,8 +293,18 @@ pub fn render_backward(
     tiles::split_per_tile(bins, &mut isect)
         .into_par_iter()
         .enumerate()
-        .for_each(|(t, out)| {
-            raster::backward_tile(bins, &st.splats, t, w, h, settings.background, &pix, out)
+        .for_each(|(t, out)| match st.kernels {
+            Kernels::Blocks => blocks::backward_tile(
+                &raster::gather(bins, &st.splats, t),
+                raster::tile_pixels(bins, t, w, h),
+                w,
+                settings.background,
+                &pix,
+                out,
+            ),
+            Kernels::Scalar => {
+                raster::backward_tile(bins, &st.splats, t, w, h, settings.background, &pix, out)
+            }
         });
 
     // Per-Gaussian list of its intersection slots, in tile order (a stable counting sort).

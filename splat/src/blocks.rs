@@ -1,0 +1,869 @@
+//! The fast CPU blending kernels: [`crate::raster`]'s rules, computed for blocks of
+//! [`LANES`] pixels of a tile row at once.
+//!
+//! `raster` visits a tile's splats front to back and lets each update the pixels of its box,
+//! one at a time, with branches. Here each splat updates the eight-pixel blocks of the tile
+//! rows its box covers, every per-pixel decision of the rule (inside the box, `σ` in range,
+//! `α ≥ 1/255`, transmittance stop) becomes a lane mask, and the tile's state is kept as
+//! structure of arrays. Two builds of each kernel: AVX2 intrinsics, chosen at run time when
+//! the CPU has AVX2 (`METASPLAT_NO_AVX2` turns them off), and portable lane loops for every
+//! other CPU. The loops were meant to be vectorised by the compiler and were not (they run as
+//! scalar code); they are kept as the operation-for-operation twin of the intrinsics, which
+//! the tests check bit for bit.
+//!
+//! Each pixel still sees its splats in list order with the same operations in the same order
+//! as `raster`, so the kernels agree with it up to the exponential: they use [`exp_neg`], a
+//! polynomial whose relative error against the exact `e^(−σ)` is below [`EXP_REL_ERROR`]
+//! (tested), where `raster` calls the C library's `expf`. No lane mixes with another, no
+//! instruction is fused, so the AVX2 and baseline builds give identical bits. The backward
+//! sums each splat's per-lane contributions in lane vectors and reduces them once per splat,
+//! in a fixed order: results do not depend on the thread count.
+
+use glam::Vec3;
+
+use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_MIN};
+use crate::raster::{IsectGrad, PixelGrads, Splat, TileForward};
+
+/// Pixels per block: one AVX2 register of `f32`.
+pub const LANES: usize = 8;
+type Lanes = [f32; LANES];
+
+/// Bound on the relative error of [`exp_neg`] for `σ` in `[0, 87]` (checked in the tests
+/// against the float64 exponential).
+pub const EXP_REL_ERROR: f64 = 3e-7;
+
+/// `e^(−σ)` for `σ ≥ 0` (inputs are clamped to `[0, 87]`, where the result stays normal):
+/// Cody–Waite range reduction to `r ∈ [−ln2/2, ln2/2]` and Cephes' degree-6 polynomial for
+/// `e^r`, scaled by `2^n` through the exponent bits. Pure arithmetic, so it vectorises.
+#[inline(always)]
+pub fn exp_neg(sigma: f32) -> f32 {
+    const LOG2E: f32 = std::f32::consts::LOG2_E;
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    // Adding and removing 1.5·2²³ rounds to the nearest integer without a rounding call.
+    const ROUND: f32 = 12_582_912.0;
+    let x = -sigma.clamp(0.0, 87.0);
+    let n = (x * LOG2E + ROUND) - ROUND;
+    let r = x - n * LN2_HI - n * LN2_LO;
+    let p = 1.987_569_1e-4;
+    let p = p * r + 1.398_199_9e-3;
+    let p = p * r + 8.333_452e-3;
+    let p = p * r + 4.166_579_6e-2;
+    let p = p * r + 1.666_666_5e-1;
+    let p = p * r + 0.5;
+    let e = p * r * r + r + 1.0;
+    e * f32::from_bits(((n as i32 + 127) << 23) as u32)
+}
+
+/// Tile state, structure of arrays, rows of [`STRIDE`] pixels (a tile row is two blocks).
+const STRIDE: usize = crate::conventions::TILE_SIZE as usize;
+const TILE_PX: usize = STRIDE * STRIDE;
+
+/// Blends one tile (already gathered: `splats` is its list, front to back). Splats are visited
+/// in order; each blends the blocks of the tile rows its box covers. Same outputs as
+/// [`crate::raster::forward_tile`] up to the exponential.
+pub fn forward_tile(
+    splats: &[Splat],
+    (x0, y0, w, h): (u32, u32, u32, u32),
+    background: Vec3,
+) -> TileForward {
+    let mut st = TileState {
+        tr: [1.0; TILE_PX],
+        c: [[0.0; TILE_PX]; 3],
+        depth: [0.0; TILE_PX],
+        last: [0; TILE_PX],
+        done: [0; TILE_PX],
+    };
+    let blended = forward_tile_dispatch(splats, (x0, y0, w, h), &mut st, true);
+    let n = (w * h) as usize;
+    let mut out = TileForward {
+        color: Vec::with_capacity(n),
+        alpha: Vec::with_capacity(n),
+        depth: Vec::with_capacity(n),
+        final_t: Vec::with_capacity(n),
+        n_contrib: Vec::with_capacity(n),
+        blended,
+    };
+    for ly in 0..h as usize {
+        for lx in 0..w as usize {
+            let i = ly * STRIDE + lx;
+            let t = st.tr[i];
+            let a = 1.0 - t;
+            out.color
+                .push(Vec3::new(st.c[0][i], st.c[1][i], st.c[2][i]) + background * t);
+            out.alpha.push(a);
+            out.depth.push(if a > 0.0 { st.depth[i] / a } else { 0.0 });
+            out.final_t.push(t);
+            out.n_contrib.push(st.last[i]);
+        }
+    }
+    out
+}
+
+struct TileState {
+    tr: [f32; TILE_PX],
+    c: [[f32; TILE_PX]; 3],
+    depth: [f32; TILE_PX],
+    last: [u32; TILE_PX],
+    /// All bits set once the pixel's transmittance has stopped it (a lane mask).
+    done: [i32; TILE_PX],
+}
+
+/// The AVX2 kernel where the CPU has it, else the portable loop (the same bits).
+fn forward_tile_dispatch(
+    splats: &[Splat],
+    tile: (u32, u32, u32, u32),
+    st: &mut TileState,
+    simd: bool,
+) -> u64 {
+    #[cfg(target_arch = "x86_64")]
+    if simd && avx2_enabled() {
+        // SAFETY: the CPU has AVX2 and POPCNT (checked at run time).
+        return unsafe { avx2::forward_tile_lanes(splats, tile, st) };
+    }
+    forward_tile_lanes(splats, tile, st)
+}
+
+/// Whether the AVX2 kernels run: the CPU has AVX2 and `METASPLAT_NO_AVX2` is not set (which
+/// lets the tests and benchmarks run the portable kernels on the same machine).
+#[cfg(target_arch = "x86_64")]
+pub fn avx2_enabled() -> bool {
+    static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *ON.get_or_init(|| {
+        std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("popcnt")
+            && std::env::var_os("METASPLAT_NO_AVX2").is_none()
+    })
+}
+
+/// The portable kernel: lane loops the AVX2 kernel mirrors operation for operation.
+// The lane index addresses several arrays in lockstep, as the vector code does.
+#[allow(clippy::needless_range_loop)]
+fn forward_tile_lanes(
+    splats: &[Splat],
+    (x0, y0, w, h): (u32, u32, u32, u32),
+    st: &mut TileState,
+) -> u64 {
+    let mut blended = 0u64;
+    let mut n_done = 0usize;
+    let n = (w * h) as usize;
+    let lane_x: Lanes = std::array::from_fn(|l| l as f32);
+    for (k, s) in splats.iter().enumerate() {
+        if n_done == n {
+            break;
+        }
+        let px = s.pixel_box();
+        let lx0 = (px[0] - x0 as i32).max(0);
+        let lx1 = (px[1] - x0 as i32).min(w as i32 - 1);
+        let ly0 = (px[2] - y0 as i32).max(0);
+        let ly1 = (px[3] - y0 as i32).min(h as i32 - 1);
+        if lx0 > lx1 || ly0 > ly1 {
+            continue;
+        }
+        let (m, [ca, cb, cc], o, cut) = (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
+        let (col, z) = (s.color(), s.depth());
+        let b0 = lx0 as usize / LANES * LANES;
+        for ly in ly0 as usize..=ly1 as usize {
+            let dy = m.y - ((y0 as usize + ly) as f32 + 0.5);
+            let mut bx = b0;
+            while bx <= lx1 as usize {
+                let row = ly * STRIDE + bx;
+                let dx0 = m.x - ((x0 as usize + bx) as f32 + 0.5);
+                let mut count = 0u32;
+                let mut stops = 0usize;
+                for l in 0..LANES {
+                    let i = row + l;
+                    let lx = (bx + l) as i32;
+                    let dx = dx0 - lane_x[l];
+                    let sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy;
+                    let alpha = MAX_ALPHA.min(o * exp_neg(sigma));
+                    let live = st.done[i] == 0 && lx0 <= lx && lx <= lx1;
+                    let ok = live && (0.0..=cut).contains(&sigma) && alpha >= ALPHA_THRESHOLD;
+                    let tr = st.tr[i];
+                    let next_t = tr * (1.0 - alpha);
+                    let stop = ok && next_t <= TRANSMITTANCE_MIN;
+                    let blend = ok && !stop;
+                    let wgt = alpha * tr;
+                    st.c[0][i] = if blend {
+                        st.c[0][i] + col.x * wgt
+                    } else {
+                        st.c[0][i]
+                    };
+                    st.c[1][i] = if blend {
+                        st.c[1][i] + col.y * wgt
+                    } else {
+                        st.c[1][i]
+                    };
+                    st.c[2][i] = if blend {
+                        st.c[2][i] + col.z * wgt
+                    } else {
+                        st.c[2][i]
+                    };
+                    st.depth[i] = if blend {
+                        st.depth[i] + z * wgt
+                    } else {
+                        st.depth[i]
+                    };
+                    st.tr[i] = if blend { next_t } else { tr };
+                    st.last[i] = if blend { k as u32 + 1 } else { st.last[i] };
+                    st.done[i] |= -(stop as i32);
+                    count += blend as u32;
+                    stops += stop as usize;
+                }
+                blended += count as u64;
+                n_done += stops;
+                bx += LANES;
+            }
+        }
+    }
+    blended
+}
+
+/// The AVX2 build of [`forward_tile_lanes`]: the same operations in the same order on eight
+/// lanes at once (no fused multiply-add, so the bits equal the portable loop's).
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use std::arch::x86_64::*;
+
+    use super::{BackState, LANES, STRIDE, SUMS, TILE_PX, TileState};
+    use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_MIN};
+    use crate::raster::Splat;
+
+    /// [`super::exp_neg`] on eight lanes.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn exp_neg(sigma: __m256) -> __m256 {
+        let x = _mm256_sub_ps(
+            _mm256_setzero_ps(),
+            _mm256_min_ps(
+                _mm256_max_ps(sigma, _mm256_setzero_ps()),
+                _mm256_set1_ps(87.0),
+            ),
+        );
+        let round = _mm256_set1_ps(12_582_912.0);
+        let n = _mm256_sub_ps(
+            _mm256_add_ps(
+                _mm256_mul_ps(x, _mm256_set1_ps(std::f32::consts::LOG2_E)),
+                round,
+            ),
+            round,
+        );
+        let r = _mm256_sub_ps(
+            _mm256_sub_ps(x, _mm256_mul_ps(n, _mm256_set1_ps(0.693_359_4))),
+            _mm256_mul_ps(n, _mm256_set1_ps(-2.121_944_4e-4)),
+        );
+        let step = |p: __m256, c: f32| _mm256_add_ps(_mm256_mul_ps(p, r), _mm256_set1_ps(c));
+        let p = _mm256_set1_ps(1.987_569_1e-4);
+        let p = step(p, 1.398_199_9e-3);
+        let p = step(p, 8.333_452e-3);
+        let p = step(p, 4.166_579_6e-2);
+        let p = step(p, 1.666_666_5e-1);
+        let p = step(p, 0.5);
+        let e = _mm256_add_ps(
+            _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(p, r), r), r),
+            _mm256_set1_ps(1.0),
+        );
+        let bits = _mm256_slli_epi32::<23>(_mm256_add_epi32(
+            _mm256_cvttps_epi32(n),
+            _mm256_set1_epi32(127),
+        ));
+        _mm256_mul_ps(e, _mm256_castsi256_ps(bits))
+    }
+
+    /// # Safety
+    /// The CPU must have AVX2 and POPCNT.
+    #[target_feature(enable = "avx2,popcnt")]
+    pub unsafe fn forward_tile_lanes(
+        splats: &[Splat],
+        (x0, y0, w, h): (u32, u32, u32, u32),
+        st: &mut TileState,
+    ) -> u64 {
+        let mut blended = 0u64;
+        let mut n_done = 0usize;
+        let n = (w * h) as usize;
+        let lane_f = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
+        let lane_i = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+        let (half, one) = (_mm256_set1_ps(0.5), _mm256_set1_ps(1.0));
+        let (max_alpha, thr, tmin) = (
+            _mm256_set1_ps(MAX_ALPHA),
+            _mm256_set1_ps(ALPHA_THRESHOLD),
+            _mm256_set1_ps(TRANSMITTANCE_MIN),
+        );
+        for (k, s) in splats.iter().enumerate() {
+            if n_done == n {
+                break;
+            }
+            let px = s.pixel_box();
+            let lx0 = (px[0] - x0 as i32).max(0);
+            let lx1 = (px[1] - x0 as i32).min(w as i32 - 1);
+            let ly0 = (px[2] - y0 as i32).max(0);
+            let ly1 = (px[3] - y0 as i32).min(h as i32 - 1);
+            if lx0 > lx1 || ly0 > ly1 {
+                continue;
+            }
+            let (m, [ca, cb, cc], o, cut) = (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
+            let (col, z) = (s.color(), s.depth());
+            let (ca, cb, cc, o) = (
+                _mm256_set1_ps(ca),
+                _mm256_set1_ps(cb),
+                _mm256_set1_ps(cc),
+                _mm256_set1_ps(o),
+            );
+            let cut = _mm256_set1_ps(cut);
+            let (cr, cg, cbl, zz) = (
+                _mm256_set1_ps(col.x),
+                _mm256_set1_ps(col.y),
+                _mm256_set1_ps(col.z),
+                _mm256_set1_ps(z),
+            );
+            let next_k = _mm256_set1_epi32(k as i32 + 1);
+            let b0 = lx0 as usize / LANES * LANES;
+            for ly in ly0 as usize..=ly1 as usize {
+                let dy = _mm256_set1_ps(m.y - ((y0 as usize + ly) as f32 + 0.5));
+                let cdydy = _mm256_mul_ps(_mm256_mul_ps(cc, dy), dy);
+                let mut bx = b0;
+                while bx <= lx1 as usize {
+                    let i = ly * STRIDE + bx;
+                    let dx0 = m.x - ((x0 as usize + bx) as f32 + 0.5);
+                    let dx = _mm256_sub_ps(_mm256_set1_ps(dx0), lane_f);
+                    let sigma = _mm256_add_ps(
+                        _mm256_mul_ps(
+                            half,
+                            _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(ca, dx), dx), cdydy),
+                        ),
+                        _mm256_mul_ps(_mm256_mul_ps(cb, dx), dy),
+                    );
+                    let alpha = _mm256_min_ps(max_alpha, _mm256_mul_ps(o, exp_neg(sigma)));
+                    // Lanes inside the box (its columns lx0..=lx1) and not finished.
+                    let lx = _mm256_add_epi32(_mm256_set1_epi32(bx as i32), lane_i);
+                    let inside = _mm256_andnot_si256(
+                        _mm256_or_si256(
+                            _mm256_cmpgt_epi32(_mm256_set1_epi32(lx0), lx),
+                            _mm256_cmpgt_epi32(lx, _mm256_set1_epi32(lx1)),
+                        ),
+                        _mm256_set1_epi32(-1),
+                    );
+                    // SAFETY: `i + 8 <= TILE_PX`: a block starts at a multiple of 8 inside a
+                    // row of STRIDE (16) pixels.
+                    let (p_tr, p_done) = unsafe {
+                        (
+                            st.tr.as_mut_ptr().add(i),
+                            st.done.as_mut_ptr().add(i) as *mut __m256i,
+                        )
+                    };
+                    let done = unsafe { _mm256_loadu_si256(p_done) };
+                    let live = _mm256_castsi256_ps(_mm256_andnot_si256(done, inside));
+                    let ok = _mm256_and_ps(
+                        _mm256_and_ps(
+                            live,
+                            _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, _mm256_setzero_ps()),
+                        ),
+                        _mm256_and_ps(
+                            _mm256_cmp_ps::<_CMP_LE_OQ>(sigma, cut),
+                            _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, thr),
+                        ),
+                    );
+                    let okm = _mm256_movemask_ps(ok);
+                    if okm == 0 {
+                        bx += LANES;
+                        continue;
+                    }
+                    let tr = unsafe { _mm256_loadu_ps(p_tr) };
+                    let next_t = _mm256_mul_ps(tr, _mm256_sub_ps(one, alpha));
+                    let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, tmin));
+                    let blend = _mm256_andnot_ps(stop, ok);
+                    let wgt = _mm256_mul_ps(alpha, tr);
+                    let add = |p: *mut f32, c: __m256| {
+                        // SAFETY: as above, for every channel array.
+                        unsafe {
+                            let v = _mm256_loadu_ps(p);
+                            let nv = _mm256_add_ps(v, _mm256_mul_ps(c, wgt));
+                            _mm256_storeu_ps(p, _mm256_blendv_ps(v, nv, blend));
+                        }
+                    };
+                    unsafe {
+                        add(st.c[0].as_mut_ptr().add(i), cr);
+                        add(st.c[1].as_mut_ptr().add(i), cg);
+                        add(st.c[2].as_mut_ptr().add(i), cbl);
+                        add(st.depth.as_mut_ptr().add(i), zz);
+                        _mm256_storeu_ps(p_tr, _mm256_blendv_ps(tr, next_t, blend));
+                        let p_last = st.last.as_mut_ptr().add(i) as *mut __m256i;
+                        let last = _mm256_loadu_si256(p_last);
+                        _mm256_storeu_si256(
+                            p_last,
+                            _mm256_blendv_epi8(last, next_k, _mm256_castps_si256(blend)),
+                        );
+                        _mm256_storeu_si256(
+                            p_done,
+                            _mm256_or_si256(done, _mm256_castps_si256(stop)),
+                        );
+                    }
+                    blended += _mm256_movemask_ps(blend).count_ones() as u64;
+                    n_done += _mm256_movemask_ps(stop).count_ones() as usize;
+                    bx += LANES;
+                }
+            }
+        }
+        blended
+    }
+
+    /// [`super::backward_splat`] on eight lanes.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2 and POPCNT.
+    #[target_feature(enable = "avx2,popcnt")]
+    pub unsafe fn backward_splat(
+        s: &Splat,
+        k: u32,
+        (x0, y0, w, h): (u32, u32, u32, u32),
+        st: &mut BackState,
+    ) -> [f32; SUMS] {
+        let px = s.pixel_box();
+        let lx0 = (px[0] - x0 as i32).max(0);
+        let lx1 = (px[1] - x0 as i32).min(w as i32 - 1);
+        let ly0 = (px[2] - y0 as i32).max(0);
+        let ly1 = (px[3] - y0 as i32).min(h as i32 - 1);
+        if lx0 > lx1 || ly0 > ly1 {
+            return [0.0; SUMS];
+        }
+        let (m, [ca, cb, cc], o, cut) = (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
+        let (col, z) = (s.color(), s.depth());
+        let set = _mm256_set1_ps;
+        let (ca, cb, cc, o, cut) = (set(ca), set(cb), set(cc), set(o), set(cut));
+        let (cx, cy, cz, zz) = (set(col.x), set(col.y), set(col.z), set(z));
+        let (half, one, zero) = (set(0.5), set(1.0), _mm256_setzero_ps());
+        let (max_alpha, thr) = (set(MAX_ALPHA), set(ALPHA_THRESHOLD));
+        let sign = set(-0.0);
+        let lane_f = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
+        let lane_i = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+        // `k < last` as a signed compare: counts stay far below 2³¹.
+        let kv = _mm256_set1_epi32(k as i32);
+        let mut acc = [zero; SUMS];
+        let b0 = lx0 as usize / LANES * LANES;
+        for ly in ly0 as usize..=ly1 as usize {
+            let dy = set(m.y - ((y0 as usize + ly) as f32 + 0.5));
+            let mut bx = b0;
+            while bx <= lx1 as usize {
+                let i = ly * STRIDE + bx;
+                let dx = _mm256_sub_ps(set(m.x - ((x0 as usize + bx) as f32 + 0.5)), lane_f);
+                let sigma = _mm256_add_ps(
+                    _mm256_mul_ps(
+                        half,
+                        _mm256_add_ps(
+                            _mm256_mul_ps(_mm256_mul_ps(ca, dx), dx),
+                            _mm256_mul_ps(_mm256_mul_ps(cc, dy), dy),
+                        ),
+                    ),
+                    _mm256_mul_ps(_mm256_mul_ps(cb, dx), dy),
+                );
+                let vis = exp_neg(sigma);
+                let raw = _mm256_mul_ps(o, vis);
+                let alpha = _mm256_min_ps(max_alpha, raw);
+                let lx = _mm256_add_epi32(_mm256_set1_epi32(bx as i32), lane_i);
+                // SAFETY (every pointer below): `i + 8 <= TILE_PX`, as in the forward.
+                let p = |a: &mut [f32; TILE_PX]| unsafe { a.as_mut_ptr().add(i) };
+                let last = unsafe { _mm256_loadu_si256(st.last.as_ptr().add(i) as *const __m256i) };
+                let in_list = _mm256_cmpgt_epi32(last, kv);
+                let outside = _mm256_or_si256(
+                    _mm256_cmpgt_epi32(_mm256_set1_epi32(lx0), lx),
+                    _mm256_cmpgt_epi32(lx, _mm256_set1_epi32(lx1)),
+                );
+                let ok = _mm256_and_ps(
+                    _mm256_castsi256_ps(_mm256_andnot_si256(outside, in_list)),
+                    _mm256_and_ps(
+                        _mm256_and_ps(
+                            _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero),
+                            _mm256_cmp_ps::<_CMP_LE_OQ>(sigma, cut),
+                        ),
+                        _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, thr),
+                    ),
+                );
+                if _mm256_movemask_ps(ok) == 0 {
+                    bx += LANES;
+                    continue;
+                }
+                unsafe {
+                    let ra = _mm256_div_ps(one, _mm256_sub_ps(one, alpha));
+                    let tr0 = _mm256_loadu_ps(p(&mut st.tr));
+                    let t = _mm256_blendv_ps(tr0, _mm256_mul_ps(tr0, ra), ok);
+                    _mm256_storeu_ps(p(&mut st.tr), t);
+                    let fac = _mm256_mul_ps(alpha, t);
+                    let vc0 = _mm256_loadu_ps(p(&mut st.v_c[0]));
+                    let vc1 = _mm256_loadu_ps(p(&mut st.v_c[1]));
+                    let vc2 = _mm256_loadu_ps(p(&mut st.v_c[2]));
+                    let vd = _mm256_loadu_ps(p(&mut st.v_dsum));
+                    let vf = _mm256_loadu_ps(p(&mut st.v_final));
+                    let b0v = _mm256_loadu_ps(p(&mut st.behind[0]));
+                    let b1v = _mm256_loadu_ps(p(&mut st.behind[1]));
+                    let b2v = _mm256_loadu_ps(p(&mut st.behind[2]));
+                    let bzv = _mm256_loadu_ps(p(&mut st.behind_z));
+                    let term = |c: __m256, b: __m256, v: __m256| {
+                        _mm256_mul_ps(_mm256_sub_ps(_mm256_mul_ps(c, t), _mm256_mul_ps(b, ra)), v)
+                    };
+                    let v_alpha = _mm256_add_ps(
+                        _mm256_add_ps(
+                            _mm256_add_ps(
+                                _mm256_add_ps(term(cx, b0v, vc0), term(cy, b1v, vc1)),
+                                term(cz, b2v, vc2),
+                            ),
+                            term(zz, bzv, vd),
+                        ),
+                        _mm256_mul_ps(ra, vf),
+                    );
+                    let on = |a: __m256, add: __m256, m: __m256| {
+                        _mm256_blendv_ps(a, _mm256_add_ps(a, add), m)
+                    };
+                    acc[7] = on(acc[7], _mm256_mul_ps(vc0, fac), ok);
+                    acc[8] = on(acc[8], _mm256_mul_ps(vc1, fac), ok);
+                    acc[9] = on(acc[9], _mm256_mul_ps(vc2, fac), ok);
+                    acc[11] = on(acc[11], _mm256_mul_ps(vd, fac), ok);
+                    _mm256_storeu_ps(p(&mut st.behind[0]), on(b0v, _mm256_mul_ps(cx, fac), ok));
+                    _mm256_storeu_ps(p(&mut st.behind[1]), on(b1v, _mm256_mul_ps(cy, fac), ok));
+                    _mm256_storeu_ps(p(&mut st.behind[2]), on(b2v, _mm256_mul_ps(cz, fac), ok));
+                    _mm256_storeu_ps(p(&mut st.behind_z), on(bzv, _mm256_mul_ps(zz, fac), ok));
+                    let grad = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(raw, max_alpha));
+                    let v_sigma = _mm256_mul_ps(_mm256_xor_ps(raw, sign), v_alpha);
+                    let vmx = _mm256_mul_ps(
+                        v_sigma,
+                        _mm256_add_ps(_mm256_mul_ps(ca, dx), _mm256_mul_ps(cb, dy)),
+                    );
+                    let vmy = _mm256_mul_ps(
+                        v_sigma,
+                        _mm256_add_ps(_mm256_mul_ps(cb, dx), _mm256_mul_ps(cc, dy)),
+                    );
+                    let hv = _mm256_mul_ps(half, v_sigma);
+                    acc[0] = on(acc[0], vmx, grad);
+                    acc[1] = on(acc[1], vmy, grad);
+                    acc[2] = on(acc[2], _mm256_andnot_ps(sign, vmx), grad);
+                    acc[3] = on(acc[3], _mm256_andnot_ps(sign, vmy), grad);
+                    acc[4] = on(acc[4], _mm256_mul_ps(_mm256_mul_ps(hv, dx), dx), grad);
+                    acc[5] = on(acc[5], _mm256_mul_ps(_mm256_mul_ps(v_sigma, dx), dy), grad);
+                    acc[6] = on(acc[6], _mm256_mul_ps(_mm256_mul_ps(hv, dy), dy), grad);
+                    acc[10] = on(acc[10], _mm256_mul_ps(vis, v_alpha), grad);
+                }
+                bx += LANES;
+            }
+        }
+        let mut lanes = [[0.0f32; LANES]; SUMS];
+        for (q, a) in acc.iter().enumerate() {
+            // SAFETY: an array of eight f32 is the size of a __m256.
+            unsafe { _mm256_storeu_ps(lanes[q].as_mut_ptr(), *a) };
+        }
+        super::reduce(&lanes)
+    }
+}
+
+/// Per-splat gradient sums, in lanes while a splat is visited and reduced once when it is
+/// done: mean2d (2), |mean2d| (2), conic (3), colour (3), opacity, depth.
+const SUMS: usize = 12;
+
+/// What the backward keeps per pixel of a tile, structure of arrays (see
+/// `raster::backward_tile` for what each is).
+#[derive(Clone)]
+struct BackState {
+    tr: [f32; TILE_PX],
+    last: [u32; TILE_PX],
+    v_c: [[f32; TILE_PX]; 3],
+    v_dsum: [f32; TILE_PX],
+    v_final: [f32; TILE_PX],
+    behind: [[f32; TILE_PX]; 3],
+    behind_z: [f32; TILE_PX],
+}
+
+/// Backward of [`forward_tile`] for one gathered tile: `out[k]` gets splat `k`'s gradient,
+/// its lanes summed in a fixed order. Same results as [`crate::raster::backward_tile`] up to
+/// the exponential and the order of the sums.
+pub fn backward_tile(
+    splats: &[Splat],
+    tile: (u32, u32, u32, u32),
+    image_width: u32,
+    background: Vec3,
+    pix: &PixelGrads,
+    out: &mut [IsectGrad],
+) {
+    let (x0, y0, w, h) = tile;
+    let mut st = Box::new(BackState {
+        tr: [0.0; TILE_PX],
+        last: [0; TILE_PX],
+        v_c: [[0.0; TILE_PX]; 3],
+        v_dsum: [0.0; TILE_PX],
+        v_final: [0.0; TILE_PX],
+        behind: [[0.0; TILE_PX]; 3],
+        behind_z: [0.0; TILE_PX],
+    });
+    let mut kmax = 0;
+    for ly in 0..h as usize {
+        for lx in 0..w as usize {
+            let i = ly * STRIDE + lx;
+            let idx = (y0 as usize + ly) * image_width as usize + x0 as usize + lx;
+            let tr = pix.final_t[idx];
+            let vc = pix.v_color[idx];
+            let v_a = pix.v_alpha.map_or(0.0, |a| a[idx]);
+            let a_out = 1.0 - tr;
+            let u = match pix.v_depth {
+                Some(v) if a_out > 0.0 => v[idx] / a_out,
+                _ => 0.0,
+            };
+            st.tr[i] = tr;
+            st.last[i] = pix.n_contrib[idx];
+            kmax = kmax.max(st.last[i] as usize);
+            (st.v_c[0][i], st.v_c[1][i], st.v_c[2][i]) = (vc.x, vc.y, vc.z);
+            st.v_dsum[i] = u;
+            st.v_final[i] = tr * (v_a - background.dot(vc) - u * pix.depth[idx]);
+        }
+    }
+    for k in (0..kmax).rev() {
+        let sums = backward_splat_dispatch(&splats[k], k as u32, tile, &mut st);
+        out[k] = IsectGrad {
+            mean2d: glam::Vec2::new(sums[0], sums[1]),
+            mean2d_abs: glam::Vec2::new(sums[2], sums[3]),
+            conic: [sums[4], sums[5], sums[6]],
+            color: Vec3::new(sums[7], sums[8], sums[9]),
+            opacity: sums[10],
+            depth: sums[11],
+        };
+    }
+}
+
+/// The lanes of `sums` added up, lane 0 first.
+#[inline(always)]
+fn reduce(sums: &[Lanes; SUMS]) -> [f32; SUMS] {
+    std::array::from_fn(|q| sums[q].iter().fold(0.0, |a, v| a + v))
+}
+
+fn backward_splat_dispatch(
+    s: &Splat,
+    k: u32,
+    tile: (u32, u32, u32, u32),
+    st: &mut BackState,
+) -> [f32; SUMS] {
+    backward_splat_with(s, k, tile, st, true)
+}
+
+fn backward_splat_with(
+    s: &Splat,
+    k: u32,
+    tile: (u32, u32, u32, u32),
+    st: &mut BackState,
+    simd: bool,
+) -> [f32; SUMS] {
+    #[cfg(target_arch = "x86_64")]
+    if simd && avx2_enabled() {
+        // SAFETY: the CPU has AVX2 and POPCNT (checked at run time).
+        return unsafe { avx2::backward_splat(s, k, tile, st) };
+    }
+    backward_splat(s, k, tile, st)
+}
+
+/// Splat `k` undone from the pixels of its box, back to front: the portable lanes the AVX2
+/// kernel mirrors operation for operation.
+#[allow(clippy::needless_range_loop)]
+fn backward_splat(
+    s: &Splat,
+    k: u32,
+    (x0, y0, w, h): (u32, u32, u32, u32),
+    st: &mut BackState,
+) -> [f32; SUMS] {
+    let mut acc = [[0.0f32; LANES]; SUMS];
+    let px = s.pixel_box();
+    let lx0 = (px[0] - x0 as i32).max(0);
+    let lx1 = (px[1] - x0 as i32).min(w as i32 - 1);
+    let ly0 = (px[2] - y0 as i32).max(0);
+    let ly1 = (px[3] - y0 as i32).min(h as i32 - 1);
+    if lx0 > lx1 || ly0 > ly1 {
+        return [0.0; SUMS];
+    }
+    let (m, [ca, cb, cc], o, cut) = (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
+    let (col, z) = (s.color(), s.depth());
+    let b0 = lx0 as usize / LANES * LANES;
+    for ly in ly0 as usize..=ly1 as usize {
+        let dy = m.y - ((y0 as usize + ly) as f32 + 0.5);
+        let mut bx = b0;
+        while bx <= lx1 as usize {
+            let dx0 = m.x - ((x0 as usize + bx) as f32 + 0.5);
+            for l in 0..LANES {
+                let i = ly * STRIDE + bx + l;
+                let lx = (bx + l) as i32;
+                let dx = dx0 - l as f32;
+                let sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy;
+                let vis = exp_neg(sigma);
+                let raw = o * vis;
+                let alpha = MAX_ALPHA.min(raw);
+                let ok = k < st.last[i]
+                    && lx0 <= lx
+                    && lx <= lx1
+                    && (0.0..=cut).contains(&sigma)
+                    && alpha >= ALPHA_THRESHOLD;
+                let ra = 1.0 / (1.0 - alpha);
+                let t = if ok { st.tr[i] * ra } else { st.tr[i] };
+                st.tr[i] = t;
+                let fac = alpha * t;
+                let v_alpha = (col.x * t - st.behind[0][i] * ra) * st.v_c[0][i]
+                    + (col.y * t - st.behind[1][i] * ra) * st.v_c[1][i]
+                    + (col.z * t - st.behind[2][i] * ra) * st.v_c[2][i]
+                    + (z * t - st.behind_z[i] * ra) * st.v_dsum[i]
+                    + ra * st.v_final[i];
+                let on = |a: f32, add: f32, on: bool| if on { a + add } else { a };
+                acc[7][l] = on(acc[7][l], st.v_c[0][i] * fac, ok);
+                acc[8][l] = on(acc[8][l], st.v_c[1][i] * fac, ok);
+                acc[9][l] = on(acc[9][l], st.v_c[2][i] * fac, ok);
+                acc[11][l] = on(acc[11][l], st.v_dsum[i] * fac, ok);
+                st.behind[0][i] = on(st.behind[0][i], col.x * fac, ok);
+                st.behind[1][i] = on(st.behind[1][i], col.y * fac, ok);
+                st.behind[2][i] = on(st.behind[2][i], col.z * fac, ok);
+                st.behind_z[i] = on(st.behind_z[i], z * fac, ok);
+                let grad = ok && raw <= MAX_ALPHA;
+                let v_sigma = -raw * v_alpha;
+                let vmx = v_sigma * (ca * dx + cb * dy);
+                let vmy = v_sigma * (cb * dx + cc * dy);
+                acc[0][l] = on(acc[0][l], vmx, grad);
+                acc[1][l] = on(acc[1][l], vmy, grad);
+                acc[2][l] = on(acc[2][l], vmx.abs(), grad);
+                acc[3][l] = on(acc[3][l], vmy.abs(), grad);
+                acc[4][l] = on(acc[4][l], 0.5 * v_sigma * dx * dx, grad);
+                acc[5][l] = on(acc[5][l], v_sigma * dx * dy, grad);
+                acc[6][l] = on(acc[6][l], 0.5 * v_sigma * dy * dy, grad);
+                acc[10][l] = on(acc[10][l], vis * v_alpha, grad);
+            }
+            bx += LANES;
+        }
+    }
+    reduce(&acc)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every tile of a random scene through the AVX2 kernel and the portable loop.
+    #[test]
+    fn avx2_and_portable_kernels_give_the_same_bits() {
+        #[cfg(target_arch = "x86_64")]
+        if !avx2_enabled() {
+            eprintln!("SKIP: this CPU has no AVX2");
+            return;
+        }
+        let g = crate::synthetic::random_box_scene(5, 20_000, 1);
+        let cam = crate::synthetic::benchmark_camera().resized(252, 189);
+        let pos = cam.position();
+        let projected: Vec<_> = (0..g.len())
+            .map(|i| crate::project::project_one(&g, i, &cam, 1, false, pos).unwrap_or_default())
+            .collect();
+        let bins = crate::tiles::bin(&projected, cam.width, cam.height);
+        let splats: Vec<Splat> = projected.iter().map(Splat::new).collect();
+        let mut checked = 0;
+        for t in 0..bins.num_tiles() {
+            let list = crate::raster::gather(&bins, &splats, t);
+            let tile = crate::raster::tile_pixels(&bins, t, cam.width, cam.height);
+            let run = |simd| {
+                let mut st = TileState {
+                    tr: [1.0; TILE_PX],
+                    c: [[0.0; TILE_PX]; 3],
+                    depth: [0.0; TILE_PX],
+                    last: [0; TILE_PX],
+                    done: [0; TILE_PX],
+                };
+                let n = forward_tile_dispatch(&list, tile, &mut st, simd);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                (
+                    n,
+                    bits(&st.tr),
+                    bits(&st.c[0]),
+                    bits(&st.c[2]),
+                    bits(&st.depth),
+                    st.last,
+                )
+            };
+            assert!(run(true) == run(false), "tile {t}");
+            checked += list.len();
+        }
+        assert!(checked > 10_000, "the scene barely touches the image");
+    }
+
+    /// The backward of every tile of a random scene, with made-up pixel gradients, through the
+    /// AVX2 kernel and the portable loop.
+    #[test]
+    fn avx2_and_portable_backward_give_the_same_bits() {
+        #[cfg(target_arch = "x86_64")]
+        if !avx2_enabled() {
+            eprintln!("SKIP: this CPU has no AVX2");
+            return;
+        }
+        let g = crate::synthetic::random_box_scene(6, 20_000, 1);
+        let cam = crate::synthetic::benchmark_camera().resized(252, 189);
+        let settings = crate::RenderSettings {
+            sh_degree: 1,
+            ..Default::default()
+        };
+        let (out, _) = crate::render_for_backward(&g, &cam, &settings).unwrap();
+        let pos = cam.position();
+        let projected: Vec<_> = (0..g.len())
+            .map(|i| crate::project::project_one(&g, i, &cam, 1, false, pos).unwrap_or_default())
+            .collect();
+        let bins = crate::tiles::bin(&projected, cam.width, cam.height);
+        let splats: Vec<Splat> = projected.iter().map(Splat::new).collect();
+        let mut compared = 0;
+        for t in 0..bins.num_tiles() {
+            let list = crate::raster::gather(&bins, &splats, t);
+            let tile = crate::raster::tile_pixels(&bins, t, cam.width, cam.height);
+            let mut fwd = TileState {
+                tr: [1.0; TILE_PX],
+                c: [[0.0; TILE_PX]; 3],
+                depth: [0.0; TILE_PX],
+                last: [0; TILE_PX],
+                done: [0; TILE_PX],
+            };
+            forward_tile_dispatch(&list, tile, &mut fwd, false);
+            let start = BackState {
+                tr: fwd.tr,
+                last: fwd.last,
+                v_c: std::array::from_fn(|c| {
+                    std::array::from_fn(|i| ((i * 7 + c) % 13) as f32 * 0.01 - 0.06)
+                }),
+                v_dsum: std::array::from_fn(|i| (i % 5) as f32 * 0.003),
+                v_final: std::array::from_fn(|i| (i % 3) as f32 * -0.002),
+                behind: [[0.0; TILE_PX]; 3],
+                behind_z: [0.0; TILE_PX],
+            };
+            let kmax = fwd.last.iter().copied().max().unwrap_or(0);
+            let run = |simd| {
+                let mut st = Box::new(start.clone());
+                let sums: Vec<[u32; SUMS]> = (0..kmax)
+                    .rev()
+                    .map(|k| {
+                        backward_splat_with(&list[k as usize], k, tile, &mut st, simd)
+                            .map(f32::to_bits)
+                    })
+                    .collect();
+                (
+                    sums,
+                    st.tr.map(f32::to_bits),
+                    st.behind[1].map(f32::to_bits),
+                )
+            };
+            assert!(run(true) == run(false), "tile {t}");
+            compared += kmax;
+        }
+        assert!(
+            compared > 5_000 && out.num_blended > 0,
+            "too little was compared"
+        );
+    }
+
+    #[test]
+    fn exp_neg_is_within_its_stated_error() {
+        let mut worst = 0.0f64;
+        for i in 0..=2_000_000u32 {
+            let s = i as f32 * (87.0 / 2_000_000.0);
+            let exact = (-(s as f64)).exp();
+            let rel = ((exp_neg(s) as f64 - exact) / exact).abs();
+            worst = worst.max(rel);
+        }
+        assert!(worst < EXP_REL_ERROR, "worst relative error {worst:e}");
+        // Out-of-range inputs stay finite: masked lanes compute them too.
+        for s in [-1.0f32, -1e30, 1e30, f32::INFINITY, f32::NEG_INFINITY] {
+            assert!(exp_neg(s).is_finite(), "{s}");
+        }
+        assert_eq!(exp_neg(0.0), 1.0);
+    }
+}
