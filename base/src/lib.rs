@@ -5,7 +5,9 @@
 pub mod atomic;
 pub mod error;
 pub mod hash;
+pub mod limits;
 pub mod metrics;
+pub mod npy;
 pub mod rng;
 #[doc(hidden)]
 pub mod ssim_reference;
