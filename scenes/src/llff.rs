@@ -271,8 +271,10 @@ impl LlffWriter {
             _ => Path::new("."),
         };
         std::fs::create_dir_all(parent).map_err(|e| SceneError::io(parent, e))?;
+        // What a killed run left beside its scene goes before this one stages its own.
+        base::remove_orphans(parent).map_err(|e| SceneError::io(parent, e))?;
         let staging = tempfile::Builder::new()
-            .prefix(".partial-scene-")
+            .prefix(&format!("{}scene-", base::temp_prefix()))
             .tempdir_in(parent)
             .map_err(|e| SceneError::io(parent, e))?;
         let images = staging.path().join(image_folder_name(downsample));

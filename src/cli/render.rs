@@ -99,8 +99,11 @@ pub fn run(a: RenderArgs) -> Result<()> {
     };
     std::fs::create_dir_all(&parent)
         .with_context(|| format!("cannot create {}", parent.display()))?;
+    // A killed render's staging folder is removed before this one stages its own.
+    base::remove_orphans(&parent)
+        .with_context(|| format!("cannot clear old staging folders in {}", parent.display()))?;
     let staging = tempfile::Builder::new()
-        .prefix(".metasplat-frames-")
+        .prefix(&format!("{}frames-", base::temp_prefix()))
         .tempdir_in(&parent)
         .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
     let staged = render_named(&model, &settings, &cameras, staging.path(), &device)?;
