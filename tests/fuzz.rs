@@ -1,10 +1,53 @@
 //! Fuzzing every file parser with proptest for a fixed budget: random bytes and mutations of
 //! valid files (byte flips, truncations, inserted bytes) must give `Ok` or an error, never a
-//! panic (a panic fails the test) and never an allocation the file cannot back (the readers
-//! check sizes against the file and `base::limits` first, so a lying header fails fast).
+//! panic (a panic fails the test) and never a single allocation above [`MAX_ALLOCATION`]
+//! (the inputs are a few kB; the readers check sizes against the file and `base::limits`
+//! before reserving, so a lying header must not size an allocation).
 
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
+
+/// The largest single allocation a parse of these small inputs may make.
+const MAX_ALLOCATION: usize = 64 << 20;
+
+thread_local! {
+    /// The largest allocation this thread made since the last [`largest_allocation`].
+    static LARGEST: Cell<usize> = const { Cell::new(0) };
+}
+
+/// The system allocator, noting each thread's largest request.
+struct Watching;
+
+unsafe impl GlobalAlloc for Watching {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        let _ = LARGEST.try_with(|l| l.set(l.get().max(layout.size())));
+        unsafe { System.alloc(layout) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        let _ = LARGEST.try_with(|l| l.set(l.get().max(layout.size())));
+        unsafe { System.alloc_zeroed(layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        let _ = LARGEST.try_with(|l| l.set(l.get().max(new_size)));
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Watching = Watching;
+
+/// The largest allocation on this thread since the last call, resetting it.
+fn largest_allocation() -> usize {
+    LARGEST.with(|l| l.replace(0))
+}
 
 use proptest::prelude::*;
 
@@ -246,8 +289,21 @@ fn file(name: &str, bytes: &[u8]) -> (tempfile::TempDir, PathBuf) {
     (dir, path)
 }
 
-/// Every parser on `bytes` as the file it is meant for; results are ignored, panics are not.
+/// Every parser on `bytes` as the file it is meant for; results are ignored, panics and
+/// allocations above [`MAX_ALLOCATION`] are not.
 fn parse_as(kind: &str, bytes: &[u8]) {
+    valid();
+    largest_allocation();
+    parse_unwatched(kind, bytes);
+    let largest = largest_allocation();
+    assert!(
+        largest <= MAX_ALLOCATION,
+        "parsing {} bytes as {kind} allocated {largest} bytes at once",
+        bytes.len()
+    );
+}
+
+fn parse_unwatched(kind: &str, bytes: &[u8]) {
     match kind {
         "npy" => {
             let (_d, p) = file("psf.npy", bytes);
@@ -339,19 +395,47 @@ fn valid_bytes(kind: &str) -> &'static [u8] {
 fn the_valid_files_parse() {
     for kind in KINDS {
         let bytes = valid_bytes(kind);
+        let name = match kind {
+            "npy" => "psf.npy",
+            "poses" => "poses_bounds.npy",
+            "record" => "aberration.json",
+            "checkpoint" => "checkpoint.bin",
+            "weights" => "w.bin",
+            "ply" | "glb" | "gltf" | "spz" => &format!("f.{kind}"),
+            colmap => colmap,
+        };
+        let (d, p) = file(name, bytes);
         let ok = match kind {
-            "weights" => restore::weights::parse(bytes, Path::new("w.bin")).is_ok(),
-            "ply" => splat::ply::parse_ply(Path::new("f.ply"), bytes).is_ok(),
-            "glb" => splat::glb::parse_glb(Path::new("f.glb"), bytes).is_ok(),
-            "spz" => splat::spz::parse_spz(Path::new("f.spz"), bytes).is_ok(),
-            "checkpoint" => {
-                let (_d, p) = file("checkpoint.bin", bytes);
-                metasplat::train::checkpoint::load(&p).is_ok()
+            "npy" => aberration::PsfGrid::load_npy(&p).is_ok(),
+            "poses" => scenes::llff::read_poses_bounds(&p).is_ok(),
+            "cameras.bin" | "cameras.txt" => scenes::colmap::read_cameras(&p).is_ok(),
+            "images.bin" | "images.txt" => scenes::colmap::read_images(&p).is_ok(),
+            "points3D.bin" | "points3D.txt" => scenes::colmap::read_points3d(&p).is_ok(),
+            "record" => {
+                std::fs::write(d.path().join("aberration.json"), bytes).unwrap();
+                matches!(scenes::AberrationRecord::read(d.path()), Ok(Some(_)))
             }
-            _ => true,
+            "checkpoint" => metasplat::train::checkpoint::load(&p).is_ok(),
+            "weights" => restore::weights::parse(bytes, &p).is_ok(),
+            "ply" => splat::ply::parse_ply(&p, bytes).is_ok(),
+            "glb" => splat::glb::parse_glb(&p, bytes).is_ok(),
+            "gltf" => splat::glb::read_gltf(&p).is_ok(),
+            "spz" => splat::spz::parse_spz(&p, bytes).is_ok(),
+            other => panic!("no parser {other}"),
         };
         assert!(ok, "the valid {kind} does not parse");
     }
+}
+
+#[test]
+fn a_lying_size_does_not_size_an_allocation() {
+    // An SPZ header declaring 50 million splats of degree 3 in a few hundred bytes.
+    let g = splat::synthetic::random_box_scene(2, 12, 3);
+    let spz = splat::spz::to_spz(&g).unwrap();
+    let mut raw = Vec::new();
+    std::io::Read::read_to_end(&mut flate2_decode(&spz), &mut raw).unwrap();
+    raw[8..12].copy_from_slice(&50_000_000u32.to_le_bytes());
+    parse_as("spz", &flate2_encode(&raw));
 }
 
 proptest! {
@@ -407,4 +491,15 @@ mutations_of! {
     mutated_glb_never_panics => "glb",
     mutated_gltf_never_panics => "gltf",
     mutated_spz_never_panics => "spz",
+}
+
+fn flate2_decode(bytes: &[u8]) -> flate2::read::GzDecoder<&[u8]> {
+    flate2::read::GzDecoder::new(bytes)
+}
+
+fn flate2_encode(raw: &[u8]) -> Vec<u8> {
+    use std::io::Write;
+    let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+    e.write_all(raw).unwrap();
+    e.finish().unwrap()
 }

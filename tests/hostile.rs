@@ -964,6 +964,14 @@ fn hostile_splat_files() {
     }
     variants.push(("SPZ not gzip".into(), "spz", b"NGSP not really".to_vec()));
     variants.push(("SPZ gzip of zeros".into(), "spz", gzip_of_zeros()));
+    variants.push(("SPZ declaring 50 million splats".into(), "spz", {
+        let mut raw = Vec::new();
+        std::io::Read::read_to_end(&mut flate2::read::GzDecoder::new(&spz[..]), &mut raw).unwrap();
+        raw[8..12].copy_from_slice(&50_000_000u32.to_le_bytes());
+        let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+        std::io::Write::write_all(&mut e, &raw).unwrap();
+        e.finish().unwrap()
+    }));
     for (label, text) in [
         ("glTF cut", gltf[..gltf.len() / 2].to_string()),
         (

@@ -195,7 +195,10 @@ pub fn parse_spz(path: &Path, bytes: &[u8]) -> Result<Gaussians, SplatError> {
     let rot_bytes = if version >= 3 { 4 } else { 3 };
     let per = 9 + 1 + 3 + 3 + rot_bytes + 3 * rc;
     let expected = n as usize * per;
-    let mut body = Vec::with_capacity(expected);
+    // The declared count does not size memory by itself: deflate expands at most 1032:1, so
+    // no more is reserved than the compressed bytes could hold; a lying count then fails on
+    // the data actually decompressed.
+    let mut body = Vec::with_capacity(expected.min(bytes.len().saturating_mul(1032)));
     dec.take(expected as u64 + 1)
         .read_to_end(&mut body)
         .map_err(|e| bad(format!("corrupt compressed data: {e}")))?;
