@@ -403,6 +403,7 @@ fn hostile_psf_files_and_photos() {
         ("truncated photo", png[..png.len() / 2].to_vec()),
         ("photo header only", png[..40].to_vec()),
         ("text as photo", b"hello".to_vec()),
+        ("photo claiming 60000x60000 px", png_claiming(60000, 60000)),
     ] {
         suite.with_file(&bad_png, &bytes, |suite| {
             suite.case(
@@ -1023,6 +1024,30 @@ fn hostile_splat_files() {
         });
     }
     suite.finish("splat file");
+}
+
+/// A valid PNG whose header claims `width`x`height` RGB pixels while holding a few bytes.
+fn png_claiming(width: u32, height: u32) -> Vec<u8> {
+    let chunk = |kind: &[u8], data: &[u8]| {
+        let mut crc = flate2::Crc::new();
+        crc.update(kind);
+        crc.update(data);
+        let mut c = (data.len() as u32).to_be_bytes().to_vec();
+        c.extend_from_slice(kind);
+        c.extend_from_slice(data);
+        c.extend_from_slice(&crc.sum().to_be_bytes());
+        c
+    };
+    let mut ihdr = width.to_be_bytes().to_vec();
+    ihdr.extend_from_slice(&height.to_be_bytes());
+    ihdr.extend_from_slice(&[8, 2, 0, 0, 0]);
+    let mut idat = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+    std::io::Write::write_all(&mut idat, &[0; 100]).unwrap();
+    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+    png.extend(chunk(b"IHDR", &ihdr));
+    png.extend(chunk(b"IDAT", &idat.finish().unwrap()));
+    png.extend(chunk(b"IEND", &[]));
+    png
 }
 
 /// A gzip stream of 16 zero bytes (one stored block), so the SPZ reader meets a header
