@@ -58,7 +58,9 @@ pub fn clear_run(dir: &Path) -> Result<()> {
 pub fn prepare_run_dir(dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
     base::remove_orphans(dir).map_err(|e| TrainError::io(dir, e))?;
-    let probe = dir.join(".write-test");
+    // Named as our temporaries are, so a run killed right here leaves nothing the next run
+    // in this folder does not remove.
+    let probe = dir.join(format!("{}write-test", base::temp_prefix()));
     std::fs::write(&probe, b"ok")
         .map_err(|e| TrainError::file(dir, format!("not writable: {e}")))?;
     let _ = std::fs::remove_file(&probe);

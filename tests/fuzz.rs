@@ -460,6 +460,40 @@ proptest! {
     }
 }
 
+/// The shipped weights (version 1: no checksum, so a damaged record reaches burn's reader).
+fn shipped_weights() -> &'static [u8] {
+    static W: OnceLock<Vec<u8>> = OnceLock::new();
+    W.get_or_init(|| {
+        std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("restore/weights/tiny.bin"))
+            .unwrap()
+    })
+}
+
+proptest! {
+    // Each case builds a network, so fewer cases.
+    #![proptest_config(ProptestConfig { cases: 24, ..config() })]
+
+    /// Mutations of the record's first 4 kB (its header and first tensors) in a file
+    /// without a checksum: loading gives a network or an error naming the file, never a panic.
+    #[test]
+    fn mutated_weight_records_never_panic(m in mutation()) {
+        let bytes = shipped_weights();
+        let n = u64::from_le_bytes(bytes[21..29].try_into().unwrap()) as usize;
+        let (head, record) = bytes.split_at(29 + n);
+        let region = record.len().min(4096);
+        let mut damaged = head.to_vec();
+        damaged.extend(apply(&record[..region], &m));
+        damaged.extend_from_slice(&record[region..]);
+        let device = restore::Compute::Cpu.device().unwrap();
+        largest_allocation();
+        if let Err(e) = restore::weights::load_bytes(&damaged, Path::new("w.bin"), &device, None, None) {
+            prop_assert!(e.to_string().contains("w.bin"), "{e}");
+        }
+        let largest = largest_allocation();
+        prop_assert!(largest <= MAX_ALLOCATION, "loading allocated {largest} bytes at once");
+    }
+}
+
 // One property per format, so each gets its own budget of mutations.
 macro_rules! mutations_of {
     ($($name:ident => $kind:expr),* $(,)?) => {

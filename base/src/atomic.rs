@@ -96,6 +96,15 @@ pub fn write_atomically_with<E>(
     }
 }
 
+/// Whether this process writes into `dir` for the first time.
+fn first_write_to(dir: &Path) -> bool {
+    static SEEN: std::sync::Mutex<Option<std::collections::HashSet<std::path::PathBuf>>> =
+        std::sync::Mutex::new(None);
+    let mut seen = SEEN.lock().unwrap_or_else(|e| e.into_inner());
+    seen.get_or_insert_with(Default::default)
+        .insert(dir.to_path_buf())
+}
+
 /// Runs `write` on a buffered temporary file beside `path` and renames it onto `path` only
 /// when `write` succeeded; on failure the temporary is removed and `path` is untouched.
 pub fn write_atomically(
@@ -106,9 +115,12 @@ pub fn write_atomically(
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
     };
-    // A killed writer's temporary files in this folder go first (errors are not this
-    // write's concern: the folder may be shared and read-only entries are left).
-    let _ = remove_orphans(dir);
+    // A killed writer's temporary files in this folder go first, once per folder and process
+    // (a frame sequence would otherwise list its folder once per frame). Errors are not this
+    // write's concern: the folder may be shared and read-only entries are left.
+    if first_write_to(dir) {
+        let _ = remove_orphans(dir);
+    }
     let mut builder = tempfile::Builder::new();
     let prefix = temp_prefix();
     builder.prefix(&prefix).suffix(".tmp");
