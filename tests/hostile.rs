@@ -494,9 +494,27 @@ fn hostile_captures() {
         scenes::colmap::write_model(&dir.join("sparse/0"), &model, format).unwrap();
     }
     let out = d.join("out");
+    let psf = d.join("psf.npy");
+    std::fs::write(&psf, npy(&psf_dict("(9, 5, 5, 3)"), &f32s(&psf_values()))).unwrap();
     let commands = |scene: &Path| -> Vec<Vec<String>> {
         vec![
             args(&["scene", "info", &s(scene), "--downsample", "1"]),
+            args(&[
+                "experiment",
+                "llff",
+                "--scene",
+                &s(scene),
+                "--out",
+                &s(&out),
+                "--psf",
+                &s(&psf),
+                "--iters",
+                "3",
+                "--downsample",
+                "1",
+                "--device",
+                "cpu",
+            ]),
             args(&[
                 "train",
                 "--scene",
@@ -1120,9 +1138,8 @@ fn hostile_run_files() {
     }
 
     // Restorer weights: version 2 made from the shipped version 1 file.
-    let shipped =
-        std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("restore/weights/tiny.bin"))
-            .unwrap();
+    let shipped_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("restore/weights/tiny.bin");
+    let shipped = std::fs::read(&shipped_path).unwrap();
     let mut v2 = shipped.clone();
     v2[..21].copy_from_slice(b"METASPLAT-RESTORER 2\n");
     let sum = base::hash::fnv1a64(&v2);
@@ -1258,6 +1275,90 @@ fn hostile_run_files() {
         );
         std::fs::remove_dir_all(&work).unwrap();
     }
+    // The restorer's own commands: a bad PSF grid, a damaged photo among good ones, bad weights.
+    let photos = d.join("photos");
+    let val = d.join("val");
+    for (i, dir) in [&photos, &photos, &photos, &val].into_iter().enumerate() {
+        std::fs::create_dir_all(dir).unwrap();
+        image::RgbImage::from_fn(80, 80, |x, y| {
+            image::Rgb([(x * 3) as u8, (y * 3) as u8, 40 * i as u8])
+        })
+        .save(dir.join(format!("p{i}.png")))
+        .unwrap();
+    }
+    let bad_npy = d.join("bad.npy");
+    let bad_png = photos.join("p9.png");
+    let restorer_train = |psf: &Path| {
+        args(&[
+            "restorer",
+            "train",
+            "--images",
+            &s(&photos),
+            "--val",
+            &s(&val),
+            "--psf",
+            &s(psf),
+            "--config",
+            "tiny",
+            "--out",
+            &s(&d.join("w.bin")),
+            "--steps",
+            "1",
+            "--batch",
+            "1",
+        ])
+    };
+    suite.with_file(&bad_npy, &std::fs::read(&psf).unwrap()[..100], |suite| {
+        suite.case(
+            "restorer train, cut PSF",
+            &restorer_train(&bad_npy),
+            &["bad.npy"],
+        );
+        suite.case(
+            "restorer eval, cut PSF",
+            &args(&[
+                "restorer",
+                "eval",
+                "--weights",
+                &s(&shipped_path),
+                "--psf",
+                &s(&bad_npy),
+                "--val",
+                &s(&val),
+                "--out",
+                &s(&d.join("evalout")),
+            ]),
+            &["bad.npy"],
+        );
+    });
+    suite.with_file(&bad_png, b"\x89PNG\r\n\x1a\n truncated", |suite| {
+        suite.case(
+            "restorer train, damaged photo",
+            &restorer_train(&psf),
+            &["p9.png"],
+        );
+    });
+    for (label, bytes) in weights.iter().step_by(3) {
+        suite.with_file(&bad, bytes, |suite| {
+            suite.case(
+                label,
+                &args(&[
+                    "restorer",
+                    "eval",
+                    "--weights",
+                    &s(&bad),
+                    "--psf",
+                    &s(&psf),
+                    "--val",
+                    &s(&val),
+                    "--out",
+                    &s(&d.join("evalout")),
+                ]),
+                &["bad.bin"],
+            );
+        });
+    }
+
     // Sizes and values from flags, refused before any allocation or output.
     let o = s(&d.join("flagged"));
     let flagged = |flag: &str, value: &str| {

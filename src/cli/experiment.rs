@@ -57,6 +57,19 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
         inputs.push(("--psf", p));
     }
     metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
+    // Every input is read and checked before --out is made: the capture (unless an earlier
+    // run already made the aberrated copy) and the PSF grid given.
+    let aberrated = a.out.join("aberrated");
+    let capture = if aberrated.join(scenes::aberrated::RECORD_FILE).exists() {
+        None
+    } else {
+        let capture = super::open_scene(&a.scene, a.downsample)?;
+        super::decode_all(&capture)?;
+        Some(capture)
+    };
+    if let Some(p) = &a.psf {
+        aberration::PsfGrid::load_npy(p)?;
+    }
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let psf_path = match &a.psf {
@@ -71,9 +84,7 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
             path
         }
     };
-    let aberrated = a.out.join("aberrated");
-    if !aberrated.join(scenes::aberrated::RECORD_FILE).exists() {
-        let capture = super::open_scene(&a.scene, a.downsample)?;
+    if let Some(capture) = capture {
         let options = scenes::AberrateOptions {
             seed: a.seed,
             ..Default::default()

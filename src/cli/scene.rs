@@ -74,14 +74,8 @@ pub fn run(cmd: SceneCommand) -> Result<()> {
             };
             let capture = scenes::open(&a.dir, &opts)
                 .with_context(|| format!("cannot open the scene {}", a.dir.display()))?;
-            // Opening reads image headers only; info also decodes every image (one at a
-            // time per thread, nothing kept), so a damaged file is found here, not hours
-            // into training.
-            use rayon::prelude::*;
-            (0..capture.len())
-                .into_par_iter()
-                .try_for_each(|i| capture.load_image(i).map(|_| ()))
-                .with_context(|| format!("cannot open the scene {}", a.dir.display()))?;
+            // A damaged image is found here, not hours into training.
+            super::decode_all(&capture)?;
             println!("{}", capture.summary());
             println!("decoded     all {} images", capture.len());
             Ok(())
