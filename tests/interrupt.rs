@@ -209,9 +209,14 @@ fn a_killed_run_leaves_complete_files_and_resumes_to_the_same_result() {
     } else {
         vec![]
     };
-    // 2. Killed after its first checkpoint, 3. after a later one, 4. in the last steps or
-    // while writing its outputs.
-    let points: [(&[&str], u64); 3] = [(&fresh, 10), (&["--resume"], 100), (&["--resume"], 230)];
+    // 2. Killed after its first checkpoint, 3. after a later one, 4. in the last steps, 5.
+    // after the final checkpoint, while writing its outputs (PLY, test views, spiral).
+    let points: [(&[&str], u64); 4] = [
+        (&fresh, 10),
+        (&["--resume"], 100),
+        (&["--resume"], 230),
+        (&["--resume"], 240),
+    ];
     for (extra, at) in points {
         let args = train_args(&scene, &run, extra);
         let killed = run_and_kill(
