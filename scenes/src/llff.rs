@@ -142,8 +142,9 @@ impl LlffPose {
     }
 }
 
-/// Reads and validates `poses_bounds.npy`: shape `N x 17`, f64 or f32, C or Fortran order,
-/// finite values, orthonormal axes, positive sizes and focal, `0 < near < far`.
+/// Reads and validates `poses_bounds.npy`: shape `N x 17` (its size checked against the file
+/// before allocation), f64 or f32, C or Fortran order, finite values, orthonormal axes, sizes
+/// and focal within [`crate::limits`], `0 < near < far`.
 pub fn read_poses_bounds(path: &Path) -> Result<Vec<LlffPose>> {
     if !path.exists() {
         return Err(SceneError::NotFound {
