@@ -81,14 +81,15 @@ fn data_offset(path: &Path, file_len: u64) -> Result<u64, NpyError> {
             path: path.to_path_buf(),
             source,
         })?;
-    if got < 10 || &prefix[..6] != b"\x93NUMPY" {
+    if got < 8 || &prefix[..6] != b"\x93NUMPY" {
         return Err(header("missing the \\x93NUMPY magic"));
     }
     let offset = match prefix[6] {
-        1 => 10 + u16::from_le_bytes([prefix[8], prefix[9]]) as u64,
+        1 if got >= 10 => 10 + u16::from_le_bytes([prefix[8], prefix[9]]) as u64,
         2 | 3 if got >= 12 => {
             12 + u32::from_le_bytes([prefix[8], prefix[9], prefix[10], prefix[11]]) as u64
         }
+        1..=3 => return Err(header("the file ends inside its header")),
         v => return Err(header(&format!("format version {v} is not read"))),
     };
     if offset > file_len {
@@ -172,4 +173,65 @@ pub fn read_f32(path: &Path) -> Result<NpyArray<f32>, NpyError> {
 /// A float32 or float64 array as f64 (exact).
 pub fn read_f64(path: &Path) -> Result<NpyArray<f64>, NpyError> {
     read(path, f64::from, |v| v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A version 1 or 2 file with `dict` and `data`.
+    fn npy(version: u8, dict: &str, data: &[u8]) -> Vec<u8> {
+        let mut out = b"\x93NUMPY".to_vec();
+        out.extend_from_slice(&[version, 0]);
+        let header = format!("{dict}\n");
+        if version == 1 {
+            out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+        } else {
+            out.extend_from_slice(&(header.len() as u32).to_le_bytes());
+        }
+        out.extend_from_slice(header.as_bytes());
+        out.extend_from_slice(data);
+        out
+    }
+
+    fn read_bytes(bytes: &[u8]) -> Result<NpyArray<f64>, NpyError> {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.npy");
+        std::fs::write(&path, bytes).unwrap();
+        read_f64(&path)
+    }
+
+    #[test]
+    fn sizes_are_checked_against_the_file_and_the_limit() {
+        let data: Vec<u8> = [1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let dict =
+            |shape: &str| format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape}, }}");
+        for version in [1, 2] {
+            let a = read_bytes(&npy(version, &dict("(2, 3)"), &data)).unwrap();
+            assert_eq!(a.shape, [2, 3]);
+            assert_eq!(a.values, [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
+        }
+        let err = |shape: &str, data: &[u8]| {
+            read_bytes(&npy(1, &dict(shape), data))
+                .unwrap_err()
+                .to_string()
+        };
+        assert!(err("(2, 4)", &data).contains("needs 32 bytes"));
+        assert!(err("(1, 3)", &data).contains("holds 24"));
+        assert!(err("(4294967296, 4294967296)", &data).contains("1 GiB"));
+        assert!(err("(268435457,)", &data).contains("1 GiB"));
+        let bad = read_bytes(b"\x93NUMPY\x02\x00\x10")
+            .unwrap_err()
+            .to_string();
+        assert!(bad.contains("ends inside its header"), "{bad}");
+        let ints = read_bytes(&npy(
+            1,
+            "{'descr': '<i4', 'fortran_order': False, 'shape': (6,), }",
+            &data,
+        ));
+        assert!(ints.unwrap_err().to_string().contains("dtype '<i4'"));
+    }
 }
