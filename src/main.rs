@@ -15,7 +15,20 @@ fn main() -> std::process::ExitCode {
     match cli::run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            // The chain as `{e:#}` prints it, less a cause whose text the message already
+            // holds (file errors name their path and their I/O cause in one line).
+            let mut message = String::new();
+            for cause in e.chain() {
+                let text = cause.to_string();
+                if message.contains(&text) {
+                    continue;
+                }
+                if !message.is_empty() {
+                    message.push_str(": ");
+                }
+                message.push_str(&text);
+            }
+            eprintln!("error: {message}");
             std::process::ExitCode::FAILURE
         }
     }

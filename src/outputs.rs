@@ -53,10 +53,14 @@ pub fn clear_run(dir: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Creates the run folder and proves it writable before any training time is spent.
+/// Creates the run folder and proves it writable before any training time is spent; a killed
+/// run's temporary files and staging folders in it are removed.
 pub fn prepare_run_dir(dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
-    let probe = dir.join(".write-test");
+    base::remove_orphans(dir).map_err(|e| TrainError::io(dir, e))?;
+    // Named as our temporaries are, so a run killed right here leaves nothing the next run
+    // in this folder does not remove.
+    let probe = dir.join(format!("{}write-test", base::temp_prefix()));
     std::fs::write(&probe, b"ok")
         .map_err(|e| TrainError::file(dir, format!("not writable: {e}")))?;
     let _ = std::fs::remove_file(&probe);
@@ -152,7 +156,13 @@ pub fn write_run(
         )),
     };
 
-    let test_dir = dir.join("test");
+    // All or nothing: test views and spiral frames are rendered into a staging folder in the
+    // run folder and moved in when every frame is written.
+    let staging = tempfile::Builder::new()
+        .prefix(&format!("{}frames-", base::temp_prefix()))
+        .tempdir_in(dir)
+        .map_err(|e| TrainError::io(dir, e))?;
+    let test_dir = staging.path().join("test");
     std::fs::create_dir_all(&test_dir).map_err(|e| TrainError::io(&test_dir, e))?;
     let (w, h) = (data.width, data.height);
     let cameras: Vec<splat::Camera> = data.test.iter().map(|v| v.camera.clone()).collect();
@@ -175,11 +185,21 @@ pub fn write_run(
         })?;
 
     if spiral_frames > 0 {
-        let spiral_dir = dir.join("spiral");
+        let spiral_dir = staging.path().join("spiral");
         std::fs::create_dir_all(&spiral_dir).map_err(|e| TrainError::io(&spiral_dir, e))?;
         let path =
             crate::spiral::spiral(&data.capture.cameras, &data.capture.bounds, spiral_frames);
         render_frames(model, &outcome.settings, &path, &spiral_dir, device)?;
+    }
+    for name in ["test", "spiral"] {
+        let (from, to) = (staging.path().join(name), dir.join(name));
+        if !from.exists() {
+            continue;
+        }
+        if to.exists() {
+            std::fs::remove_dir_all(&to).map_err(|e| TrainError::io(&to, e))?;
+        }
+        std::fs::rename(&from, &to).map_err(|e| TrainError::io(&to, e))?;
     }
 
     let observed_psnr = match &metrics {

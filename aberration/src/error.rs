@@ -10,6 +10,8 @@ pub enum AberrationError {
         #[source]
         source: std::io::Error,
     },
+    #[error(transparent)]
+    BadNpy(base::npy::NpyError),
     #[error("{path}: not a valid PSF grid: {problem}")]
     BadPsfFile { path: PathBuf, problem: String },
     #[error("invalid PSF grid: {0}")]

@@ -8,6 +8,12 @@
 use crate::error::{AberrationError, Result};
 use std::path::Path;
 
+/// The most negative energy a PSF may hold, as a fraction of its positive energy. Measured PSFs
+/// carry small negative noise after background subtraction; up to this much is clamped to
+/// zero (with a warning when read from a file) before normalising, more is refused as not a
+/// PSF.
+pub const MAX_NEGATIVE_FRACTION: f64 = 0.01;
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct PsfGrid {
     grid: usize,
@@ -18,8 +24,14 @@ pub struct PsfGrid {
 
 impl PsfGrid {
     /// Builds a grid from planar kernels (`[(g*3 + c)][y][x]`), validating and normalising
-    /// every kernel to unit sum.
+    /// every kernel to unit sum. Small negative values (background-subtraction noise, see
+    /// [`MAX_NEGATIVE_FRACTION`]) are clamped to zero; more is an error.
     pub fn from_planar(grid: usize, size: usize, data: Vec<f32>) -> Result<Self> {
+        Self::from_planar_counting(grid, size, data).map(|(g, _)| g)
+    }
+
+    /// [`Self::from_planar`], also returning how many negative values were clamped.
+    fn from_planar_counting(grid: usize, size: usize, data: Vec<f32>) -> Result<(Self, usize)> {
         if grid == 0 || size == 0 {
             return Err(AberrationError::BadPsf(format!(
                 "grid {grid} and size {size} must both be positive"
@@ -33,12 +45,16 @@ impl PsfGrid {
             )));
         }
         let mut g = Self { grid, size, data };
-        g.normalise()?;
-        Ok(g)
+        let clamped = g.normalise()?;
+        Ok((g, clamped))
     }
 
     /// Builds a grid from the file layout `(G·G, K, K, 3)`.
     pub fn from_interleaved(grid: usize, size: usize, hwc: &[f32]) -> Result<Self> {
+        Self::from_interleaved_counting(grid, size, hwc).map(|(g, _)| g)
+    }
+
+    fn from_interleaved_counting(grid: usize, size: usize, hwc: &[f32]) -> Result<(Self, usize)> {
         let kk = size * size;
         if hwc.len() != grid * grid * kk * 3 {
             return Err(AberrationError::BadPsf(format!(
@@ -54,7 +70,7 @@ impl PsfGrid {
                 }
             }
         }
-        Self::from_planar(grid, size, data)
+        Self::from_planar_counting(grid, size, data)
     }
 
     /// The same PSF at every grid point (a spatially invariant blur).
@@ -75,8 +91,10 @@ impl PsfGrid {
         Self::uniform(grid, size, [&k, &k, &k]).expect("a delta is a valid PSF")
     }
 
-    fn normalise(&mut self) -> Result<()> {
+    /// Checks and normalises every kernel; returns how many negative values were clamped.
+    fn normalise(&mut self) -> Result<usize> {
         let kk = self.size * self.size;
+        let mut clamped = 0;
         for (i, kernel) in self.data.chunks_mut(kk).enumerate() {
             let (g, c) = (i / 3, i % 3);
             if let Some(bad) = kernel.iter().find(|v| !v.is_finite()) {
@@ -84,19 +102,34 @@ impl PsfGrid {
                     "PSF {g} channel {c} contains a non-finite value ({bad})"
                 )));
             }
-            let sum: f64 = kernel.iter().map(|v| *v as f64).sum();
-            if sum.is_nan() || sum <= 0.0 {
+            let positive: f64 = kernel.iter().map(|v| v.max(0.0) as f64).sum();
+            let negative: f64 = kernel.iter().map(|v| v.min(0.0) as f64).sum();
+            if positive <= 0.0 {
                 return Err(AberrationError::BadPsf(format!(
-                    "PSF {g} channel {c} sums to {sum}; a PSF must have positive total energy"
+                    "PSF {g} channel {c} sums to {}; a PSF must have positive total energy",
+                    positive + negative
                 )));
             }
+            if -negative > MAX_NEGATIVE_FRACTION * positive {
+                return Err(AberrationError::BadPsf(format!(
+                    "PSF {g} channel {c} has negative values summing to {:.3}% of its positive \
+                     energy; at most {}% (background-subtraction noise) is accepted",
+                    -negative / positive * 100.0,
+                    MAX_NEGATIVE_FRACTION * 100.0
+                )));
+            }
+            for v in kernel.iter_mut().filter(|v| **v < 0.0) {
+                *v = 0.0;
+                clamped += 1;
+            }
+            let sum = positive;
             // Already-normalised kernels are left bit-exact, so a file round trip is too.
             if (sum - 1.0).abs() > 1e-6 {
                 let inv = (1.0 / sum) as f32;
                 kernel.iter_mut().for_each(|v| *v *= inv);
             }
         }
-        Ok(())
+        Ok(clamped)
     }
 
     pub fn grid(&self) -> usize {
@@ -140,18 +173,21 @@ impl PsfGrid {
     }
 
     /// Reads the paper's `psf.npy` layout. float32 and float64 are accepted; anything else,
-    /// a shape that is not `(G·G, K, K, 3)`, non-finite values or a zero-sum PSF is an error
-    /// naming the file.
+    /// a shape that is not `(G·G, K, K, 3)`, a shape whose data exceeds
+    /// [`base::limits::MAX_NPY_BYTES`] or the bytes the file holds, non-finite values or a
+    /// zero-sum PSF is an error naming the file. Sizes are checked before anything is
+    /// allocated (see [`base::npy`]).
     pub fn load_npy(path: &Path) -> Result<Self> {
         let bad = |problem: String| AberrationError::BadPsfFile {
             path: path.to_path_buf(),
             problem,
         };
-        let file = std::fs::File::open(path).map_err(|e| AberrationError::io(path, e))?;
-        let npy = npyz::NpyFile::new(std::io::BufReader::new(file))
-            .map_err(|e| bad(format!("not a readable .npy file ({e})")))?;
-        let shape = npy.shape().to_vec();
-        if npy.order() != npyz::Order::C {
+        let npy = base::npy::read_f32(path).map_err(|e| match e {
+            base::npy::NpyError::Io { path, source } => AberrationError::Io { path, source },
+            other => AberrationError::BadNpy(other),
+        })?;
+        let shape = &npy.shape;
+        if npy.fortran {
             return Err(bad("Fortran-ordered arrays are not supported".into()));
         }
         if shape.len() != 4 || shape[3] != 3 || shape[1] != shape[2] || shape[1] == 0 {
@@ -159,31 +195,26 @@ impl PsfGrid {
                 "shape {shape:?}; expected (G*G, K, K, 3) with square K x K PSFs"
             )));
         }
+        // The data size was checked against the file, so these fit in memory already.
         let gg = shape[0] as usize;
-        let grid = (gg as f64).sqrt().round() as usize;
+        let grid = gg.isqrt();
         if grid == 0 || grid * grid != gg {
             return Err(bad(format!(
                 "{gg} PSFs do not form a square grid (first axis must be G*G)"
             )));
         }
         let size = shape[1] as usize;
-        let dtype = npy.dtype();
-        let descr = dtype.descr();
-        let values: Vec<f32> = match descr.as_str() {
-            "'<f4'" | "'>f4'" => npy
-                .into_vec::<f32>()
-                .map_err(|e| bad(format!("truncated or unreadable data ({e})")))?,
-            "'<f8'" | "'>f8'" => npy
-                .into_vec::<f64>()
-                .map_err(|e| bad(format!("truncated or unreadable data ({e})")))?
-                .into_iter()
-                .map(|v| v as f32)
-                .collect(),
-            other => {
-                return Err(bad(format!("dtype {other}; expected float32 (or float64)")));
-            }
-        };
-        Self::from_interleaved(grid, size, &values).map_err(|e| bad(e.to_string()))
+        let (psf, clamped) = Self::from_interleaved_counting(grid, size, &npy.values)
+            .map_err(|e| bad(e.to_string()))?;
+        if clamped > 0 {
+            eprintln!(
+                "warning: {}: {clamped} small negative PSF values (within {}% of each PSF's \
+                 energy) clamped to zero",
+                path.display(),
+                MAX_NEGATIVE_FRACTION * 100.0
+            );
+        }
+        Ok(psf)
     }
 
     /// Writes the paper's layout atomically (temporary file renamed into place).

@@ -183,3 +183,72 @@ fn resolution_mapping_preserves_energy_centre_and_width() {
     let s: f64 = up.kernel(0, 0).iter().map(|v| *v as f64).sum();
     assert!((s - 1.0).abs() < 1e-5);
 }
+
+#[test]
+fn small_negative_noise_is_clamped_and_more_is_refused() {
+    // PSF 1, red channel: 9 values of 1, then a negative value of 5% or 0.5% of that energy.
+    let ones = vec![1.0f32; 4 * 9 * 3];
+    let at = (9 + 4) * 3; // PSF 1, pixel 4, channel 0
+    let mut big = ones.clone();
+    big[at] = -0.45;
+    let msg = load_err("negative.npy", &[4, 3, 3, 3], &big);
+    assert!(
+        msg.contains("PSF 1 channel 0") && msg.contains("negative") && msg.contains("1%"),
+        "{msg}"
+    );
+    let mut small = ones.clone();
+    small[at] = -0.04;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("noise.npy");
+    write_npy(&path, &[4, 3, 3, 3], &small);
+    let grid = PsfGrid::load_npy(&path).unwrap();
+    let k = grid.kernel(1, 0);
+    assert!(k.iter().all(|v| *v >= 0.0), "{k:?}");
+    assert_eq!(k[4], 0.0);
+    assert!((k.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+    // The other kernels are untouched: 9 equal values.
+    assert!(
+        grid.kernel(1, 1)
+            .iter()
+            .all(|v| (*v - 1.0 / 9.0).abs() < 1e-7)
+    );
+}
+
+#[test]
+fn shapes_that_overflow_or_claim_more_than_the_file_are_refused_before_allocation() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("good.npy");
+    write_npy(&good, &[4, 3, 3, 3], &vec![1.0f32; 108]);
+    let bytes = std::fs::read(&good).unwrap();
+    let text = String::from_utf8_lossy(&bytes[10..]).to_string();
+    for (shape, expect) in [
+        ("(1, 4294967296, 4294967296, 3)", "1 GiB"),
+        ("(18446744073709551615, 3, 3, 3)", "1 GiB"),
+        ("(100000, 300, 300, 3)", "1 GiB"),
+        ("(9, 3, 3, 3)", "needs 972 bytes"),
+        ("(1, 3, 3, 3)", "needs 108 bytes"),
+    ] {
+        // Same header length: pad the shape into the same number of characters.
+        let open = text.find("'shape': (").unwrap() + "'shape': ".len();
+        let close = open + text[open..].find(')').unwrap() + 1;
+        let header = format!("{}{shape}{}", &text[..open], &text[close..]);
+        let pad = header.find('}').unwrap() + 1;
+        let old_len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+        let mut h = header[..pad].to_string();
+        while h.len() < old_len - 1 {
+            h.push(' ');
+        }
+        h.push('\n');
+        let mut file = bytes[..8].to_vec();
+        file.extend_from_slice(&(h.len() as u16).to_le_bytes());
+        file.extend_from_slice(h.as_bytes());
+        file.extend_from_slice(&bytes[10 + old_len..]);
+        let path = dir.path().join("lying.npy");
+        std::fs::write(&path, &file).unwrap();
+        let msg = PsfGrid::load_npy(&path).unwrap_err().to_string();
+        assert!(
+            msg.contains("lying.npy") && msg.contains(expect),
+            "{shape}: {msg}"
+        );
+    }
+}

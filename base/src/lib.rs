@@ -5,12 +5,17 @@
 pub mod atomic;
 pub mod error;
 pub mod hash;
+pub mod limits;
 pub mod metrics;
+pub mod npy;
 pub mod rng;
 #[doc(hidden)]
 pub mod ssim_reference;
 
-pub use atomic::{WriteError, write_atomically, write_atomically_with, write_bytes_atomically};
+pub use atomic::{
+    WriteError, remove_orphans, temp_prefix, write_atomically, write_atomically_with,
+    write_bytes_atomically,
+};
 pub use error::BaseError;
 pub use metrics::{psnr, psnr_rgb, ssim, ssim_planar, ssim_value};
 pub use rng::{SplitMix64, mix64};

@@ -1,5 +1,10 @@
 //! The weights file: a short JSON header (configuration, the PSF grid the network was trained
 //! for, how it was made) followed by burn's burnpack record. One file, written atomically.
+//!
+//! Layout: magic line, u64 header length, JSON header, record, and (version 2) the FNV-1a
+//! checksum of everything before it, little-endian. Version 1 files (no checksum, such as the
+//! shipped `tiny.bin`) still load; in version 2 a flipped byte or appended bytes are refused
+//! naming the file.
 
 use crate::config::RestorerConfig;
 use crate::error::{RestoreError, Result};
@@ -11,7 +16,11 @@ use burn::tensor::{Bytes, Device};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-const MAGIC: &[u8] = b"METASPLAT-RESTORER 1\n";
+const MAGIC: &[u8] = b"METASPLAT-RESTORER 2\n";
+/// The first version, without the checksum; still read.
+const MAGIC_V1: &[u8] = b"METASPLAT-RESTORER 1\n";
+/// Length of the trailing checksum of a version 2 file.
+const CHECKSUM: usize = 8;
 
 /// Which PSF grid a network was trained for: its shape and a hash of its values.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -80,11 +89,13 @@ pub fn save(net: &RestorerNet, header: &Header, path: &Path) -> Result<String> {
         .into_record()
         .into_bytes()
         .map_err(|e| bad(path, format!("cannot serialise the record: {e}")))?;
-    let mut bytes = Vec::with_capacity(MAGIC.len() + 8 + json.len() + record.len());
+    let mut bytes = Vec::with_capacity(MAGIC.len() + 8 + json.len() + record.len() + CHECKSUM);
     bytes.extend_from_slice(MAGIC);
     bytes.extend_from_slice(&(json.len() as u64).to_le_bytes());
     bytes.extend_from_slice(&json);
     bytes.extend_from_slice(&record);
+    let sum = base::hash::fnv1a64(&bytes);
+    bytes.extend_from_slice(&sum.to_le_bytes());
     base::write_bytes_atomically(path, &bytes)
         .map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
     Ok(fnv1a(&bytes))
@@ -98,9 +109,24 @@ pub fn read(path: &Path) -> Result<(Header, Vec<u8>)> {
 
 /// Splits the bytes of a weights file (`path` names it in errors) into header and record.
 pub fn parse(bytes: &[u8], path: &Path) -> Result<(Header, Vec<u8>)> {
-    if !bytes.starts_with(MAGIC) || bytes.len() < MAGIC.len() + 8 {
+    let bytes = if bytes.starts_with(MAGIC) {
+        let Some(body_len) = bytes.len().checked_sub(CHECKSUM) else {
+            return Err(bad(path, "truncated: no checksum"));
+        };
+        let (body, sum) = bytes.split_at(body_len);
+        let stored = u64::from_le_bytes(sum.try_into().map_err(|_| bad(path, "no checksum"))?);
+        if body.len() < MAGIC.len() + 8 || base::hash::fnv1a64(body) != stored {
+            return Err(bad(
+                path,
+                "checksum mismatch: the file is damaged, truncated or has bytes appended",
+            ));
+        }
+        body
+    } else if bytes.starts_with(MAGIC_V1) && bytes.len() >= MAGIC_V1.len() + 8 {
+        bytes
+    } else {
         return Err(bad(path, "not a metasplat restorer weights file"));
-    }
+    };
     let n = u64::from_le_bytes(
         bytes[MAGIC.len()..MAGIC.len() + 8]
             .try_into()

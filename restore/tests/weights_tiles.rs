@@ -105,6 +105,38 @@ fn weights_of_another_config_or_psf_grid_are_refused_naming_both() {
     assert!(e.contains("do not fit config 'small'"), "{e}");
 }
 
+#[test]
+fn a_flipped_byte_or_appended_bytes_are_refused_and_version_1_still_loads() {
+    let device = Device::flex();
+    let cfg = RestorerConfig::tiny();
+    let net = RestorerNet::new(&cfg, &device);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("w.bin");
+    weights::save(&net, &header(&cfg, &psf_a()), &path).unwrap();
+    let good = std::fs::read(&path).unwrap();
+    assert!(weights::load(&path, &device, Some(&cfg), None).is_ok());
+    // A flip in the header, in the record and in the checksum; then appended bytes.
+    let n = good.len();
+    for at in [40, n / 2, n - 1] {
+        let mut bad = good.clone();
+        bad[at] ^= 0x10;
+        let e = weights::parse(&bad, &path).err().unwrap().to_string();
+        assert!(
+            e.contains("w.bin") && e.contains("checksum"),
+            "byte {at}: {e}"
+        );
+    }
+    let mut long = good.clone();
+    long.extend_from_slice(b"garbage");
+    let e = weights::parse(&long, &path).err().unwrap().to_string();
+    assert!(e.contains("w.bin") && e.contains("checksum"), "{e}");
+    // Version 1: the same bytes without the checksum and with the old magic line.
+    let mut v1 = good[..n - 8].to_vec();
+    v1[..21].copy_from_slice(b"METASPLAT-RESTORER 1\n");
+    let (h, _) = weights::parse(&v1, &path).unwrap();
+    assert_eq!(h.config.name, "tiny");
+}
+
 /// A local stand-in for the network: 3×3 zero-padded box filter of the first three planes.
 fn box3(x: &Planes) -> Planes {
     let (h, w) = (x.h, x.w);

@@ -60,23 +60,59 @@ impl AberrationRecord {
         }
     }
 
+    /// The values a record may hold: a sensor of 1 to [`crate::limits::MAX_IMAGE_SIDE`] px,
+    /// finite non-negative noise, images of a valid size, and a PSF file inside the capture.
+    fn check(&self) -> std::result::Result<(), String> {
+        if let Some(px) = self.sensor_px
+            && !(1..=crate::limits::MAX_IMAGE_SIDE as usize).contains(&px)
+        {
+            return Err(format!(
+                "sensor_px {px}; it must be 1 to {}",
+                crate::limits::MAX_IMAGE_SIDE
+            ));
+        }
+        for (name, v) in [
+            ("noise_gaussian_sigma", self.noise_gaussian_sigma),
+            ("noise_poisson_scale", self.noise_poisson_scale),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("{name} {v}; it must be finite and not negative"));
+            }
+        }
+        crate::limits::check_size(self.width as f64, self.height as f64)?;
+        let psf = Path::new(&self.psf);
+        if psf.is_absolute()
+            || psf
+                .components()
+                .any(|c| !matches!(c, std::path::Component::Normal(_)))
+        {
+            return Err(format!(
+                "psf {:?} must name a file inside the capture folder",
+                self.psf
+            ));
+        }
+        Ok(())
+    }
+
     /// Reads `DIR/aberration.json`; `Ok(None)` when the capture has none (a clean capture).
     pub fn read(capture_dir: &Path) -> Result<Option<AberrationRecord>> {
         let path = capture_dir.join(RECORD_FILE);
         if !path.exists() {
             return Ok(None);
         }
+        SceneError::check_file_size(&path, base::limits::MAX_TEXT_FILE_BYTES)?;
         let text = std::fs::read_to_string(&path).map_err(|e| SceneError::io(&path, e))?;
         let record: AberrationRecord = serde_json::from_str(&text)
             .map_err(|e| SceneError::invalid(&path, format!("not a valid record: {e}")))?;
         record.blur_mode(&path)?;
+        record.check().map_err(|p| SceneError::invalid(&path, p))?;
         Ok(Some(record))
     }
 
     /// Loads the PSF grid named by the record.
     pub fn load_psf(&self, capture_dir: &Path) -> Result<PsfGrid> {
         let path = capture_dir.join(&self.psf);
-        PsfGrid::load_npy(&path).map_err(|e| SceneError::invalid(&path, e.to_string()))
+        PsfGrid::load_npy(&path).map_err(SceneError::Psf)
     }
 }
 
@@ -186,8 +222,7 @@ pub fn make_aberrated(
     options: &AberrateOptions,
     on_image: &(dyn Fn() + Sync),
 ) -> Result<AberrateReport> {
-    let psf =
-        PsfGrid::load_npy(psf_path).map_err(|e| SceneError::invalid(psf_path, e.to_string()))?;
+    let psf = PsfGrid::load_npy(psf_path).map_err(SceneError::Psf)?;
     let Some(first) = capture.cameras.first() else {
         return Err(SceneError::NoImages {
             dir: capture.image_dir.clone(),

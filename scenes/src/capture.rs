@@ -16,6 +16,7 @@ use crate::camera::{Bounds, Camera};
 use crate::colmap::{self, ColmapModel, ModelFormat};
 use crate::error::{Result, SceneError};
 use crate::images::{self, Photo};
+use crate::limits;
 use crate::llff::{self, POSES_BOUNDS};
 use crate::points::{self, Normalization, PointCloud};
 use crate::split::{self, Split};
@@ -245,6 +246,9 @@ fn open_llff(root: &Path, options: &OpenOptions) -> Result<Capture> {
     let (width, height) = images::common_size(&image_paths)?;
     let mut cameras = Vec::with_capacity(poses.len());
     for (row, (pose, path)) in poses.iter().zip(&image_paths).enumerate() {
+        limits::check_downsample((pose.width, pose.height), (width, height)).map_err(|p| {
+            SceneError::invalid(path, format!("{p} (row {row} of {})", poses_path.display()))
+        })?;
         let image_aspect = width as f64 / height as f64;
         let pose_aspect = pose.width / pose.height;
         // Downsampling rounds sizes, so allow a pixel's worth of aspect drift, no more.
@@ -382,6 +386,16 @@ fn open_colmap(root: &Path, sparse: &Path, options: &OpenOptions) -> Result<Capt
         }
         let (w, h) = images::image_size(&path)?;
         let full = image.camera(model_camera);
+        limits::check_downsample((full.width as f64, full.height as f64), (w, h)).map_err(|p| {
+            SceneError::invalid(
+                &path,
+                format!(
+                    "{p} (camera {} of {})",
+                    model_camera.id,
+                    images_path.display()
+                ),
+            )
+        })?;
         let aspect_drift = (w as f64 * full.height as f64) / (h as f64 * full.width as f64) - 1.0;
         if aspect_drift.abs() > 1.0 / h.min(w) as f64 + 1e-9 {
             return Err(SceneError::invalid(

@@ -57,6 +57,10 @@ pub enum SceneError {
         line: usize,
         problem: String,
     },
+    #[error(transparent)]
+    Psf(aberration::AberrationError),
+    #[error(transparent)]
+    Npy(base::npy::NpyError),
     #[error("{}: {problem}", path.display())]
     Invalid { path: PathBuf, problem: String },
 }
@@ -64,6 +68,29 @@ pub enum SceneError {
 pub type Result<T> = std::result::Result<T, SceneError>;
 
 impl SceneError {
+    /// Refuses a file larger than `limit` before it is read whole.
+    pub(crate) fn check_file_size(path: &std::path::Path, limit: u64) -> Result<()> {
+        let len = std::fs::metadata(path)
+            .map_err(|e| match e.kind() {
+                std::io::ErrorKind::NotFound => SceneError::NotFound {
+                    path: path.to_path_buf(),
+                    what: "file".into(),
+                },
+                _ => SceneError::io(path, e),
+            })?
+            .len();
+        if len > limit {
+            return Err(SceneError::invalid(
+                path,
+                format!(
+                    "{len} bytes, more than the {} this reader accepts",
+                    base::limits::describe_bytes(limit)
+                ),
+            ));
+        }
+        Ok(())
+    }
+
     pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         SceneError::Io {
             path: path.into(),

@@ -13,6 +13,7 @@ pub mod capture;
 pub mod colmap;
 pub mod error;
 pub mod images;
+pub mod limits;
 pub mod llff;
 pub mod points;
 pub mod split;

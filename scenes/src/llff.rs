@@ -16,8 +16,6 @@
 //! exactly and LLFF poses share the world frame of `sparse/0/points3D.bin`. The principal point
 //! is the image centre; focal lengths scale with the image size relative to `[height, width]`.
 
-use std::fs::File;
-use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DVec3};
@@ -144,19 +142,22 @@ impl LlffPose {
     }
 }
 
-/// Reads and validates `poses_bounds.npy`: shape `N x 17`, f64 or f32, C or Fortran order,
-/// finite values, orthonormal axes, positive sizes and focal, `0 < near < far`.
+/// Reads and validates `poses_bounds.npy`: shape `N x 17` (its size checked against the file
+/// before allocation), f64 or f32, C or Fortran order, finite values, orthonormal axes, sizes
+/// and focal within [`crate::limits`], `0 < near < far`.
 pub fn read_poses_bounds(path: &Path) -> Result<Vec<LlffPose>> {
-    let file = File::open(path).map_err(|e| match e.kind() {
-        std::io::ErrorKind::NotFound => SceneError::NotFound {
+    if !path.exists() {
+        return Err(SceneError::NotFound {
             path: path.to_path_buf(),
             what: "LLFF poses file".into(),
-        },
-        _ => SceneError::io(path, e),
+        });
+    }
+    // Sizes are checked against the file and base::limits::MAX_NPY_BYTES before allocation.
+    let npy = base::npy::read_f64(path).map_err(|e| match e {
+        base::npy::NpyError::Io { path, source } => SceneError::io(path, source),
+        other => SceneError::Npy(other),
     })?;
-    let npy = npyz::NpyFile::new(BufReader::new(file))
-        .map_err(|e| SceneError::invalid(path, format!("not a readable .npy file: {e}")))?;
-    let shape = npy.shape().to_vec();
+    let shape = npy.shape;
     if shape.len() != 2 || shape[1] != 17 {
         return Err(SceneError::invalid(
             path,
@@ -164,27 +165,8 @@ pub fn read_poses_bounds(path: &Path) -> Result<Vec<LlffPose>> {
         ));
     }
     let rows = shape[0] as usize;
-    let fortran = npy.order() == npyz::Order::Fortran;
-    let dtype = npy.dtype();
-    let values: Vec<f64> = match npy.try_data::<f64>() {
-        Ok(data) => data.collect::<std::io::Result<Vec<f64>>>(),
-        Err(npy) => match npy.try_data::<f32>() {
-            Ok(data) => data.map(|v| v.map(f64::from)).collect(),
-            Err(_) => {
-                return Err(SceneError::invalid(
-                    path,
-                    format!("dtype {dtype:?} is not a float array"),
-                ));
-            }
-        },
-    }
-    .map_err(|e| SceneError::invalid(path, format!("cannot read array data: {e}")))?;
-    if values.len() != rows * 17 {
-        return Err(SceneError::Truncated {
-            path: path.to_path_buf(),
-            what: format!("{rows} x 17 values, found {}", values.len()),
-        });
-    }
+    let fortran = npy.fortran;
+    let values = npy.values;
     let mut poses = Vec::with_capacity(rows);
     for r in 0..rows {
         let row: Vec<f64> = (0..17)
@@ -226,6 +208,9 @@ fn validate(pose: &LlffPose) -> std::result::Result<(), String> {
             pose.height, pose.width, pose.focal
         ));
     }
+    crate::limits::check_size(pose.width, pose.height)?;
+    let (w, h) = (pose.width, pose.height);
+    crate::limits::check_intrinsics(w, h, pose.focal, pose.focal, w / 2.0, h / 2.0)?;
     if !(pose.bounds.near > 0.0 && pose.bounds.far > pose.bounds.near) {
         return Err(format!(
             "bounds near {} far {} must satisfy 0 < near < far",
@@ -287,8 +272,10 @@ impl LlffWriter {
             _ => Path::new("."),
         };
         std::fs::create_dir_all(parent).map_err(|e| SceneError::io(parent, e))?;
+        // What a killed run left beside its scene goes before this one stages its own.
+        base::remove_orphans(parent).map_err(|e| SceneError::io(parent, e))?;
         let staging = tempfile::Builder::new()
-            .prefix(".partial-scene-")
+            .prefix(&format!("{}scene-", base::temp_prefix()))
             .tempdir_in(parent)
             .map_err(|e| SceneError::io(parent, e))?;
         let images = staging.path().join(image_folder_name(downsample));

@@ -259,7 +259,10 @@ fn read_gzipped(bytes: &[u8]) -> Result<(Header, Vec<u8>), String> {
         .map_err(|e| format!("not an SPZ file (no gzip stream with a header): {e}"))?;
     let h = check_header(&header, 2..=3)?;
     let expected: usize = stream_sizes(h.0, h.1, h.2).iter().sum();
-    let mut body = Vec::with_capacity(expected);
+    // The declared count does not size memory by itself: deflate expands at most 1032:1, so
+    // no more is reserved than the compressed bytes could hold; a lying count then fails on
+    // the data actually decompressed.
+    let mut body = Vec::with_capacity(expected.min(bytes.len().saturating_mul(1032)));
     dec.take(expected as u64 + 1)
         .read_to_end(&mut body)
         .map_err(|e| format!("corrupt compressed data: {e}"))?;
@@ -303,7 +306,10 @@ fn read_v4(bytes: &[u8]) -> Result<(Header, Vec<u8>), String> {
         .checked_add(16 * streams)
         .filter(|&e| toc >= HEADER_V4 && e <= bytes.len())
         .ok_or_else(|| format!("table of contents at byte {toc} lies outside the file"))?;
-    let mut body = Vec::with_capacity(sizes.iter().sum());
+    // As for gzip, the reservation is bounded by the data there is (ZSTD's run-length blocks
+    // can expand far more; the vector then grows as the data really decompresses).
+    let total: usize = sizes.iter().sum();
+    let mut body = Vec::with_capacity(total.min(bytes.len().saturating_mul(1032)));
     let mut at = data_start;
     for (k, &expected) in sizes.iter().enumerate().take(streams) {
         let entry = &bytes[toc + 16 * k..toc + 16 * k + 16];

@@ -133,6 +133,19 @@ fn aberrated_capture(
         inputs.push(("--psf", p));
     }
     metasplat::guard::refuse_overwrite("--out", out, &inputs)?;
+    // Every input is read and checked before --out is made: the capture (unless an earlier
+    // run already made the aberrated copy) and the PSF grid given.
+    let aberrated = out.join("aberrated");
+    let capture = if aberrated.join(scenes::aberrated::RECORD_FILE).exists() {
+        None
+    } else {
+        let capture = super::open_scene(scene, downsample)?;
+        super::decode_all(&capture)?;
+        Some(capture)
+    };
+    if let Some(p) = psf {
+        aberration::PsfGrid::load_npy(p)?;
+    }
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let psf_path = match psf {
         Some(p) => p.to_path_buf(),
@@ -146,9 +159,7 @@ fn aberrated_capture(
             path
         }
     };
-    let aberrated = out.join("aberrated");
-    if !aberrated.join(scenes::aberrated::RECORD_FILE).exists() {
-        let capture = super::open_scene(scene, downsample)?;
+    if let Some(capture) = capture {
         let options = scenes::AberrateOptions {
             seed,
             ..Default::default()

@@ -100,6 +100,18 @@ pub fn default_downsample(dir: &std::path::Path) -> (u32, String) {
     (d, format!("Using {} of {}.", folder, dir.display()))
 }
 
+/// Decodes every image of `capture` (one at a time per thread, nothing kept): opening a
+/// capture reads image headers only, so this is what finds a damaged image before a command
+/// makes its output.
+pub fn decode_all(capture: &scenes::Capture) -> anyhow::Result<()> {
+    use anyhow::Context;
+    use rayon::prelude::*;
+    (0..capture.len())
+        .into_par_iter()
+        .try_for_each(|i| capture.load_image(i).map(|_| ()))
+        .with_context(|| format!("cannot open the scene {}", capture.root.display()))
+}
+
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Psf(c) => psf::run(c),

@@ -38,7 +38,7 @@ pub struct RenderArgs {
     pub width: u32,
     #[arg(long, default_value_t = 480, value_parser = clap::value_parser!(u32).range(8..=8192))]
     pub height: u32,
-    /// Vertical field of view (degrees) without --scene.
+    /// Field of view (degrees) across the shorter image side, without --scene.
     #[arg(long, default_value_t = 50.0, value_parser = metasplat::flags::field_angle, allow_negative_numbers = true)]
     pub fov: f64,
     /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu`.
@@ -89,8 +89,11 @@ pub fn run(a: RenderArgs) -> Result<()> {
     };
     std::fs::create_dir_all(&parent)
         .with_context(|| format!("cannot create {}", parent.display()))?;
+    // A killed render's staging folder is removed before this one stages its own.
+    base::remove_orphans(&parent)
+        .with_context(|| format!("cannot clear old staging folders in {}", parent.display()))?;
     let staging = tempfile::Builder::new()
-        .prefix(".metasplat-frames-")
+        .prefix(&format!("{}frames-", base::temp_prefix()))
         .tempdir_in(&parent)
         .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
     let staged = render_named(&model, &settings, &cameras, staging.path(), &device)?;

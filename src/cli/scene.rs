@@ -78,7 +78,10 @@ pub fn run(cmd: SceneCommand) -> Result<()> {
             };
             let capture = scenes::open(&a.dir, &opts)
                 .with_context(|| format!("cannot open the scene {}", a.dir.display()))?;
+            // A damaged image is found here, not hours into training.
+            super::decode_all(&capture)?;
             println!("{}", capture.summary());
+            println!("decoded     all {} images", capture.len());
             Ok(())
         }
         SceneCommand::Aberrate(a) => aberrate(a),

@@ -32,7 +32,7 @@ pub struct ViewArgs {
     /// Open at EYE looking at TARGET, as "ex,ey,ez,tx,ty,tz".
     #[arg(long, value_parser = metasplat::flags::camera_pose, allow_hyphen_values = true)]
     pub camera: Option<[f32; 6]>,
-    /// Vertical field of view (degrees) of the free camera.
+    /// Field of view (degrees) of the free camera, across the shorter side of the window.
     #[arg(long, default_value_t = 50.0, value_parser = metasplat::flags::field_angle, allow_negative_numbers = true)]
     pub fov: f64,
     /// Window size; at a capture camera with --screenshot, the capture's image size.

@@ -25,7 +25,8 @@ pub struct ViewCamera {
     pub distance: f32,
     pub yaw: f32,
     pub pitch: f32,
-    /// Vertical field of view, radians.
+    /// Field of view across the shorter side of the image, radians (vertical in a landscape
+    /// window), so a framing holds at any aspect ratio.
     pub fov_y: f32,
     /// Distance scale of the scene (its framing distance): panning, flying and the zoom limit
     /// are relative to it, so the controls feel the same at any scene size.
@@ -106,12 +107,18 @@ impl ViewCamera {
         if let Some(c) = &self.exact {
             return c.resized(width, height);
         }
+        // In a portrait view the field of view is the horizontal one: widen the vertical one.
+        let fov = if width < height {
+            2.0 * ((0.5 * self.fov_y).tan() * height as f32 / width as f32).atan()
+        } else {
+            self.fov_y
+        };
         Camera::orbit(
             self.target,
             self.distance,
             self.yaw,
             self.pitch,
-            self.fov_y,
+            fov,
             width,
             height,
         )

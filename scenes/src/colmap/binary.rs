@@ -91,6 +91,9 @@ impl<'a> Reader<'a> {
 }
 
 fn read_all(path: &Path) -> Result<Vec<u8>> {
+    if path.is_file() {
+        SceneError::check_file_size(path, base::limits::MAX_MODEL_FILE_BYTES)?;
+    }
     std::fs::read(path).map_err(|e| match e.kind() {
         std::io::ErrorKind::NotFound => SceneError::NotFound {
             path: path.to_path_buf(),

@@ -11,6 +11,7 @@ pub use model::{
 };
 
 use crate::error::{Result, SceneError};
+use crate::limits;
 
 /// Which on-disk flavour a model uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -54,25 +55,69 @@ fn format_of(path: &Path) -> Result<ModelFormat> {
     }
 }
 
+/// Reads a cameras file and checks every camera against [`crate::limits`].
 pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>> {
-    match format_of(path)? {
+    let cameras = match format_of(path)? {
         ModelFormat::Binary => binary::read_cameras(path),
         ModelFormat::Text => text::read_cameras(path),
+    }?;
+    for c in &cameras {
+        check_camera(c).map_err(|p| SceneError::invalid(path, format!("camera {}: {p}", c.id)))?;
+    }
+    Ok(cameras)
+}
+
+fn check_camera(c: &ColmapCamera) -> std::result::Result<(), String> {
+    let (w, h) = (c.width as f64, c.height as f64);
+    limits::check_size(w, h)?;
+    let k = c.intrinsics();
+    limits::check_intrinsics(w, h, k.fx, k.fy, k.cx, k.cy)?;
+    match &k.distortion {
+        Some(d) => limits::check_distortion(d),
+        None => Ok(()),
     }
 }
 
+/// Reads an images file and checks every pose against [`crate::limits`].
 pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>> {
-    match format_of(path)? {
+    let images = match format_of(path)? {
         ModelFormat::Binary => binary::read_images(path),
         ModelFormat::Text => text::read_images(path),
+    }?;
+    for im in &images {
+        let norm = im.qvec.iter().map(|q| q * q).sum::<f64>().sqrt();
+        if !(norm.is_finite() && norm >= limits::MIN_QUATERNION_NORM) {
+            return Err(SceneError::invalid(
+                path,
+                format!(
+                    "image {}: rotation quaternion {:?} is not finite or has a norm below {}",
+                    im.name,
+                    im.qvec,
+                    limits::MIN_QUATERNION_NORM
+                ),
+            ));
+        }
+        if !im.tvec.is_finite() {
+            return Err(SceneError::invalid(
+                path,
+                format!("image {}: translation {} is not finite", im.name, im.tvec),
+            ));
+        }
     }
+    Ok(images)
 }
 
+/// Reads a points file and checks every position against [`crate::limits`].
 pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint>> {
-    match format_of(path)? {
+    let points = match format_of(path)? {
         ModelFormat::Binary => binary::read_points3d(path),
         ModelFormat::Text => text::read_points3d(path),
+    }?;
+    for p in &points {
+        limits::check_point(p.xyz.to_array())
+            .map_err(|e| SceneError::invalid(path, format!("point {}: {e}", p.id)))?;
     }
+    Ok(points)
 }
 
 /// Reads the three files of a model folder, each as binary if present, else text. A missing

@@ -15,6 +15,9 @@ use crate::camera::CameraModel;
 use crate::error::{Result, SceneError};
 
 fn read_lines(path: &Path) -> Result<Vec<(usize, String)>> {
+    if path.is_file() {
+        SceneError::check_file_size(path, base::limits::MAX_MODEL_FILE_BYTES)?;
+    }
     let text = std::fs::read_to_string(path).map_err(|e| match e.kind() {
         std::io::ErrorKind::NotFound => SceneError::NotFound {
             path: path.to_path_buf(),

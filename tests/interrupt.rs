@@ -1,0 +1,309 @@
+//! A training run killed with SIGKILL at several points leaves only complete files (and our
+//! own temporary files, which the next run in that folder removes); `--resume` finishes it,
+//! and the result equals an uninterrupted run bit for bit.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn s(p: &Path) -> String {
+    p.to_str().unwrap().to_string()
+}
+
+fn metasplat() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_metasplat"))
+}
+
+fn run_ok(args: &[String]) -> String {
+    let out = metasplat().args(args).output().unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "metasplat {args:?} failed:\n{text}");
+    text
+}
+
+const ITERS: &str = "240";
+
+fn train_args(scene: &Path, run: &Path, extra: &[&str]) -> Vec<String> {
+    let mut a: Vec<String> = [
+        "train",
+        "--scene",
+        &s(scene),
+        "--out",
+        &s(run),
+        "--mode",
+        "plain",
+        "--downsample",
+        "1",
+        "--iters",
+        ITERS,
+        "--checkpoint-every",
+        "10",
+        "--eval-every",
+        "60",
+        "--spiral",
+        "3",
+        "--device",
+        "cpu",
+    ]
+    .iter()
+    .map(|x| x.to_string())
+    .collect();
+    a.extend(extra.iter().map(|x| x.to_string()));
+    a
+}
+
+/// Every file and folder under `dir`, relative, sorted.
+fn listing(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p.clone());
+            }
+            out.push(p.strip_prefix(dir).unwrap().to_path_buf());
+        }
+    }
+    out.sort();
+    out
+}
+
+fn is_ours_temporary(p: &Path) -> bool {
+    p.components().any(|c| {
+        c.as_os_str()
+            .to_str()
+            .is_some_and(|n| n.starts_with(base::atomic::TEMP_PREFIX))
+    })
+}
+
+/// What a killed run may leave: complete files under the names a run writes, and our own
+/// temporary files and staging folders. Each complete file is read back in full.
+fn assert_only_complete_files(run: &Path, when: &str) {
+    for rel in listing(run) {
+        if is_ours_temporary(&rel) {
+            continue;
+        }
+        let p = run.join(&rel);
+        let name = rel.to_str().unwrap();
+        match name {
+            "checkpoint.bin" => {
+                metasplat::train::checkpoint::load(&p)
+                    .unwrap_or_else(|e| panic!("{when}: the checkpoint is damaged: {e}"));
+            }
+            "config.json" | "metrics.json" => {
+                let text = std::fs::read_to_string(&p).unwrap();
+                serde_json::from_str::<serde_json::Value>(&text)
+                    .unwrap_or_else(|e| panic!("{when}: {name} is incomplete: {e}"));
+            }
+            "point_cloud.ply" => {
+                splat::ply::read_ply(&p)
+                    .unwrap_or_else(|e| panic!("{when}: {name} is incomplete: {e}"));
+            }
+            "train_log.csv" | "psnr_vs_time.png" | "test" | "spiral" => {}
+            n if n.ends_with(".png") && (n.starts_with("test/") || n.starts_with("spiral/")) => {
+                image::open(&p).unwrap_or_else(|e| panic!("{when}: {name} is incomplete: {e}"));
+            }
+            other => panic!("{when}: unexpected file {other} in the run folder"),
+        }
+    }
+}
+
+/// Spawns a run and kills it with SIGKILL once `ready` holds (or after `limit`); returns
+/// whether it was killed before finishing.
+fn run_and_kill(
+    args: &[String],
+    run: &Path,
+    ready: &dyn Fn(&Path) -> bool,
+    limit: Duration,
+) -> bool {
+    let mut child = metasplat()
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            assert!(status.success(), "the run failed on its own: {status:?}");
+            return false;
+        }
+        if ready(run) || start.elapsed() > limit {
+            child.kill().unwrap();
+            child.wait().unwrap();
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
+/// The step of the checkpoint in `run`, if one is complete there.
+fn checkpoint_step(run: &Path) -> Option<u64> {
+    metasplat::train::checkpoint::load(&run.join("checkpoint.bin"))
+        .ok()
+        .map(|s| s.step)
+}
+
+/// The files of a finished run that must not depend on interruptions (metrics and the log
+/// hold wall-clock times).
+fn results(run: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    listing(run)
+        .into_iter()
+        .filter(|p| {
+            let n = p.to_str().unwrap();
+            n == "point_cloud.ply" || n.ends_with(".png") && n != "psnr_vs_time.png"
+        })
+        .map(|p| {
+            let bytes = std::fs::read(run.join(&p)).unwrap();
+            (p, bytes)
+        })
+        .collect()
+}
+
+#[test]
+fn a_killed_run_leaves_complete_files_and_resumes_to_the_same_result() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("scene");
+    run_ok(
+        &[
+            "scene",
+            "procedural",
+            "--out",
+            &s(&scene),
+            "--width",
+            "32",
+            "--height",
+            "24",
+            "--views",
+            "5",
+        ]
+        .map(String::from),
+    );
+    let reference = d.join("reference");
+    run_ok(&train_args(&scene, &reference, &[]));
+    let expected = results(&reference);
+    assert!(expected.iter().any(|(p, _)| p.starts_with("spiral")));
+    assert!(expected.iter().any(|(p, _)| p.starts_with("test")));
+
+    let run = d.join("run");
+    let mut kills = 0;
+    // 1. Killed at once: at most config.json; nothing to resume, so the folder is replaced.
+    if run_and_kill(
+        &train_args(&scene, &run, &[]),
+        &run,
+        &|_| true,
+        Duration::ZERO,
+    ) {
+        kills += 1;
+        if run.exists() {
+            assert_only_complete_files(&run, "killed at start");
+        }
+    }
+    let fresh = if checkpoint_step(&run).is_some() {
+        vec!["--resume"]
+    } else if run.join("config.json").exists() {
+        vec!["--overwrite"]
+    } else {
+        vec![]
+    };
+    // 2. Killed after its first checkpoint, 3. after a later one, 4. in the last steps, 5.
+    // after the final checkpoint, while writing its outputs (PLY, test views, spiral).
+    let points: [(&[&str], u64); 4] = [
+        (&fresh, 10),
+        (&["--resume"], 100),
+        (&["--resume"], 230),
+        (&["--resume"], 240),
+    ];
+    for (extra, at) in points {
+        let args = train_args(&scene, &run, extra);
+        let killed = run_and_kill(
+            &args,
+            &run,
+            &|r| checkpoint_step(r).is_some_and(|s| s >= at),
+            Duration::from_secs(20),
+        );
+        if killed {
+            kills += 1;
+            assert_only_complete_files(&run, &format!("killed after step {at}"));
+        }
+    }
+    // Leftovers a killed run could leave in any folder it writes to: a temporary file and a
+    // staging folder of a process that is gone. The resumed run removes them.
+    std::fs::write(run.join(".metasplat-4294967290-abc.tmp"), b"partial").unwrap();
+    std::fs::create_dir_all(run.join(".metasplat-4294967290-frames-xyz/spiral")).unwrap();
+    let step = checkpoint_step(&run);
+    let args = if step.is_some() {
+        train_args(&scene, &run, &["--resume"])
+    } else {
+        train_args(&scene, &run, &["--overwrite"])
+    };
+    let text = run_ok(&args);
+    assert!(
+        kills >= 3,
+        "only {kills} of 4 kills landed: the run is too fast to interrupt"
+    );
+    let left: Vec<_> = listing(&run)
+        .into_iter()
+        .filter(|p| is_ours_temporary(p))
+        .collect();
+    assert!(
+        left.is_empty(),
+        "temporary files left after the resumed run: {left:?}"
+    );
+    assert_only_complete_files(&run, "after resuming");
+    let got = results(&run);
+    assert_eq!(
+        got.iter().map(|(p, _)| p).collect::<Vec<_>>(),
+        expected.iter().map(|(p, _)| p).collect::<Vec<_>>()
+    );
+    for ((p, a), (_, b)) in got.iter().zip(&expected) {
+        assert!(
+            a == b,
+            "{} differs from the uninterrupted run's ({text})",
+            p.display()
+        );
+    }
+    eprintln!("{kills} kills, resumed from step {step:?}: bit-identical to the uninterrupted run");
+}
+
+/// `render` leaves its staging folder beside `--out` when killed; the next render into that
+/// folder removes it.
+#[test]
+fn a_killed_renders_staging_folder_is_removed_by_the_next_render() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ply = d.join("model.ply");
+    splat::ply::write_ply(&ply, &splat::synthetic::random_box_scene(1, 60, 0)).unwrap();
+    let orphan = d.join(".metasplat-4294967290-frames-abcdef");
+    std::fs::create_dir_all(&orphan).unwrap();
+    std::fs::write(orphan.join("orbit000.png"), b"half a frame").unwrap();
+    let stale_tmp = d.join(".metasplat-4294967290-q1w2e3.tmp");
+    std::fs::write(&stale_tmp, b"half a file").unwrap();
+    // Another process's live temporary file (this test's own id) is left alone.
+    let live = d.join(format!("{}live.tmp", base::temp_prefix()));
+    std::fs::write(&live, b"being written").unwrap();
+    run_ok(
+        &[
+            "render",
+            "--ply",
+            &s(&ply),
+            "--out",
+            &s(&d.join("frames")),
+            "--orbit",
+            "2",
+            "--width",
+            "16",
+            "--height",
+            "12",
+            "--device",
+            "cpu",
+        ]
+        .map(String::from),
+    );
+    assert!(!orphan.exists() && !stale_tmp.exists());
+    assert!(live.exists());
+    assert!(d.join("frames/orbit001.png").exists());
+}
