@@ -64,6 +64,10 @@ pub struct TrainSettings {
     /// Reset opacities as 3DGS does (the paper turned this off for LLFF scenes).
     #[arg(long)]
     pub opacity_reset: bool,
+    /// Weight of a mean-opacity penalty: splats that no training view needs (floaters seen
+    /// only against a black background) fade and are pruned; 0 turns it off.
+    #[arg(long, default_value_t = 0.0, value_parser = crate::flags::weight, allow_negative_numbers = true)]
+    pub opacity_reg: f32,
     /// Held-out evaluation every N steps (default: 10 times per run).
     #[arg(long)]
     pub eval_every: Option<u64>,

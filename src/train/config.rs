@@ -130,6 +130,9 @@ pub struct TrainConfig {
     /// The splat scene the run started from (`--init`); None: the capture's points.
     #[serde(default)]
     pub init: Option<String>,
+    /// Weight of the mean-opacity penalty (0: none).
+    #[serde(default)]
+    pub opacity_reg: f32,
 }
 
 /// The paper's weight of `L(render, I_ac)` for LLFF scenes with its trained restorer.
@@ -169,6 +172,7 @@ impl TrainConfig {
             recipe: Recipe::for_iters(iters, settings.opacity_reset),
             i_ac: data.restorer.as_ref().map(|r| r.identity()),
             init: settings.init.as_ref().map(|p| p.display().to_string()),
+            opacity_reg: settings.opacity_reg,
         }
     }
 }

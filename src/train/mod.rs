@@ -253,6 +253,21 @@ pub fn train(
                 "a degenerate splat or camera is the likely cause",
             ));
         }
+        let mut grads = grads;
+        if config.opacity_reg > 0.0 {
+            // d/dx of reg·mean(sigmoid(x)): a splat no view needs has no other gradient, so
+            // Adam turns even this small one into full steps towards transparency.
+            let k = config.opacity_reg / s.model.len().max(1) as f32;
+            for (g, &x) in grads
+                .params
+                .logit_opacities
+                .iter_mut()
+                .zip(&s.model.logit_opacities)
+            {
+                let o = splat::model::sigmoid(x);
+                *g += k * o * (1.0 - o);
+            }
+        }
         s.densifier.after_backward(s.step, &grads, &out);
         s.adam.step(
             &mut s.model,

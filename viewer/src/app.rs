@@ -527,12 +527,11 @@ impl Viewer {
                 Some(db) => format!("{}  {db:.2} dB", p.name),
                 None => p.name.clone(),
             };
-            painter.text(
+            tag(
+                &painter,
                 r.left_top() + Vec2::splat(4.0),
                 egui::Align2::LEFT_TOP,
                 text,
-                egui::FontId::proportional(14.0),
-                Color32::WHITE,
             );
         };
         match self.layout {
@@ -574,12 +573,11 @@ impl Viewer {
                     Some(db) => format!("{}  {db:.2} dB", b.0.name),
                     None => b.0.name.clone(),
                 };
-                painter.text(
+                tag(
+                    &painter,
                     r.right_top() + Vec2::new(-4.0, 4.0),
                     egui::Align2::RIGHT_TOP,
                     text,
-                    egui::FontId::proportional(14.0),
-                    Color32::WHITE,
                 );
             }
         }
@@ -689,7 +687,8 @@ impl eframe::App for Viewer {
                     .image(t.id(), rect, unit_uv(), Color32::WHITE);
             }
             if show_panel {
-                ui.painter_at(rect).text(
+                tag(
+                    &ui.painter_at(rect),
                     rect.left_top() + Vec2::splat(6.0),
                     egui::Align2::LEFT_TOP,
                     format!(
@@ -701,13 +700,19 @@ impl eframe::App for Viewer {
                             .map(|c| format!(" · {}", c.name))
                             .unwrap_or_default()
                     ),
-                    egui::FontId::monospace(13.0),
-                    Color32::WHITE,
                 );
             }
         });
         self.screenshot_step(&ctx);
     }
+}
+
+/// White text on a dark, rounded backdrop, so it reads over any image.
+fn tag(painter: &egui::Painter, at: Pos2, align: egui::Align2, text: String) {
+    let galley = painter.layout_no_wrap(text, egui::FontId::proportional(14.0), Color32::WHITE);
+    let rect = align.anchor_size(at, galley.size());
+    painter.rect_filled(rect.expand(3.0), 3.0, Color32::from_black_alpha(170));
+    painter.galley(rect.min, galley, Color32::WHITE);
 }
 
 fn pick(ui: &mut egui::Ui, label: &str, names: &[String], index: &mut usize) {
