@@ -337,3 +337,18 @@ pub fn write_capture(dest: &Path, o: &ProceduralOptions) -> Result<PathBuf> {
     write_points3d(&sparse.join("points3D.txt"), &points)?;
     Ok(writer.finish()?)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_ring_surrounds_the_scene_and_the_grid_faces_it() {
+        let o = ProceduralOptions {
+            views: 24,
+            ..Default::default()
+        };
+        assert!(scenes::capture::surrounds(&cameras_around(&o)));
+        assert!(!scenes::capture::surrounds(&cameras(&o)));
+    }
+}

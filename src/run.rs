@@ -45,6 +45,15 @@ pub struct RunRequest {
     pub device: DeviceChoice,
 }
 
+/// A setting the capture decides unless the user does.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Toggle {
+    #[default]
+    Auto,
+    On,
+    Off,
+}
+
 /// How to train; what is left unset is derived from the capture in [`TrainConfig::build`].
 #[derive(Args, Clone, Debug)]
 pub struct TrainSettings {
@@ -61,9 +70,11 @@ pub struct TrainSettings {
     pub max_splats: Option<u64>,
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=3))]
     pub max_sh_degree: u32,
-    /// Reset opacities as 3DGS does (the paper turned this off for LLFF scenes).
-    #[arg(long)]
-    pub opacity_reset: bool,
+    /// Reset opacities as 3DGS does: `auto` (default) when the cameras surround the scene
+    /// (all-around captures, where it clears floaters), not for forward-facing ones (the paper
+    /// turned it off for LLFF); `on` (or the bare flag) or `off`.
+    #[arg(long, value_enum, default_value_t = Toggle::Auto, num_args = 0..=1, default_missing_value = "on")]
+    pub opacity_reset: Toggle,
     /// Weight of a mean-opacity penalty: splats that no training view needs (floaters seen
     /// only against a black background) fade and are pruned; 0 turns it off.
     #[arg(long, default_value_t = 0.0, value_parser = crate::flags::weight, allow_negative_numbers = true)]

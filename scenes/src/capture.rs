@@ -73,6 +73,23 @@ pub enum PointSource {
     Random { count: usize, seed: u64 },
 }
 
+/// Forward-facing captures keep their viewing directions within a cone (fern: a mean
+/// direction of length above 0.99); a ring of cameras around an object averages out to its
+/// elevation's sine (0.3–0.6 for usual turntable heights).
+pub const SURROUND_MAX_MEAN_DIRECTION: f64 = 0.7;
+
+/// See [`Capture::surrounds_scene`].
+pub fn surrounds(cameras: &[Camera]) -> bool {
+    if cameras.len() < 3 {
+        return false;
+    }
+    let sum = cameras
+        .iter()
+        .map(|c| c.camera_to_world().rotation * glam::DVec3::Z)
+        .fold(glam::DVec3::ZERO, |a, d| a + d.normalize_or_zero());
+    (sum / cameras.len() as f64).length() < SURROUND_MAX_MEAN_DIRECTION
+}
+
 /// A capture with everything but the pixels loaded; images load on demand.
 #[derive(Clone, Debug)]
 pub struct Capture {
@@ -127,6 +144,13 @@ impl Capture {
     /// Decodes several images in parallel, in the order given.
     pub fn load_images(&self, indices: &[usize]) -> Result<Vec<Photo>> {
         indices.par_iter().map(|&i| self.load_image(i)).collect()
+    }
+
+    /// True when the cameras look at the scene from around it (an object or room captured
+    /// all around) rather than from one side (LLFF's forward-facing captures): their unit
+    /// viewing directions average to less than [`SURROUND_MAX_MEAN_DIRECTION`] in length.
+    pub fn surrounds_scene(&self) -> bool {
+        surrounds(&self.cameras)
     }
 
     pub fn normalization(&self) -> Normalization {

@@ -123,3 +123,11 @@ fn fern_target_width_picks_the_folder_and_images_decode() {
     }
     assert_ne!(images[0], images[1]);
 }
+
+#[test]
+fn fern_is_forward_facing() {
+    let Some(capture) = open_fern(Resolution::Downsample(8)) else {
+        return;
+    };
+    assert!(!capture.surrounds_scene());
+}

@@ -37,6 +37,16 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             config.max_splats
         );
         println!("{}", prepared.device_note);
+        if let Some(every) = config.recipe.opacity_reset_every {
+            println!(
+                "Opacities reset every {every} steps{}.",
+                match t.opacity_reset {
+                    run::Toggle::Auto =>
+                        ": the cameras surround the scene, and resets clear the floaters such captures grow",
+                    _ => "",
+                }
+            );
+        }
         if let Some(note) = &prepared.cache_note {
             println!("{note}");
         }
