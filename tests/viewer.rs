@@ -449,3 +449,32 @@ fn a_window_with_a_free_camera_shows_the_headless_render() {
     let picture = read_png(&cmp);
     assert_eq!(picture.dimensions(), (900, 500));
 }
+
+#[test]
+fn a_run_being_followed_shows_its_newest_model() {
+    use metasplat::view::RunWatch;
+    let dir = tempfile::tempdir().unwrap();
+    let mut watch = RunWatch::new(dir.path());
+    // Nothing yet: nothing to show.
+    assert!(watch.check().is_none());
+    let ply = dir.path().join(metasplat::outputs::PLY_FILE);
+    let g = ground_truth(3);
+    splat::ply::write_ply(&ply, &g).unwrap();
+    let (first, what) = watch.check().unwrap().unwrap();
+    assert_eq!(first.len(), g.len());
+    assert!(what.contains("finished run"), "{what}");
+    // Unchanged: no reload.
+    assert!(watch.check().is_none());
+    // A newer file replaces it (a later mtime; file systems may round to a second).
+    std::thread::sleep(std::time::Duration::from_millis(1100));
+    let other = metasplat::procedural::ground_truth_around(0);
+    splat::ply::write_ply(&ply, &other).unwrap();
+    let (second, _) = watch.check().unwrap().unwrap();
+    assert_eq!(second.len(), other.len());
+    assert_ne!(other.len(), g.len());
+    // A damaged file is reported, not shown, and not retried until it changes.
+    std::thread::sleep(std::time::Duration::from_millis(1100));
+    std::fs::write(&ply, b"ply\nnot really").unwrap();
+    assert!(watch.check().unwrap().is_err());
+    assert!(watch.check().is_none());
+}
