@@ -4,6 +4,7 @@
 //! ([`train`]), one run assembled from a request ([`run`]), held-out evaluation ([`eval`]), the initial splats ([`init`]), and the
 //! conversions between the member crates' types ([`convert`]).
 
+pub mod bench;
 pub mod convert;
 pub mod device;
 pub mod error;

@@ -4,6 +4,7 @@
 //! them along with [`Adam::remap`] (new Gaussians start from zero moments, as in gsplat).
 
 use glam::Vec3;
+use rayon::prelude::*;
 
 use crate::error::SplatError;
 use crate::model::Gaussians;
@@ -118,11 +119,33 @@ impl Step {
     }
 
     fn vec3s(&self, p: &mut [Vec3], g: &[Vec3], m: &mut [Vec3], v: &mut [Vec3]) {
-        for (((p, g), m), v) in p.iter_mut().zip(g).zip(m.iter_mut()).zip(v.iter_mut()) {
+        self.lanes(p, g, m, v, |s, p, g, m, v| {
             for k in 0..3 {
-                self.apply(&mut p[k], g[k], &mut m[k], &mut v[k]);
+                s.apply(&mut p[k], g[k], &mut m[k], &mut v[k]);
             }
-        }
+        });
+    }
+
+    /// `apply` over matching elements, in parallel chunks: every element is updated on its
+    /// own, so the result does not depend on the thread count.
+    fn lanes<T: Send + Sync>(
+        &self,
+        p: &mut [T],
+        g: &[T],
+        m: &mut [T],
+        v: &mut [T],
+        f: impl Fn(&Step, &mut T, &T, &mut T, &mut T) + Sync,
+    ) {
+        const CHUNK: usize = 8192;
+        p.par_chunks_mut(CHUNK)
+            .zip(g.par_chunks(CHUNK))
+            .zip(m.par_chunks_mut(CHUNK))
+            .zip(v.par_chunks_mut(CHUNK))
+            .for_each(|(((p, g), m), v)| {
+                for (((p, g), m), v) in p.iter_mut().zip(g).zip(m.iter_mut()).zip(v.iter_mut()) {
+                    f(self, p, g, m, v);
+                }
+            });
     }
 }
 
@@ -188,26 +211,24 @@ impl Adam {
             &mut m.log_scales,
             &mut v.log_scales,
         );
-        let s = mk(lr.rotations);
-        for i in 0..params.len() {
-            for k in 0..4 {
-                s.apply(
-                    &mut params.rotations[i][k],
-                    grads.rotations[i][k],
-                    &mut m.rotations[i][k],
-                    &mut v.rotations[i][k],
-                );
-            }
-        }
-        let s = mk(lr.opacities);
-        for i in 0..params.len() {
-            s.apply(
-                &mut params.logit_opacities[i],
-                grads.logit_opacities[i],
-                &mut m.logit_opacities[i],
-                &mut v.logit_opacities[i],
-            );
-        }
+        mk(lr.rotations).lanes(
+            &mut params.rotations,
+            &grads.rotations,
+            &mut m.rotations,
+            &mut v.rotations,
+            |s, p, g, m, v| {
+                for k in 0..4 {
+                    s.apply(&mut p[k], g[k], &mut m[k], &mut v[k]);
+                }
+            },
+        );
+        mk(lr.opacities).lanes(
+            &mut params.logit_opacities,
+            &grads.logit_opacities,
+            &mut m.logit_opacities,
+            &mut v.logit_opacities,
+            |s, p, g, m, v| s.apply(p, *g, m, v),
+        );
         mk(lr.sh_dc).vec3s(&mut params.sh_dc, &grads.sh_dc, &mut m.sh_dc, &mut v.sh_dc);
         mk(lr.sh_rest).vec3s(
             &mut params.sh_rest,

@@ -1,6 +1,7 @@
 //! Command-line interface: argument parsing and one module per command.
 
 mod aberrate;
+mod bench;
 mod deconvolve;
 mod demo;
 mod experiment;
@@ -54,6 +55,9 @@ enum Command {
     Restorer(restorer::RestorerCommand),
     /// Restore an aberrated image with trained weights.
     Restore(restorer::RestoreArgs),
+    /// Measure where the time of a training step goes.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
     /// Built-in demo: simulate the default PSF grid, render and aberrate a procedural scene, and
     /// train plain and aberration-aware 3DGS on it.
     Demo(demo::DemoArgs),
@@ -120,6 +124,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Scene(c) => scene::run(c),
         Command::Train(a) => train::run(a),
         Command::Render(a) => render::run(a),
+        Command::Bench(c) => bench::run(c),
         Command::View(a) => view::run(a),
         Command::Export(a) => export::run(a),
         Command::Experiment(c) => experiment::run(c),
