@@ -7,15 +7,14 @@
 //! `α ≥ 1/255`, transmittance stop) becomes a lane mask, and the tile's state is kept as
 //! structure of arrays. Two builds of each kernel: AVX2 intrinsics, chosen at run time when
 //! the CPU has AVX2 (`METASPLAT_NO_AVX2` turns them off), and portable lane loops for every
-//! other CPU. The loops were meant to be vectorised by the compiler and were not (they run as
-//! scalar code); they are kept as the operation-for-operation twin of the intrinsics, which
-//! the tests check bit for bit.
+//! other CPU. The compiler does not vectorise the loops (RESULTS.md has the attempt); they are
+//! the operation-for-operation twin of the intrinsics, which the tests check bit for bit.
 //!
 //! Each pixel still sees its splats in list order with the same operations in the same order
 //! as `raster`, so the kernels agree with it up to the exponential: they use [`exp_neg`], a
 //! polynomial whose relative error against the exact `e^(−σ)` is below [`EXP_REL_ERROR`]
-//! (tested), where `raster` calls the C library's `expf`. No lane mixes with another, no
-//! instruction is fused, so the AVX2 and baseline builds give identical bits. The backward
+//! (tested), where `raster` calls the C library's `expf`. No lane mixes with another and no
+//! multiply-add is fused, so the AVX2 and portable builds give identical bits. The backward
 //! sums each splat's per-lane contributions in lane vectors and reduces them once per splat,
 //! in a fixed order: results do not depend on the thread count.
 
