@@ -250,6 +250,21 @@ fn budget(a: BudgetArgs) -> Result<()> {
     Ok(())
 }
 
+/// How close to its final held-out PSNR a run counts as having arrived.
+const NEAR_FINAL_DB: f64 = 0.5;
+
+/// The first evaluation of a run whose held-out PSNR is within [`NEAR_FINAL_DB`] of the last
+/// one, and when it came: `(step, seconds, total seconds)`.
+fn near_final(log: &[metasplat::train::LogRow]) -> Option<(u64, f64, f64)> {
+    let evals: Vec<_> = log.iter().filter(|r| r.test_psnr.is_some()).collect();
+    let last = evals.last()?;
+    let final_psnr = last.test_psnr?;
+    let first = evals
+        .iter()
+        .find(|r| r.test_psnr.is_some_and(|p| p >= final_psnr - NEAR_FINAL_DB))?;
+    Some((first.step, first.seconds, last.seconds))
+}
+
 fn llff(a: LlffArgs) -> Result<()> {
     let aberrated = aberrated_capture(&a.scene, &a.out, a.psf.as_deref(), a.downsample, a.seed)?;
 
@@ -314,6 +329,20 @@ fn llff(a: LlffArgs) -> Result<()> {
             .collect();
         writeln!(table, "- {mode}: {}", points.join(", "))?;
     }
+    writeln!(
+        table,
+        "\nspeed against error: the first evaluation within {NEAR_FINAL_DB} dB of the final held-out PSNR:"
+    )?;
+    for (mode, _, log) in &rows {
+        match near_final(log) {
+            Some((step, seconds, total)) => writeln!(
+                table,
+                "- {mode}: step {step}, {seconds:.0} s of {total:.0} s ({:.0} % of the training time)",
+                100.0 * seconds / total.max(1e-9)
+            )?,
+            None => writeln!(table, "- {mode}: not evaluated")?,
+        }
+    }
     println!("\n{table}");
     if let Some(r) = rows.iter().find_map(|(_, s, _)| s.restorer.clone()) {
         println!("({r})");
@@ -340,4 +369,39 @@ fn llff(a: LlffArgs) -> Result<()> {
     )?;
     println!("wrote {}/table.md and psnr_vs_time.png", a.out.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use metasplat::train::LogRow;
+
+    fn row(step: u64, seconds: f64, psnr: Option<f64>) -> LogRow {
+        LogRow {
+            step,
+            seconds,
+            loss: 0.0,
+            train_psnr: 0.0,
+            test_psnr: psnr,
+            test_ssim: None,
+            splats: 0,
+            sh_degree: 0,
+        }
+    }
+
+    #[test]
+    fn near_final_finds_the_first_evaluation_within_half_a_decibel() {
+        let log = [
+            row(100, 10.0, Some(20.0)),
+            row(150, 15.0, None),
+            row(200, 20.0, Some(25.4)),
+            row(300, 30.0, Some(25.6)),
+            row(400, 40.0, Some(25.2)),
+            row(500, 50.0, Some(26.0)),
+        ];
+        // 25.6 is the first at or above 26.0 - 0.5; 25.4 is not.
+        assert_eq!(near_final(&log), Some((300, 30.0, 50.0)));
+        assert_eq!(near_final(&[row(1, 1.0, None)]), None);
+        assert_eq!(near_final(&[]), None);
+    }
 }
