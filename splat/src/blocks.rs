@@ -21,7 +21,7 @@
 use glam::Vec3;
 
 use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_MIN};
-use crate::raster::{IsectGrad, PixelGrads, Splat, TileForward};
+use crate::raster::{IsectGrad, PixelGrads, Splat, TileForward, local_box};
 
 /// Pixels per block: one AVX2 register of `f32`.
 pub const LANES: usize = 8;
@@ -151,14 +151,10 @@ fn forward_tile_lanes(
         if n_done == n {
             break;
         }
-        let px = s.pixel_box();
-        let lx0 = (px[0] - x0 as i32).max(0);
-        let lx1 = (px[1] - x0 as i32).min(w as i32 - 1);
-        let ly0 = (px[2] - y0 as i32).max(0);
-        let ly1 = (px[3] - y0 as i32).min(h as i32 - 1);
-        if lx0 > lx1 || ly0 > ly1 {
+        let Some(bounds) = local_box(s, x0, y0, w, h) else {
             continue;
-        }
+        };
+        let [lx0, lx1, ly0, ly1] = bounds.map(|v| v as i32);
         let (m, [ca, cb, cc], o, cut) = (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
         let (col, z) = (s.color(), s.depth());
         let b0 = lx0 as usize / LANES * LANES;
@@ -226,7 +222,7 @@ mod avx2 {
 
     use super::{BackState, LANES, STRIDE, SUMS, TILE_PX, TileState};
     use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_MIN};
-    use crate::raster::Splat;
+    use crate::raster::{Splat, local_box};
 
     /// [`super::exp_neg`] on eight lanes.
     #[inline]
@@ -292,14 +288,10 @@ mod avx2 {
             if n_done == n {
                 break;
             }
-            let px = s.pixel_box();
-            let lx0 = (px[0] - x0 as i32).max(0);
-            let lx1 = (px[1] - x0 as i32).min(w as i32 - 1);
-            let ly0 = (px[2] - y0 as i32).max(0);
-            let ly1 = (px[3] - y0 as i32).min(h as i32 - 1);
-            if lx0 > lx1 || ly0 > ly1 {
+            let Some(bounds) = local_box(s, x0, y0, w, h) else {
                 continue;
-            }
+            };
+            let [lx0, lx1, ly0, ly1] = bounds.map(|v| v as i32);
             let (m, [ca, cb, cc], o, cut) = (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
             let (col, z) = (s.color(), s.depth());
             let (ca, cb, cc, o) = (
@@ -417,14 +409,10 @@ mod avx2 {
         (x0, y0, w, h): (u32, u32, u32, u32),
         st: &mut BackState,
     ) -> [f32; SUMS] {
-        let px = s.pixel_box();
-        let lx0 = (px[0] - x0 as i32).max(0);
-        let lx1 = (px[1] - x0 as i32).min(w as i32 - 1);
-        let ly0 = (px[2] - y0 as i32).max(0);
-        let ly1 = (px[3] - y0 as i32).min(h as i32 - 1);
-        if lx0 > lx1 || ly0 > ly1 {
+        let Some(bounds) = local_box(s, x0, y0, w, h) else {
             return [0.0; SUMS];
-        }
+        };
+        let [lx0, lx1, ly0, ly1] = bounds.map(|v| v as i32);
         let (m, [ca, cb, cc], o, cut) = (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
         let (col, z) = (s.color(), s.depth());
         let set = _mm256_set1_ps;
@@ -612,7 +600,7 @@ pub fn backward_tile(
         }
     }
     for k in (0..kmax).rev() {
-        let sums = backward_splat_dispatch(&splats[k], k as u32, tile, &mut st);
+        let sums = backward_splat_with(&splats[k], k as u32, tile, &mut st, true);
         out[k] = IsectGrad {
             mean2d: glam::Vec2::new(sums[0], sums[1]),
             mean2d_abs: glam::Vec2::new(sums[2], sums[3]),
@@ -630,15 +618,7 @@ fn reduce(sums: &[Lanes; SUMS]) -> [f32; SUMS] {
     std::array::from_fn(|q| sums[q].iter().fold(0.0, |a, v| a + v))
 }
 
-fn backward_splat_dispatch(
-    s: &Splat,
-    k: u32,
-    tile: (u32, u32, u32, u32),
-    st: &mut BackState,
-) -> [f32; SUMS] {
-    backward_splat_with(s, k, tile, st, true)
-}
-
+/// [`backward_splat`], in AVX2 when `simd` and the CPU allow (the same bits either way).
 fn backward_splat_with(
     s: &Splat,
     k: u32,
@@ -664,14 +644,10 @@ fn backward_splat(
     st: &mut BackState,
 ) -> [f32; SUMS] {
     let mut acc = [[0.0f32; LANES]; SUMS];
-    let px = s.pixel_box();
-    let lx0 = (px[0] - x0 as i32).max(0);
-    let lx1 = (px[1] - x0 as i32).min(w as i32 - 1);
-    let ly0 = (px[2] - y0 as i32).max(0);
-    let ly1 = (px[3] - y0 as i32).min(h as i32 - 1);
-    if lx0 > lx1 || ly0 > ly1 {
+    let Some(bounds) = local_box(s, x0, y0, w, h) else {
         return [0.0; SUMS];
-    }
+    };
+    let [lx0, lx1, ly0, ly1] = bounds.map(|v| v as i32);
     let (m, [ca, cb, cc], o, cut) = (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
     let (col, z) = (s.color(), s.depth());
     let b0 = lx0 as usize / LANES * LANES;

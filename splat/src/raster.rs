@@ -32,10 +32,6 @@ pub struct Splat {
 
 impl Splat {
     #[inline(always)]
-    pub(crate) fn pixel_box(&self) -> [i32; 4] {
-        self.px
-    }
-    #[inline(always)]
     pub(crate) fn mean(&self) -> Vec2 {
         self.mean
     }
@@ -106,7 +102,7 @@ pub fn tile_pixels(bins: &TileBins, t: usize, width: u32, height: u32) -> (u32, 
 
 /// The splat's pixel box intersected with the tile, in tile-local coordinates; `None` if empty.
 #[inline]
-fn local_box(s: &Splat, x0: u32, y0: u32, w: u32, h: u32) -> Option<[usize; 4]> {
+pub(crate) fn local_box(s: &Splat, x0: u32, y0: u32, w: u32, h: u32) -> Option<[usize; 4]> {
     let lx0 = (s.px[0] - x0 as i32).max(0);
     let lx1 = (s.px[1] - x0 as i32).min(w as i32 - 1);
     let ly0 = (s.px[2] - y0 as i32).max(0);
