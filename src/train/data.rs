@@ -298,6 +298,8 @@ pub struct CaptureModel {
     pub restorer: Option<Restorer>,
     pub restorer_note: Option<String>,
     network: Option<OpenedRestorer>,
+    /// Names cached `I_ac` images (None without a restorer).
+    keyer: Option<crate::train::iac_cache::Keyer>,
 }
 
 impl CaptureModel {
@@ -342,6 +344,10 @@ impl CaptureModel {
             },
             None => Restorer::MedianWiener,
         });
+        let keyer = match (&restorer, &imaging) {
+            (Some(r), Some(m)) => Some(crate::train::iac_cache::Keyer::new(&r.identity(), m.psf())),
+            _ => None,
+        };
         Ok(Self {
             capture,
             width,
@@ -350,6 +356,7 @@ impl CaptureModel {
             restorer,
             restorer_note,
             network,
+            keyer,
         })
     }
 
@@ -372,33 +379,24 @@ impl CaptureModel {
         self.network.is_some()
     }
 
-    /// The cache key of `I_ac` for an observed image (None without a restorer).
-    pub fn restored_key(&self, observed: &[Vec3]) -> Option<u64> {
-        let (Some(r), Some(model)) = (&self.restorer, &self.imaging) else {
-            return None;
-        };
-        Some(crate::train::iac_cache::key(
-            &r.identity(),
-            model.psf(),
-            self.width,
-            self.height,
-            observed,
-        ))
-    }
-
     /// `I_ac` from the cache folder `cache` when it holds it, else computed
-    /// ([`Self::restore`]); the flag says whether it was computed.
+    /// ([`Self::restore`]) together with the key to cache it under (None when it was read, or
+    /// when there is no cache).
     pub fn restore_cached(
         &self,
         observed: &[Vec3],
         cache: Option<&Path>,
-    ) -> Result<Option<(Vec<Vec3>, bool)>> {
-        if let (Some(dir), Some(key)) = (cache, self.restored_key(observed))
+    ) -> Result<Option<(Vec<Vec3>, Option<u64>)>> {
+        let key = match (cache, &self.keyer) {
+            (Some(_), Some(k)) => Some(k.key(self.width, self.height, observed)),
+            _ => None,
+        };
+        if let (Some(dir), Some(key)) = (cache, key)
             && let Some(img) = crate::train::iac_cache::get(dir, key, observed.len())
         {
-            return Ok(Some((img, false)));
+            return Ok(Some((img, None)));
         }
-        Ok(self.restore(observed)?.map(|img| (img, true)))
+        Ok(self.restore(observed)?.map(|img| (img, key)))
     }
 
     /// `I_ac` for an observed image: the restorer's output, or None when no restorer was
@@ -433,15 +431,15 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
     }
     let cache = options.iac_cache.as_deref();
     // The network parallelises inside, so its views are restored one at a time below.
-    let make_view = |i: usize, restore: bool| -> Result<(View, bool)> {
+    let make_view = |i: usize, restore: bool| -> Result<(View, Option<u64>)> {
         let mut v = model.view(i)?;
-        let mut fresh = false;
+        let mut fresh = None;
         if restore
             && !model.restores_with_network()
-            && let Some((img, computed)) = model.restore_cached(&v.observed, cache)?
+            && let Some((img, key)) = model.restore_cached(&v.observed, cache)?
         {
             v.restored = Some(img);
-            fresh = computed;
+            fresh = key;
         }
         Ok((v, fresh))
     };
@@ -456,12 +454,12 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
     let mut train = Vec::with_capacity(loaded.len());
     for (k, (mut v, mut fresh)) in loaded.into_iter().enumerate() {
         if model.restores_with_network()
-            && let Some((img, computed)) = model.restore_cached(&v.observed, cache)?
+            && let Some((img, key)) = model.restore_cached(&v.observed, cache)?
         {
             v.restored = Some(img);
-            fresh = computed;
+            fresh = key;
         }
-        if fresh && let Some(key) = model.restored_key(&v.observed) {
+        if let Some(key) = fresh {
             restored_fresh.push((k, key));
         }
         train.push(v);

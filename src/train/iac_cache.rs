@@ -19,27 +19,44 @@ pub const CACHE_VERSION: u32 = 1;
 /// The folder a run keeps its cache in.
 pub const CACHE_DIR: &str = "i_ac_cache";
 
-/// The key of `I_ac` for one view.
-pub fn key(restorer: &str, psf: &PsfGrid, width: u32, height: u32, observed: &[Vec3]) -> u64 {
-    let mut bytes = Vec::with_capacity(64 + 4 * (psf.planar().len() + 3 * observed.len()));
-    bytes.extend(CACHE_VERSION.to_le_bytes());
-    bytes.extend((restorer.len() as u64).to_le_bytes());
-    bytes.extend(restorer.as_bytes());
-    bytes.extend(
-        [psf.grid() as u64, psf.size() as u64]
-            .map(u64::to_le_bytes)
-            .concat(),
-    );
-    bytes.extend(psf.planar().iter().flat_map(|v| v.to_le_bytes()));
-    bytes.extend(width.to_le_bytes());
-    bytes.extend(height.to_le_bytes());
-    bytes.extend(
-        observed
-            .iter()
-            .flat_map(|p| p.to_array())
-            .flat_map(f32::to_le_bytes),
-    );
-    base::hash::fnv1a64(&bytes)
+/// Names a restorer's entries: what a key holds besides the photo (the restorer's identity,
+/// the PSF grid, [`CACHE_VERSION`]) hashed once, since it is the same for every view.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Keyer {
+    prefix: u64,
+}
+
+impl Keyer {
+    pub fn new(restorer: &str, psf: &PsfGrid) -> Self {
+        let mut bytes = Vec::with_capacity(64 + restorer.len() + 4 * psf.planar().len());
+        bytes.extend(CACHE_VERSION.to_le_bytes());
+        bytes.extend((restorer.len() as u64).to_le_bytes());
+        bytes.extend(restorer.as_bytes());
+        bytes.extend(
+            [psf.grid() as u64, psf.size() as u64]
+                .map(u64::to_le_bytes)
+                .concat(),
+        );
+        bytes.extend(psf.planar().iter().flat_map(|v| v.to_le_bytes()));
+        Self {
+            prefix: base::hash::fnv1a64(&bytes),
+        }
+    }
+
+    /// The key of `I_ac` for one view.
+    pub fn key(&self, width: u32, height: u32, observed: &[Vec3]) -> u64 {
+        let mut bytes = Vec::with_capacity(16 + 12 * observed.len());
+        bytes.extend(self.prefix.to_le_bytes());
+        bytes.extend(width.to_le_bytes());
+        bytes.extend(height.to_le_bytes());
+        bytes.extend(
+            observed
+                .iter()
+                .flat_map(|p| p.to_array())
+                .flat_map(f32::to_le_bytes),
+        );
+        base::hash::fnv1a64(&bytes)
+    }
 }
 
 fn path(dir: &Path, key: u64) -> std::path::PathBuf {
@@ -92,6 +109,8 @@ mod tests {
         let psf = PsfGrid::delta(3, 5);
         let observed = vec![Vec3::new(0.1, 0.2, 0.3); 12];
         let image: Vec<Vec3> = (0..12).map(|i| Vec3::splat(i as f32 / 7.0)).collect();
+        let key =
+            |net: &str, psf: &PsfGrid, w, h, obs: &[Vec3]| Keyer::new(net, psf).key(w, h, obs);
         let k = key("net a", &psf, 4, 3, &observed);
         assert!(get(dir.path(), k, 12).is_none());
         put(dir.path(), k, &image).unwrap();
