@@ -203,6 +203,22 @@ fn image_folders(root: &Path) -> Vec<PathBuf> {
     folders
 }
 
+/// The downsample factors a capture has image folders for (1 for `images/`), ascending.
+pub fn image_downsamples(root: &Path) -> Vec<u32> {
+    let mut found: Vec<u32> = image_folders(root)
+        .iter()
+        .filter_map(|p| {
+            let name = p.file_name()?.to_str()?;
+            match name.strip_prefix("images_") {
+                Some(n) => n.parse().ok(),
+                None => Some(1),
+            }
+        })
+        .collect();
+    found.sort_unstable();
+    found
+}
+
 fn choose_image_dir(root: &Path, resolution: Resolution) -> Result<PathBuf> {
     let available = || {
         let names: Vec<String> = image_folders(root)

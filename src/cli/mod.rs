@@ -73,35 +73,25 @@ pub fn open_scene(dir: &std::path::Path, downsample: u32) -> anyhow::Result<scen
     scenes::open(dir, &options).with_context(|| format!("cannot open the scene {}", dir.display()))
 }
 
-/// The image folder to use when the user named none: `images_8/` as LLFF captures are
-/// usually trained at, else `images/` (captures the demo or `scene procedural` wrote), else the
-/// least downsampled `images_N/`. Returns the downsample and a sentence saying which.
-pub fn default_downsample(dir: &std::path::Path) -> (u32, String) {
-    let mut found: Vec<u32> = std::fs::read_dir(dir)
-        .into_iter()
-        .flatten()
-        .flatten()
-        .filter(|e| e.path().is_dir())
-        .filter_map(|e| {
-            let name = e.file_name().to_string_lossy().into_owned();
-            match name.as_str() {
-                "images" => Some(1),
-                _ => name.strip_prefix("images_")?.parse().ok(),
-            }
-        })
-        .collect();
-    found.sort_unstable();
+/// The downsample to open `dir` at: the one given, else `images_8/` as LLFF captures are
+/// usually trained at, else the least downsampled folder the capture has (`images/` for the
+/// captures the demo and `scene procedural` write), said in a sentence.
+pub fn downsample_for(dir: &std::path::Path, given: Option<u32>) -> u32 {
+    if let Some(d) = given {
+        return d;
+    }
+    let found = scenes::capture::image_downsamples(dir);
     let d = if found.contains(&8) {
         8
     } else {
         found.first().copied().unwrap_or(8)
     };
-    let folder = if d == 1 {
-        "images/".to_string()
-    } else {
-        format!("images_{d}/")
-    };
-    (d, format!("Using {} of {}.", folder, dir.display()))
+    println!(
+        "Using {}/ of {}.",
+        scenes::llff::image_folder_name(d),
+        dir.display()
+    );
+    d
 }
 
 /// Decodes every image of `capture` (one at a time per thread, nothing kept): opening a

@@ -59,11 +59,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
     }
     let cameras: Vec<(String, splat::Camera)> = match &a.scene {
         Some(dir) => {
-            let downsample = a.downsample.unwrap_or_else(|| {
-                let (d, note) = super::default_downsample(dir);
-                println!("{note}");
-                d
-            });
+            let downsample = super::downsample_for(dir, a.downsample);
             let capture = super::open_scene(dir, downsample)?;
             let cams = match a.spiral {
                 Some(n) => metasplat::spiral::spiral(&capture.cameras, &capture.bounds, n as usize),

@@ -85,11 +85,7 @@ pub fn run(a: ViewArgs) -> Result<()> {
     }
     let comparison = match &a.scene {
         Some(dir) => {
-            let downsample = a.downsample.unwrap_or_else(|| {
-                let (d, note) = super::default_downsample(dir);
-                println!("{note}");
-                d
-            });
+            let downsample = super::downsample_for(dir, a.downsample);
             let options = DataOptions {
                 downsample,
                 restorer: a.restorer.clone(),
