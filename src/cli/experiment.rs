@@ -176,16 +176,17 @@ fn aberrated_capture(
 fn budget(a: BudgetArgs) -> Result<()> {
     let aberrated = aberrated_capture(&a.scene, &a.out, a.psf.as_deref(), a.downsample, a.seed)?;
     let mut rows = Vec::new();
+    let common = Common {
+        out: &a.out,
+        downsample: a.downsample,
+        seed: a.seed,
+        device: a.device,
+        overwrite: a.overwrite,
+        iters: a.iters,
+    };
     for &b in &a.budgets {
         let run_dir = a.out.join(format!("budget_{b}"));
-        let mut args = RunRequest::new(&aberrated, run_dir.clone());
-        args.data.downsample = a.downsample;
-        args.data.seed = a.seed;
-        args.data.iac_cache = Some(a.out.join(metasplat::train::iac_cache::CACHE_DIR));
-        args.device = a.device;
-        args.overwrite = a.overwrite;
-        args.training.mode = a.mode;
-        args.training.iters = a.iters;
+        let mut args = common.run(&aberrated, run_dir.clone(), a.mode);
         args.training.max_splats = Some(b.0.unwrap_or(UNBOUNDED));
         args.training.eval_every = Some((a.iters / 10).max(1));
         println!("Training {} with a budget of {b} splats.", a.mode);
@@ -250,6 +251,32 @@ fn budget(a: BudgetArgs) -> Result<()> {
     Ok(())
 }
 
+/// What every run of an experiment shares.
+struct Common<'a> {
+    out: &'a std::path::Path,
+    downsample: u32,
+    seed: u64,
+    device: metasplat::device::DeviceChoice,
+    overwrite: bool,
+    iters: u64,
+}
+
+impl Common<'_> {
+    /// A run of `mode` on the aberrated capture into `run_dir`.
+    fn run(&self, aberrated: &std::path::Path, run_dir: PathBuf, mode: Mode) -> RunRequest {
+        let mut args = RunRequest::new(aberrated, run_dir);
+        args.data.downsample = self.downsample;
+        args.data.seed = self.seed;
+        // The runs restore the same views: one I_ac cache serves them all.
+        args.data.iac_cache = Some(self.out.join(metasplat::train::iac_cache::CACHE_DIR));
+        args.device = self.device;
+        args.overwrite = self.overwrite;
+        args.training.mode = mode;
+        args.training.iters = self.iters;
+        args
+    }
+}
+
 /// How close to its final held-out PSNR a run counts as having arrived.
 const NEAR_FINAL_DB: f64 = 0.5;
 
@@ -269,17 +296,17 @@ fn llff(a: LlffArgs) -> Result<()> {
     let aberrated = aberrated_capture(&a.scene, &a.out, a.psf.as_deref(), a.downsample, a.seed)?;
 
     let mut rows = Vec::new();
+    let common = Common {
+        out: &a.out,
+        downsample: a.downsample,
+        seed: a.seed,
+        device: a.device,
+        overwrite: a.overwrite,
+        iters: a.iters,
+    };
     for &mode in &a.modes {
         let run_dir = a.out.join(format!("run_{mode}"));
-        let mut args = RunRequest::new(&aberrated, run_dir);
-        args.data.downsample = a.downsample;
-        args.data.seed = a.seed;
-        // Restored and aware runs restore the same views: one cache serves both.
-        args.data.iac_cache = Some(a.out.join(metasplat::train::iac_cache::CACHE_DIR));
-        args.device = a.device;
-        args.overwrite = a.overwrite;
-        args.training.mode = mode;
-        args.training.iters = a.iters;
+        let mut args = common.run(&aberrated, run_dir, mode);
         args.training.lambda = a.lambda;
         args.training.eval_every = Some((a.iters / 20).max(1));
         let (summary, log) = train_run(&args, false)?;
