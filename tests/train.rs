@@ -1,12 +1,14 @@
 //! The training pipeline on a tiny procedural scene: aware beats plain, resume is exact,
 //! `L_abr`'s gradient (through the blur's adjoint) matches finite differences, bad input.
 
+mod common;
+
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use aberration::optics::{SimConfig, simulate_grid};
 use metasplat::device::Device;
-use metasplat::procedural::{ProceduralOptions, write_capture};
+use metasplat::procedural::ProceduralOptions;
 use metasplat::train::config::{Mode, TrainConfig};
 use metasplat::train::data::{self, DataOptions, Dataset};
 use metasplat::train::objective::Objective;
@@ -31,30 +33,10 @@ fn fixture() -> &'static Fixture {
             views: 10,
             seed: 1,
         };
-        let clean = write_capture(&dir.path().join("clean"), &o).unwrap();
-        let (psf, _) = simulate_grid(&SimConfig::small(21), &|_, _| {}).unwrap();
-        let psf_path = dir.path().join("psf.npy");
-        psf.save_npy(&psf_path).unwrap();
+        let (clean, aberrated, _) = common::aberrated_procedural(dir.path(), &o);
         let (other, _) = simulate_grid(&SimConfig::small(15), &|_, _| {}).unwrap();
         let other_psf = dir.path().join("other.npy");
         other.save_npy(&other_psf).unwrap();
-        let capture = scenes::open(
-            &clean,
-            &scenes::OpenOptions {
-                resolution: scenes::Resolution::Downsample(1),
-                ..Default::default()
-            },
-        )
-        .unwrap();
-        let aberrated = dir.path().join("aberrated");
-        scenes::make_aberrated(
-            &capture,
-            &psf_path,
-            &aberrated,
-            &scenes::AberrateOptions::default(),
-            &|| {},
-        )
-        .unwrap();
         Fixture {
             _dir: dir,
             clean,

@@ -5,12 +5,13 @@
 //! when it is installed; without either they skip with a printed reason, and
 //! `METASPLAT_REQUIRE_DISPLAY=1` (set by CI) makes that a failure.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output};
 use std::sync::OnceLock;
 
-use aberration::optics::{SimConfig, simulate_grid};
-use metasplat::procedural::{ProceduralOptions, ground_truth, write_capture};
+use metasplat::procedural::{ProceduralOptions, ground_truth};
 use metasplat::train::config::Mode;
 use metasplat::train::data::{self, DataOptions};
 use metasplat::train::objective::Objective;
@@ -36,27 +37,7 @@ fn fixture() -> &'static Fixture {
             views: 8,
             seed: 3,
         };
-        let clean = write_capture(&dir.path().join("clean"), &o).unwrap();
-        let (psf, _) = simulate_grid(&SimConfig::small(21), &|_, _| {}).unwrap();
-        let psf_path = dir.path().join("psf.npy");
-        psf.save_npy(&psf_path).unwrap();
-        let capture = scenes::open(
-            &clean,
-            &scenes::OpenOptions {
-                resolution: scenes::Resolution::Downsample(1),
-                ..Default::default()
-            },
-        )
-        .unwrap();
-        let aberrated = dir.path().join("aberrated");
-        scenes::make_aberrated(
-            &capture,
-            &psf_path,
-            &aberrated,
-            &scenes::AberrateOptions::default(),
-            &|| {},
-        )
-        .unwrap();
+        let (_, aberrated, _) = common::aberrated_procedural(dir.path(), &o);
         let ply = dir.path().join("truth.ply");
         splat::ply::write_ply(&ply, &ground_truth(o.seed)).unwrap();
         Fixture {
