@@ -583,20 +583,12 @@ pub fn backward_tile(
         for lx in 0..w as usize {
             let i = ly * STRIDE + lx;
             let idx = (y0 as usize + ly) * image_width as usize + x0 as usize + lx;
-            let tr = pix.final_t[idx];
             let vc = pix.v_color[idx];
-            let v_a = pix.v_alpha.map_or(0.0, |a| a[idx]);
-            let a_out = 1.0 - tr;
-            let u = match pix.v_depth {
-                Some(v) if a_out > 0.0 => v[idx] / a_out,
-                _ => 0.0,
-            };
-            st.tr[i] = tr;
+            st.tr[i] = pix.final_t[idx];
             st.last[i] = pix.n_contrib[idx];
             kmax = kmax.max(st.last[i] as usize);
             (st.v_c[0][i], st.v_c[1][i], st.v_c[2][i]) = (vc.x, vc.y, vc.z);
-            st.v_dsum[i] = u;
-            st.v_final[i] = tr * (v_a - background.dot(vc) - u * pix.depth[idx]);
+            (st.v_dsum[i], st.v_final[i]) = pix.depth_and_final(idx, background);
         }
     }
     for k in (0..kmax).rev() {

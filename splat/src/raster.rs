@@ -234,6 +234,27 @@ pub struct PixelGrads<'a> {
     pub n_contrib: &'a [u32],
 }
 
+impl PixelGrads<'_> {
+    /// The two per-pixel weights the backward starts from at pixel `idx` (row-major in the
+    /// image): `u = v_depth / A` (the depth output's weight, as a colour channel) and
+    /// `T_final · (v_alpha − background · v_color − u·d)` (the factor the background, alpha
+    /// and depth-normalisation terms share).
+    #[inline]
+    pub(crate) fn depth_and_final(&self, idx: usize, background: Vec3) -> (f32, f32) {
+        let tr = self.final_t[idx];
+        let v_a = self.v_alpha.map_or(0.0, |a| a[idx]);
+        let a_out = 1.0 - tr;
+        let u = match self.v_depth {
+            Some(v) if a_out > 0.0 => v[idx] / a_out,
+            _ => 0.0,
+        };
+        (
+            u,
+            tr * (v_a - background.dot(self.v_color[idx]) - u * self.depth[idx]),
+        )
+    }
+}
+
 /// Backward of [`forward_tile`]: splats are visited back to front, each pixel of a splat's box
 /// undoes its blending step (recovering `T` by division, as gsplat) and contributes to the
 /// splat's gradient; pixels are summed in row-major order, so results are deterministic.
@@ -271,14 +292,7 @@ pub fn backward_tile(
             last[li] = pix.n_contrib[idx] as usize;
             max_last = max_last.max(last[li]);
             v_c[li] = pix.v_color[idx];
-            let v_a = pix.v_alpha.map_or(0.0, |a| a[idx]);
-            let a_out = 1.0 - tr[li];
-            let u = match pix.v_depth {
-                Some(v) if a_out > 0.0 => v[idx] / a_out,
-                _ => 0.0,
-            };
-            v_dsum[li] = u;
-            v_final[li] = tr[li] * (v_a - background.dot(v_c[li]) - u * pix.depth[idx]);
+            (v_dsum[li], v_final[li]) = pix.depth_and_final(idx, background);
         }
     }
     for k in (0..max_last).rev() {
