@@ -21,7 +21,7 @@
 use glam::Vec3;
 
 use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_MIN};
-use crate::raster::{IsectGrad, PixelGrads, Splat, TileForward, local_box};
+use crate::raster::{IsectGrad, PixelGrads, PixelOut, Splat, TileSink, local_box};
 
 /// Pixels per block: one AVX2 register of `f32`.
 pub const LANES: usize = 8;
@@ -58,14 +58,19 @@ pub fn exp_neg(sigma: f32) -> f32 {
 const STRIDE: usize = crate::conventions::TILE_SIZE as usize;
 const TILE_PX: usize = STRIDE * STRIDE;
 
-/// Blends one tile (already gathered: `splats` is its list, front to back). Splats are visited
-/// in order; each blends the blocks of the tile rows its box covers. Same outputs as
+/// Blends one tile (already gathered: `splats` is its list, front to back) and writes its
+/// pixels into `sink`; returns the number of blended pairs. Splats are visited in order; each
+/// blends the blocks of the tile rows its box covers. Same outputs as
 /// [`crate::raster::forward_tile`] up to the exponential.
-pub fn forward_tile(
+///
+/// # Safety
+/// No other call writes the same tile into `sink` at the same time ([`TileSink::write_tile`]).
+pub unsafe fn forward_tile(
     splats: &[Splat],
     (x0, y0, w, h): (u32, u32, u32, u32),
     background: Vec3,
-) -> TileForward {
+    sink: &TileSink,
+) -> u64 {
     let mut st = TileState {
         tr: [1.0; TILE_PX],
         c: [[0.0; TILE_PX]; 3],
@@ -74,29 +79,22 @@ pub fn forward_tile(
         done: [0; TILE_PX],
     };
     let blended = forward_tile_dispatch(splats, (x0, y0, w, h), &mut st, true);
-    let n = (w * h) as usize;
-    let mut out = TileForward {
-        color: Vec::with_capacity(n),
-        alpha: Vec::with_capacity(n),
-        depth: Vec::with_capacity(n),
-        final_t: Vec::with_capacity(n),
-        n_contrib: Vec::with_capacity(n),
-        blended,
-    };
-    for ly in 0..h as usize {
-        for lx in 0..w as usize {
+    // SAFETY: the caller's promise.
+    unsafe {
+        sink.write_tile((x0, y0, w, h), |lx, ly| {
             let i = ly * STRIDE + lx;
             let t = st.tr[i];
             let a = 1.0 - t;
-            out.color
-                .push(Vec3::new(st.c[0][i], st.c[1][i], st.c[2][i]) + background * t);
-            out.alpha.push(a);
-            out.depth.push(if a > 0.0 { st.depth[i] / a } else { 0.0 });
-            out.final_t.push(t);
-            out.n_contrib.push(st.last[i]);
-        }
-    }
-    out
+            PixelOut {
+                color: Vec3::new(st.c[0][i], st.c[1][i], st.c[2][i]) + background * t,
+                alpha: a,
+                depth: if a > 0.0 { st.depth[i] / a } else { 0.0 },
+                final_t: t,
+                n_contrib: st.last[i],
+            }
+        })
+    };
+    blended
 }
 
 struct TileState {
@@ -557,6 +555,29 @@ struct BackState {
     behind_z: [f32; TILE_PX],
 }
 
+impl BackState {
+    fn zeroed() -> Self {
+        BackState {
+            tr: [0.0; TILE_PX],
+            last: [0; TILE_PX],
+            v_c: [[0.0; TILE_PX]; 3],
+            v_dsum: [0.0; TILE_PX],
+            v_final: [0.0; TILE_PX],
+            behind: [[0.0; TILE_PX]; 3],
+            behind_z: [0.0; TILE_PX],
+        }
+    }
+}
+
+/// The backward's per-tile state, kept by a worker from one tile to the next.
+pub struct BackScratch(Box<BackState>);
+
+impl Default for BackScratch {
+    fn default() -> Self {
+        BackScratch(Box::new(BackState::zeroed()))
+    }
+}
+
 /// Backward of [`forward_tile`] for one gathered tile: `out[k]` gets splat `k`'s gradient,
 /// its lanes summed in a fixed order. Same results as [`crate::raster::backward_tile`] up to
 /// the exponential and the order of the sums.
@@ -567,17 +588,12 @@ pub fn backward_tile(
     background: Vec3,
     pix: &PixelGrads,
     out: &mut [IsectGrad],
+    scratch: &mut BackScratch,
 ) {
     let (x0, y0, w, h) = tile;
-    let mut st = Box::new(BackState {
-        tr: [0.0; TILE_PX],
-        last: [0; TILE_PX],
-        v_c: [[0.0; TILE_PX]; 3],
-        v_dsum: [0.0; TILE_PX],
-        v_final: [0.0; TILE_PX],
-        behind: [[0.0; TILE_PX]; 3],
-        behind_z: [0.0; TILE_PX],
-    });
+    // Every tile starts from zeros, edge tiles' unused lanes included, as from a fresh state.
+    let st = &mut *scratch.0;
+    *st = BackState::zeroed();
     let mut kmax = 0;
     for ly in 0..h as usize {
         for lx in 0..w as usize {
@@ -592,7 +608,7 @@ pub fn backward_tile(
         }
     }
     for k in (0..kmax).rev() {
-        let sums = backward_splat_with(&splats[k], k as u32, tile, &mut st, true);
+        let sums = backward_splat_with(&splats[k], k as u32, tile, st, true);
         out[k] = IsectGrad {
             mean2d: glam::Vec2::new(sums[0], sums[1]),
             mean2d_abs: glam::Vec2::new(sums[2], sums[3]),

@@ -8,6 +8,7 @@
 pub mod camera;
 pub mod conventions;
 pub mod densify;
+mod disjoint;
 pub mod error;
 pub mod files;
 pub mod glb;

@@ -11,6 +11,7 @@
 use glam::{Vec2, Vec3};
 
 use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TILE_SIZE, TRANSMITTANCE_MIN};
+use crate::disjoint::Disjoint;
 use crate::project::Projected;
 use crate::tiles::TileBins;
 
@@ -81,10 +82,15 @@ impl Splat {
 
 /// Tile `t`'s list of splats, front to back, copied out contiguously.
 pub fn gather(bins: &TileBins, splats: &[Splat], t: usize) -> Vec<Splat> {
-    bins.ids[bins.range(t)]
-        .iter()
-        .map(|&g| splats[g as usize])
-        .collect()
+    let mut list = Vec::new();
+    gather_into(bins, splats, t, &mut list);
+    list
+}
+
+/// [`gather`] into a buffer a worker reuses from tile to tile.
+pub fn gather_into(bins: &TileBins, splats: &[Splat], t: usize, list: &mut Vec<Splat>) {
+    list.clear();
+    list.extend(bins.ids[bins.range(t)].iter().map(|&g| splats[g as usize]));
 }
 
 /// Pixel rectangle of tile `t`, clipped to the image: `(x0, y0, w, h)`.
@@ -127,6 +133,84 @@ pub struct TileForward {
     pub n_contrib: Vec<u32>,
     /// Number of (pixel, Gaussian) pairs blended in this tile.
     pub blended: u64,
+}
+
+/// The forward's output images, which every tile writes its own pixels of, in parallel.
+pub struct TileSink<'a> {
+    width: usize,
+    color: Disjoint<'a, Vec3>,
+    alpha: Disjoint<'a, f32>,
+    depth: Disjoint<'a, f32>,
+    /// What the backward keeps (absent for a plain render).
+    kept: Option<(Disjoint<'a, f32>, Disjoint<'a, u32>)>,
+}
+
+/// One finished pixel of a tile.
+pub struct PixelOut {
+    pub color: Vec3,
+    pub alpha: f32,
+    pub depth: f32,
+    pub final_t: f32,
+    pub n_contrib: u32,
+}
+
+impl<'a> TileSink<'a> {
+    /// Row-major images of `width` pixels per row; `kept`: the final transmittance and the
+    /// contributor count per pixel, for a backward pass.
+    pub fn new(
+        width: u32,
+        color: &'a mut [Vec3],
+        alpha: &'a mut [f32],
+        depth: &'a mut [f32],
+        kept: Option<(&'a mut [f32], &'a mut [u32])>,
+    ) -> Self {
+        Self {
+            width: width as usize,
+            color: Disjoint::new(color),
+            alpha: Disjoint::new(alpha),
+            depth: Disjoint::new(depth),
+            kept: kept.map(|(t, n)| (Disjoint::new(t), Disjoint::new(n))),
+        }
+    }
+
+    /// Writes the pixels of the tile rectangle `(x0, y0, w, h)`, `pixel(lx, ly)` each.
+    ///
+    /// # Safety
+    /// No other call writes an overlapping rectangle at the same time (tiles do not overlap,
+    /// so one call per tile is safe).
+    pub unsafe fn write_tile(
+        &self,
+        (x0, y0, w, h): (u32, u32, u32, u32),
+        mut pixel: impl FnMut(usize, usize) -> PixelOut,
+    ) {
+        let w = w as usize;
+        for ly in 0..h as usize {
+            let start = (y0 as usize + ly) * self.width + x0 as usize;
+            // SAFETY: the row of this tile: the caller's promise covers it.
+            let (color, alpha, depth) = unsafe {
+                (
+                    self.color.part(start, w),
+                    self.alpha.part(start, w),
+                    self.depth.part(start, w),
+                )
+            };
+            // SAFETY: as above.
+            let mut kept = self
+                .kept
+                .as_ref()
+                .map(|(t, n)| unsafe { (t.part(start, w), n.part(start, w)) });
+            for lx in 0..w {
+                let p = pixel(lx, ly);
+                color[lx] = p.color;
+                alpha[lx] = p.alpha;
+                depth[lx] = p.depth;
+                if let Some((t, n)) = kept.as_mut() {
+                    t[lx] = p.final_t;
+                    n[lx] = p.n_contrib;
+                }
+            }
+        }
+    }
 }
 
 /// Blends one tile. Splats are visited front to back and each updates only the pixels of its

@@ -156,18 +156,6 @@ fn forward(
     let (w, h) = (cam.width, cam.height);
     let bins = tiles::bin(&projected, w, h);
     let splats: Vec<Splat> = projected.par_iter().map(Splat::new).collect();
-    let tile_out: Vec<raster::TileForward> = (0..bins.num_tiles())
-        .into_par_iter()
-        .map(|t| match kernels {
-            Kernels::Blocks => blocks::forward_tile(
-                &raster::gather(&bins, &splats, t),
-                raster::tile_pixels(&bins, t, w, h),
-                settings.background,
-            ),
-            Kernels::Scalar => raster::forward_tile(&bins, &splats, t, w, h, settings.background),
-        })
-        .collect();
-
     let n_pix = cam.num_pixels();
     let mut color = vec![Vec3::ZERO; n_pix];
     let mut alpha = vec![0.0; n_pix];
@@ -177,21 +165,45 @@ fn forward(
     } else {
         (Vec::new(), Vec::new())
     };
-    for (t, out) in tile_out.iter().enumerate() {
-        let (x0, y0, tw, th) = raster::tile_pixels(&bins, t, w, h);
-        for ly in 0..th {
-            let src = (ly * tw) as usize..((ly + 1) * tw) as usize;
-            let dst = ((y0 + ly) * w + x0) as usize;
-            let dst = dst..dst + tw as usize;
-            color[dst.clone()].copy_from_slice(&out.color[src.clone()]);
-            alpha[dst.clone()].copy_from_slice(&out.alpha[src.clone()]);
-            depth[dst.clone()].copy_from_slice(&out.depth[src.clone()]);
-            if keep {
-                final_t[dst.clone()].copy_from_slice(&out.final_t[src.clone()]);
-                n_contrib[dst].copy_from_slice(&out.n_contrib[src]);
+    let sink = raster::TileSink::new(
+        w,
+        &mut color,
+        &mut alpha,
+        &mut depth,
+        keep.then_some((&mut final_t[..], &mut n_contrib[..])),
+    );
+    let num_blended: u64 = (0..bins.num_tiles())
+        .into_par_iter()
+        .map_init(Vec::new, |list, t| {
+            let tile = raster::tile_pixels(&bins, t, w, h);
+            match kernels {
+                Kernels::Blocks => {
+                    raster::gather_into(&bins, &splats, t, list);
+                    // SAFETY: tile t is this task's alone.
+                    unsafe { blocks::forward_tile(list, tile, settings.background, &sink) }
+                }
+                Kernels::Scalar => {
+                    let out = raster::forward_tile(&bins, &splats, t, w, h, settings.background);
+                    let tw = tile.2 as usize;
+                    // SAFETY: tile t is this task's alone.
+                    unsafe {
+                        sink.write_tile(tile, |lx, ly| {
+                            let i = ly * tw + lx;
+                            raster::PixelOut {
+                                color: out.color[i],
+                                alpha: out.alpha[i],
+                                depth: out.depth[i],
+                                final_t: out.final_t[i],
+                                n_contrib: out.n_contrib[i],
+                            }
+                        })
+                    };
+                    out.blended
+                }
             }
-        }
-    }
+        })
+        .sum();
+    drop(sink);
     let radii = projected.iter().map(|p| p.radius).collect();
     let visible = projected
         .iter()
@@ -218,7 +230,7 @@ fn forward(
         radii,
         visible,
         num_intersections: bins.ids.len(),
-        num_blended: tile_out.iter().map(|t| t.blended).sum(),
+        num_blended,
     };
     Ok((out, state))
 }
@@ -289,23 +301,35 @@ pub fn render_backward(
         final_t: &st.final_t,
         n_contrib: &st.n_contrib,
     };
-    let mut isect = vec![IsectGrad::default(); bins.ids.len()];
+    // Filled in parallel: the tiles below overwrite most of it, and a serial fill of this
+    // size would be a large part of what one thread does alone.
+    let mut isect: Vec<IsectGrad> = (0..bins.ids.len())
+        .into_par_iter()
+        .map(|_| IsectGrad::default())
+        .collect();
     tiles::split_per_tile(bins, &mut isect)
         .into_par_iter()
         .enumerate()
-        .for_each(|(t, out)| match st.kernels {
-            Kernels::Blocks => blocks::backward_tile(
-                &raster::gather(bins, &st.splats, t),
-                raster::tile_pixels(bins, t, w, h),
-                w,
-                settings.background,
-                &pix,
-                out,
-            ),
-            Kernels::Scalar => {
-                raster::backward_tile(bins, &st.splats, t, w, h, settings.background, &pix, out)
-            }
-        });
+        .for_each_init(
+            || (Vec::new(), blocks::BackScratch::default()),
+            |(list, scratch), (t, out)| match st.kernels {
+                Kernels::Blocks => {
+                    raster::gather_into(bins, &st.splats, t, list);
+                    blocks::backward_tile(
+                        list,
+                        raster::tile_pixels(bins, t, w, h),
+                        w,
+                        settings.background,
+                        &pix,
+                        out,
+                        scratch,
+                    )
+                }
+                Kernels::Scalar => {
+                    raster::backward_tile(bins, &st.splats, t, w, h, settings.background, &pix, out)
+                }
+            },
+        );
 
     // Per-Gaussian list of its intersection slots, in tile order (a stable counting sort).
     let n = g.len();
@@ -345,9 +369,8 @@ pub fn render_backward(
         })
         .collect();
     drop(isect);
-    Ok(gradients_from_screen(g, cam, settings, &screen, |i| {
-        starts[i] != starts[i + 1]
-    }))
+    let r = gradients_from_screen(g, cam, settings, &screen, |i| starts[i] != starts[i + 1]);
+    Ok(r)
 }
 
 /// Parameter gradients from the per-Gaussian screen-space gradients (with the sums of
@@ -363,9 +386,9 @@ pub(crate) fn gradients_from_screen(
     let n = g.len();
     let cam_pos = cam.position();
     let rc = g.rest_count();
-    let mut grads = Gaussians::zeros(n, g.sh_degree);
-    let mut means2d = vec![[0.0f32; 2]; n];
-    let mut means2d_abs = vec![[0.0f32; 2]; n];
+    // Built in parallel, field by field: serial zero-filling and copying of these buffers
+    // would be a large part of a step's serial time.
+    let mut sh_rest: Vec<Vec3> = (0..n * rc).into_par_iter().map(|_| Vec3::ZERO).collect();
     let per_gaussian = |i: usize, v_rest: &mut [Vec3]| {
         let (sg, abs) = &screen[i];
         let pg = if !touched(i) {
@@ -390,22 +413,23 @@ pub(crate) fn gradients_from_screen(
             .map(|i| per_gaussian(i, &mut []))
             .collect()
     } else {
-        grads
-            .sh_rest
+        sh_rest
             .par_chunks_mut(rc)
             .enumerate()
             .map(|(i, v_rest)| per_gaussian(i, v_rest))
             .collect()
     };
-    for (i, (pg, m2, m2a)) in results.into_iter().enumerate() {
-        grads.means[i] = pg.mean;
-        grads.log_scales[i] = pg.log_scale;
-        grads.rotations[i] = pg.rotation;
-        grads.logit_opacities[i] = pg.logit_opacity;
-        grads.sh_dc[i] = pg.sh_dc;
-        means2d[i] = m2;
-        means2d_abs[i] = m2a;
-    }
+    let grads = Gaussians {
+        means: results.par_iter().map(|r| r.0.mean).collect(),
+        log_scales: results.par_iter().map(|r| r.0.log_scale).collect(),
+        rotations: results.par_iter().map(|r| r.0.rotation).collect(),
+        logit_opacities: results.par_iter().map(|r| r.0.logit_opacity).collect(),
+        sh_dc: results.par_iter().map(|r| r.0.sh_dc).collect(),
+        sh_rest,
+        sh_degree: g.sh_degree,
+    };
+    let means2d = results.par_iter().map(|r| r.1).collect();
+    let means2d_abs = results.par_iter().map(|r| r.2).collect();
     Gradients {
         params: grads,
         means2d,

@@ -9,6 +9,7 @@
 use rayon::prelude::*;
 
 use crate::conventions::TILE_SIZE;
+use crate::disjoint::Disjoint;
 use crate::project::Projected;
 
 /// Tile lists: tile `t` holds `ids[offsets[t] .. offsets[t + 1]]`, front to back.
@@ -56,32 +57,65 @@ pub fn bin(projected: &[Projected], width: u32, height: u32) -> TileBins {
         .map(|p| tile_rect(p, tiles_x, tiles_y))
         .collect();
 
-    // Counting sort by tile, then a per-tile sort of the keys.
-    let mut counts = vec![0usize; num_tiles + 1];
-    for r in &rects {
-        for ty in r[2]..r[3] {
-            for tx in r[0]..r[1] {
-                counts[(ty * tiles_x + tx) as usize + 1] += 1;
+    // Counting sort by tile, then a per-tile sort of the keys. The counting runs in chunks of
+    // Gaussians in parallel: each chunk counts its entries per tile, a prefix sum over (tile,
+    // chunk) gives every chunk its own slots in each tile, and the chunks scatter into them at
+    // once. The order of keys within a tile before their sort depends on the chunking, the
+    // sorted order does not (keys are unique: the Gaussian index is part of each).
+    let chunk = rects
+        .len()
+        .div_ceil(4 * rayon::current_num_threads())
+        .max(4096);
+    let mut cursors: Vec<Vec<usize>> = rects
+        .par_chunks(chunk)
+        .map(|rs| {
+            let mut counts = vec![0usize; num_tiles];
+            for r in rs {
+                for ty in r[2]..r[3] {
+                    for tx in r[0]..r[1] {
+                        counts[(ty * tiles_x + tx) as usize] += 1;
+                    }
+                }
             }
+            counts
+        })
+        .collect();
+    let mut offsets = vec![0usize; num_tiles + 1];
+    let mut total = 0;
+    for t in 0..num_tiles {
+        offsets[t] = total;
+        for c in cursors.iter_mut() {
+            let n = c[t];
+            c[t] = total;
+            total += n;
         }
     }
-    for t in 0..num_tiles {
-        counts[t + 1] += counts[t];
-    }
-    let offsets = counts;
+    offsets[num_tiles] = total;
     // Sort key per entry: depth bits in the high word (depths are ≥ near > 0, where the IEEE
     // bit pattern orders like the value), Gaussian index in the low word as the tie-break.
-    let mut cursor = offsets.clone();
-    let mut keys = vec![0u64; offsets[num_tiles]];
-    for (g, r) in rects.iter().enumerate() {
-        let key = ((projected[g].depth.to_bits() as u64) << 32) | g as u64;
-        for ty in r[2]..r[3] {
-            for tx in r[0]..r[1] {
-                let t = (ty * tiles_x + tx) as usize;
-                keys[cursor[t]] = key;
-                cursor[t] += 1;
-            }
-        }
+    let mut keys = vec![0u64; total];
+    {
+        let out = Disjoint::new(&mut keys);
+        rects
+            .par_chunks(chunk)
+            .zip(cursors.par_iter_mut())
+            .enumerate()
+            .for_each(|(c, (rs, cursor))| {
+                for (j, r) in rs.iter().enumerate() {
+                    let g = c * chunk + j;
+                    let key = ((projected[g].depth.to_bits() as u64) << 32) | g as u64;
+                    for ty in r[2]..r[3] {
+                        for tx in r[0]..r[1] {
+                            let t = (ty * tiles_x + tx) as usize;
+                            // SAFETY: the prefix sum gave this chunk the slots
+                            // `cursor[t] ..` of tile t up to its own count, which no other
+                            // chunk's range overlaps.
+                            unsafe { out.write(cursor[t], key) };
+                            cursor[t] += 1;
+                        }
+                    }
+                }
+            });
     }
     let mut bins = TileBins {
         tiles_x,
@@ -113,4 +147,42 @@ pub fn split_per_tile<'a, T>(bins: &TileBins, buf: &'a mut [T]) -> Vec<&'a mut [
         rest = tail;
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The chunked parallel binning against the obvious one: every (tile, key) pair of every
+    /// Gaussian's rectangle, sorted.
+    #[test]
+    fn binning_equals_a_plain_sort_of_every_pair() {
+        let g = crate::synthetic::random_box_scene(3, 30_000, 0);
+        let cam = crate::synthetic::benchmark_camera().resized(300, 200);
+        let pos = cam.position();
+        let projected: Vec<Projected> = (0..g.len())
+            .map(|i| crate::project::project_one(&g, i, &cam, 0, false, pos).unwrap_or_default())
+            .collect();
+        let bins = bin(&projected, cam.width, cam.height);
+        let mut pairs = Vec::new();
+        for (i, p) in projected.iter().enumerate() {
+            let r = tile_rect(p, bins.tiles_x, bins.tiles_y);
+            for ty in r[2]..r[3] {
+                for tx in r[0]..r[1] {
+                    pairs.push((ty * bins.tiles_x + tx, p.depth.to_bits(), i as u32));
+                }
+            }
+        }
+        pairs.sort_unstable();
+        assert!(pairs.len() > 30_000, "too few pairs to span several chunks");
+        assert_eq!(bins.ids.len(), pairs.len());
+        for t in 0..bins.num_tiles() {
+            let want: Vec<u32> = pairs
+                .iter()
+                .filter(|p| p.0 as usize == t)
+                .map(|p| p.2)
+                .collect();
+            assert_eq!(&bins.ids[bins.range(t)], &want[..], "tile {t}");
+        }
+    }
 }
