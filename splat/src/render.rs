@@ -165,48 +165,50 @@ fn forward(
     } else {
         (Vec::new(), Vec::new())
     };
-    let sink = raster::TileSink::new(
-        w,
-        &mut color,
-        &mut alpha,
-        &mut depth,
-        keep.then_some((&mut final_t[..], &mut n_contrib[..])),
-    );
-    let num_blended: u64 = (0..bins.num_tiles())
-        .into_par_iter()
-        .map_init(Vec::new, |list, t| {
-            let tile = raster::tile_pixels(&bins, t, w, h);
-            match kernels {
-                Kernels::Blocks => {
-                    raster::gather_into(&bins, &splats, t, list);
-                    // SAFETY: tile t is this task's alone.
-                    unsafe { blocks::forward_tile(list, tile, settings.background, &sink) }
+    let num_blended = {
+        let sink = raster::TileSink::new(
+            w,
+            &mut color,
+            &mut alpha,
+            &mut depth,
+            keep.then_some((&mut final_t[..], &mut n_contrib[..])),
+        );
+        (0..bins.num_tiles())
+            .into_par_iter()
+            .map_init(Vec::new, |list, t| {
+                let tile = raster::tile_pixels(&bins, t, w, h);
+                match kernels {
+                    Kernels::Blocks => {
+                        raster::gather_into(&bins, &splats, t, list);
+                        // SAFETY: tile t is this task's alone.
+                        unsafe { blocks::forward_tile(list, tile, settings.background, &sink) }
+                    }
+                    Kernels::Scalar => {
+                        let out =
+                            raster::forward_tile(&bins, &splats, t, w, h, settings.background);
+                        let tw = tile.2 as usize;
+                        // SAFETY: tile t is this task's alone.
+                        unsafe {
+                            sink.write_tile(tile, |lx, ly| {
+                                let i = ly * tw + lx;
+                                raster::PixelOut {
+                                    color: out.color[i],
+                                    alpha: out.alpha[i],
+                                    depth: out.depth[i],
+                                    final_t: out.final_t[i],
+                                    n_contrib: out.n_contrib[i],
+                                }
+                            })
+                        };
+                        out.blended
+                    }
                 }
-                Kernels::Scalar => {
-                    let out = raster::forward_tile(&bins, &splats, t, w, h, settings.background);
-                    let tw = tile.2 as usize;
-                    // SAFETY: tile t is this task's alone.
-                    unsafe {
-                        sink.write_tile(tile, |lx, ly| {
-                            let i = ly * tw + lx;
-                            raster::PixelOut {
-                                color: out.color[i],
-                                alpha: out.alpha[i],
-                                depth: out.depth[i],
-                                final_t: out.final_t[i],
-                                n_contrib: out.n_contrib[i],
-                            }
-                        })
-                    };
-                    out.blended
-                }
-            }
-        })
-        .sum();
-    drop(sink);
-    let radii = projected.iter().map(|p| p.radius).collect();
+            })
+            .sum::<u64>()
+    };
+    let radii = projected.par_iter().map(|p| p.radius).collect();
     let visible = projected
-        .iter()
+        .par_iter()
         .map(|p| p.radius[0] > 0 || p.radius[1] > 0)
         .collect();
     let state = keep.then(|| ForwardState {
