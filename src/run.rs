@@ -65,7 +65,8 @@ pub struct TrainSettings {
     pub lambda: Option<f32>,
     #[arg(long, default_value_t = 7000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub iters: u64,
-    /// Splat budget; default: one per two pixels of a view.
+    /// Splat budget; default: one per two pixels of a view, twice that for a capture whose
+    /// cameras surround the scene.
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub max_splats: Option<u64>,
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=3))]

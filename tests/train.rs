@@ -400,3 +400,28 @@ fn the_first_non_finite_value_stops_the_run_and_keeps_the_last_checkpoint() {
         "the checkpoint changed"
     );
 }
+
+/// The capture's geometry sets two defaults: cameras all around the scene get opacity resets
+/// and twice the splat budget of a forward-facing capture of the same image size.
+#[test]
+fn a_capture_taken_all_around_gets_resets_and_a_larger_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = ProceduralOptions {
+        width: 64,
+        height: 48,
+        views: 12,
+        seed: 2,
+    };
+    let facing = metasplat::procedural::write_capture(&dir.path().join("facing"), &o).unwrap();
+    let around =
+        metasplat::procedural::write_capture_around(&dir.path().join("around"), &o).unwrap();
+    let build = |capture: &std::path::Path| {
+        let data = data::load(capture, Mode::Plain, &options()).unwrap();
+        config(Mode::Plain, 1000, &data)
+    };
+    let (f, a) = (build(&facing), build(&around));
+    assert_eq!(f.max_splats, 64 * 48 / 2);
+    assert_eq!(a.max_splats, 2 * f.max_splats);
+    assert!(f.recipe.opacity_reset_every.is_none());
+    assert!(a.recipe.opacity_reset_every.is_some());
+}

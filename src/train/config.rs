@@ -139,9 +139,12 @@ pub struct TrainConfig {
 pub const PAPER_LAMBDA: f32 = 0.75;
 
 /// Default budget: one splat per two pixels of a view (≈ 95k at 504×378), the order of
-/// what 3DGS keeps for LLFF scenes at that size.
-pub fn default_max_splats(width: u32, height: u32) -> usize {
-    ((width as usize * height as usize) / 2).max(1000)
+/// what 3DGS keeps for LLFF scenes at that size, and twice that when the cameras surround the
+/// scene: a forward-facing capture sees one side of its surfaces, one taken all around sees
+/// them from every side (the budget experiment in RESULTS.md measured both).
+pub fn default_max_splats(width: u32, height: u32, surrounds: bool) -> usize {
+    let per_view = ((width as usize * height as usize) / 2).max(1000);
+    if surrounds { 2 * per_view } else { per_view }
 }
 
 impl TrainConfig {
@@ -161,7 +164,7 @@ impl TrainConfig {
                 .lambda
                 .unwrap_or_else(|| crate::train::data::default_lambda(data.restorer.as_ref())),
             max_splats: settings.max_splats.map_or_else(
-                || default_max_splats(data.width, data.height),
+                || default_max_splats(data.width, data.height, data.capture.surrounds_scene()),
                 |m| m as usize,
             ),
             max_sh_degree: settings.max_sh_degree,
