@@ -18,6 +18,8 @@
 //! sums each splat's per-lane contributions in lane vectors and reduces them once per splat,
 //! in a fixed order: results do not depend on the thread count.
 
+use std::mem::MaybeUninit;
+
 use glam::Vec3;
 
 use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_MIN};
@@ -579,15 +581,16 @@ impl Default for BackScratch {
 }
 
 /// Backward of [`forward_tile`] for one gathered tile: `out[k]` gets splat `k`'s gradient,
-/// its lanes summed in a fixed order. Same results as [`crate::raster::backward_tile`] up to
-/// the exponential and the order of the sums.
+/// its lanes summed in a fixed order, and every slot of `out` is written (zero for splats
+/// behind every pixel's last contributor). Same results as [`crate::raster::backward_tile`]
+/// up to the exponential and the order of the sums.
 pub fn backward_tile(
     splats: &[Splat],
     tile: (u32, u32, u32, u32),
     image_width: u32,
     background: Vec3,
     pix: &PixelGrads,
-    out: &mut [IsectGrad],
+    out: &mut [MaybeUninit<IsectGrad>],
     scratch: &mut BackScratch,
 ) {
     let (x0, y0, w, h) = tile;
@@ -607,16 +610,21 @@ pub fn backward_tile(
             (st.v_dsum[i], st.v_final[i]) = pix.depth_and_final(idx, background);
         }
     }
-    for k in (0..kmax).rev() {
-        let sums = backward_splat_with(&splats[k], k as u32, tile, st, true);
-        out[k] = IsectGrad {
+    // One write per slot, back to front: the caller relies on every slot being written.
+    for (k, slot) in out.iter_mut().enumerate().rev() {
+        let sums = if k < kmax {
+            backward_splat_with(&splats[k], k as u32, tile, st, true)
+        } else {
+            [0.0; SUMS]
+        };
+        slot.write(IsectGrad {
             mean2d: glam::Vec2::new(sums[0], sums[1]),
             mean2d_abs: glam::Vec2::new(sums[2], sums[3]),
             conic: [sums[4], sums[5], sums[6]],
             color: Vec3::new(sums[7], sums[8], sums[9]),
             opacity: sums[10],
             depth: sums[11],
-        };
+        });
     }
 }
 

@@ -8,6 +8,8 @@
 //! `Σ cᵢ αᵢ Tᵢ + T_final · background`, alpha is `1 − T_final`, depth is
 //! `Σ zᵢ αᵢ Tᵢ / (1 − T_final)` (expected depth; 0 where nothing was blended).
 
+use std::mem::MaybeUninit;
+
 use glam::{Vec2, Vec3};
 
 use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TILE_SIZE, TRANSMITTANCE_MIN};
@@ -342,6 +344,7 @@ impl PixelGrads<'_> {
 /// Backward of [`forward_tile`]: splats are visited back to front, each pixel of a splat's box
 /// undoes its blending step (recovering `T` by division, as gsplat) and contributes to the
 /// splat's gradient; pixels are summed in row-major order, so results are deterministic.
+/// Every slot of `out` is written (zero for splats behind every pixel's last contributor).
 #[allow(clippy::too_many_arguments)]
 pub fn backward_tile(
     bins: &TileBins,
@@ -351,7 +354,7 @@ pub fn backward_tile(
     height: u32,
     background: Vec3,
     pix: &PixelGrads,
-    out: &mut [IsectGrad],
+    out: &mut [MaybeUninit<IsectGrad>],
 ) {
     let splats = gather(bins, splats, t);
     let (x0, y0, w, h) = tile_pixels(bins, t, width, height);
@@ -379,57 +382,66 @@ pub fn backward_tile(
             (v_dsum[li], v_final[li]) = pix.depth_and_final(idx, background);
         }
     }
-    for k in (0..max_last).rev() {
-        let s = &splats[k];
-        let Some([lx0, lx1, ly0, ly1]) = local_box(s, x0, y0, w, h) else {
-            continue;
-        };
-        let mut g = IsectGrad::default();
-        for ly in ly0..=ly1 {
-            let qy = (y0 as usize + ly) as f32 + 0.5;
-            // Every pixel of the box row gets the exact test: a per-row span of the quadratic
-            // costs more than the pixels it spares.
-            let (sx0, sx1) = (lx0, lx1);
-            for lx in sx0..=sx1 {
-                let li = ly * w as usize + lx;
-                if k >= last[li] {
-                    continue;
-                }
-                let q = Vec2::new((x0 as usize + lx) as f32 + 0.5, qy);
-                let (sigma, d) = sigma_of(s, q);
-                if !(0.0..=s.sigma_cut).contains(&sigma) {
-                    continue;
-                }
-                let vis = (-sigma).exp();
-                let raw = s.opacity * vis;
-                let alpha = MAX_ALPHA.min(raw);
-                if alpha < ALPHA_THRESHOLD {
-                    continue;
-                }
-                let ra = 1.0 / (1.0 - alpha);
-                tr[li] *= ra;
-                let fac = alpha * tr[li];
-                g.color += v_c[li] * fac;
-                g.depth += v_dsum[li] * fac;
-                let v_alpha = (s.color * tr[li] - behind[li] * ra).dot(v_c[li])
-                    + (s.depth * tr[li] - behind_z[li] * ra) * v_dsum[li]
-                    + ra * v_final[li];
-                behind[li] += s.color * fac;
-                behind_z[li] += s.depth * fac;
-                if raw <= MAX_ALPHA {
-                    let v_sigma = -raw * v_alpha;
-                    let [a, b, c] = s.conic;
-                    g.conic[0] += 0.5 * v_sigma * d.x * d.x;
-                    g.conic[1] += v_sigma * d.x * d.y;
-                    g.conic[2] += 0.5 * v_sigma * d.y * d.y;
-                    let vm =
-                        Vec2::new(v_sigma * (a * d.x + b * d.y), v_sigma * (b * d.x + c * d.y));
-                    g.mean2d += vm;
-                    g.mean2d_abs += vm.abs();
-                    g.opacity += vis * v_alpha;
+    // One write per slot, back to front, whatever the splat contributes: the caller relies on
+    // every slot being written.
+    for (k, slot) in out.iter_mut().enumerate().rev() {
+        let mut splat_grad = || {
+            let s = &splats[k];
+            let mut g = IsectGrad::default();
+            let Some([lx0, lx1, ly0, ly1]) = local_box(s, x0, y0, w, h) else {
+                return g;
+            };
+            for ly in ly0..=ly1 {
+                let qy = (y0 as usize + ly) as f32 + 0.5;
+                // Every pixel of the box row gets the exact test: a per-row span of the quadratic
+                // costs more than the pixels it spares.
+                let (sx0, sx1) = (lx0, lx1);
+                for lx in sx0..=sx1 {
+                    let li = ly * w as usize + lx;
+                    if k >= last[li] {
+                        continue;
+                    }
+                    let q = Vec2::new((x0 as usize + lx) as f32 + 0.5, qy);
+                    let (sigma, d) = sigma_of(s, q);
+                    if !(0.0..=s.sigma_cut).contains(&sigma) {
+                        continue;
+                    }
+                    let vis = (-sigma).exp();
+                    let raw = s.opacity * vis;
+                    let alpha = MAX_ALPHA.min(raw);
+                    if alpha < ALPHA_THRESHOLD {
+                        continue;
+                    }
+                    let ra = 1.0 / (1.0 - alpha);
+                    tr[li] *= ra;
+                    let fac = alpha * tr[li];
+                    g.color += v_c[li] * fac;
+                    g.depth += v_dsum[li] * fac;
+                    let v_alpha = (s.color * tr[li] - behind[li] * ra).dot(v_c[li])
+                        + (s.depth * tr[li] - behind_z[li] * ra) * v_dsum[li]
+                        + ra * v_final[li];
+                    behind[li] += s.color * fac;
+                    behind_z[li] += s.depth * fac;
+                    if raw <= MAX_ALPHA {
+                        let v_sigma = -raw * v_alpha;
+                        let [a, b, c] = s.conic;
+                        g.conic[0] += 0.5 * v_sigma * d.x * d.x;
+                        g.conic[1] += v_sigma * d.x * d.y;
+                        g.conic[2] += 0.5 * v_sigma * d.y * d.y;
+                        let vm =
+                            Vec2::new(v_sigma * (a * d.x + b * d.y), v_sigma * (b * d.x + c * d.y));
+                        g.mean2d += vm;
+                        g.mean2d_abs += vm.abs();
+                        g.opacity += vis * v_alpha;
+                    }
                 }
             }
-        }
-        out[k] = g;
+            g
+        };
+        slot.write(if k < max_last {
+            splat_grad()
+        } else {
+            IsectGrad::default()
+        });
     }
 }

@@ -303,13 +303,10 @@ pub fn render_backward(
         final_t: &st.final_t,
         n_contrib: &st.n_contrib,
     };
-    // Filled in parallel: the tiles below overwrite most of it, and a serial fill of this
-    // size would be a large part of what one thread does alone.
-    let mut isect: Vec<IsectGrad> = (0..bins.ids.len())
-        .into_par_iter()
-        .map(|_| IsectGrad::default())
-        .collect();
-    tiles::split_per_tile(bins, &mut isect)
+    // Not zero-filled: each tile's kernel writes every slot of its range.
+    let n_isect = bins.ids.len();
+    let mut isect: Vec<IsectGrad> = Vec::with_capacity(n_isect);
+    tiles::split_per_tile(bins, &mut isect.spare_capacity_mut()[..n_isect])
         .into_par_iter()
         .enumerate()
         .for_each_init(
@@ -332,6 +329,9 @@ pub fn render_backward(
                 }
             },
         );
+    // SAFETY: the tile ranges cover `0 .. n_isect` and both kernels write every slot of their
+    // range (their documented contract).
+    unsafe { isect.set_len(n_isect) };
 
     // Per-Gaussian list of its intersection slots, in tile order (a stable counting sort).
     let n = g.len();
