@@ -80,6 +80,10 @@ pub struct TrainSettings {
     /// only against a black background) fade and are pruned; 0 turns it off.
     #[arg(long, default_value_t = 0.0, value_parser = crate::flags::weight, allow_negative_numbers = true)]
     pub opacity_reg: f32,
+    /// An SH band stays when dropping it raises the training loss by at least this fraction
+    /// (default 0.001); 0 keeps every band that lowers it at all.
+    #[arg(long, value_parser = crate::flags::non_negative, allow_negative_numbers = true)]
+    pub sh_min_gain: Option<f64>,
     /// Held-out evaluation every N steps (default: 10 times per run).
     #[arg(long)]
     pub eval_every: Option<u64>,
