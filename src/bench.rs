@@ -1,16 +1,17 @@
 //! Where a CPU training step goes: the phases of the step the training loop takes (render,
 //! blur, loss with SSIM, the blur's adjoint, render backward, Adam), timed one by one on a
-//! capture's training views, at each thread count asked for. A measurement, not a test.
+//! capture's training views, at each thread count asked for. The loss phases are the training
+//! objective's own stages ([`Objective::evaluate_timed`]). A measurement, not a test.
 
 use std::time::Instant;
 
-use glam::Vec3;
 use splat::optim::Adam;
 use splat::{Gaussians, RenderSettings, render_backward, render_for_backward};
 
 use crate::error::{Result, TrainError};
 use crate::train::config::Mode;
 use crate::train::data::Dataset;
+use crate::train::objective::{Objective, Stage};
 
 /// The phases of a step, in the order they run.
 pub const PHASES: [&str; 6] = [
@@ -54,12 +55,19 @@ pub fn time_steps(
     pool.install(|| {
         let mut g = model.clone();
         let mut adam = Adam::new(&g);
-        let lrs = crate::train::config::Recipe::for_iters(7000, false).lrs;
+        let recipe = crate::train::config::Recipe::for_iters(7000, false);
         let settings = RenderSettings {
             sh_degree: g.sh_degree,
             ..Default::default()
         };
-        let (w, h) = (data.width, data.height);
+        let objective = Objective {
+            mode,
+            lambda,
+            dssim_weight: recipe.dssim_weight,
+            imaging: data.imaging.as_ref(),
+            width: data.width,
+            height: data.height,
+        };
         let mut t = [0.0f64; 6];
         let mut lap = |i: usize, start: &mut Instant| {
             t[i] += start.elapsed().as_secs_f64() * 1e3;
@@ -70,37 +78,17 @@ pub fn time_steps(
             let mut clock = Instant::now();
             let (out, state) = render_for_backward(&g, &view.camera, &settings)?;
             lap(0, &mut clock);
-            let imaging = data.imaging.as_ref();
-            let observed_render = match (mode, imaging) {
-                (Mode::Aware, Some(m)) => m.blur_pixels(&out.color)?,
-                _ => out.color.clone(),
-            };
-            lap(1, &mut clock);
-            let target = match mode {
-                Mode::Restored => view.restored.as_deref().unwrap_or(&view.observed),
-                _ => &view.observed,
-            };
-            let main = splat::loss::photometric_loss(&observed_render, target, w, h, 0.2)?;
-            let side = match (mode, view.restored.as_deref()) {
-                (Mode::Aware, Some(r)) if lambda != 0.0 => {
-                    Some(splat::loss::photometric_loss(&out.color, r, w, h, 0.2)?)
-                }
-                _ => None,
-            };
-            lap(2, &mut clock);
-            let mut v: Vec<Vec3> = match (mode, imaging) {
-                (Mode::Aware, Some(m)) => m.plan().adjoint_pixels(&main.grad)?,
-                _ => main.grad,
-            };
-            if let Some(s) = side {
-                for (a, b) in v.iter_mut().zip(&s.grad) {
-                    *a += *b * lambda;
-                }
-            }
-            lap(3, &mut clock);
+            let (_, v) = objective.evaluate_timed(&out.color, view, &mut |stage| {
+                let phase = match stage {
+                    Stage::Blur => 1,
+                    Stage::Loss => 2,
+                    Stage::Adjoint => 3,
+                };
+                lap(phase, &mut clock);
+            })?;
             let grads = render_backward(&g, &state, &v, None, None)?;
             lap(4, &mut clock);
-            adam.step(&mut g, &grads.params, &lrs)?;
+            adam.step(&mut g, &grads.params, &recipe.lrs)?;
             lap(5, &mut clock);
         }
         let n = steps.max(1) as f64;

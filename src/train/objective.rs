@@ -23,6 +23,17 @@ pub struct LossParts {
     pub psnr: f64,
 }
 
+/// The stages of [`Objective::evaluate_timed`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// The render through the PSF (aware).
+    Blur,
+    /// A photometric term, value and gradient (L1 + SSIM).
+    Loss,
+    /// The gradient back through the blur's adjoint, and the terms' gradients combined.
+    Adjoint,
+}
+
 pub struct Objective<'a> {
     pub mode: Mode,
     pub lambda: f32,
@@ -86,6 +97,18 @@ impl Objective<'_> {
 
     /// Loss and `∂loss/∂rendered`.
     pub fn evaluate(&self, rendered: &[Vec3], view: &View) -> Result<(LossParts, Vec<Vec3>)> {
+        self.evaluate_timed(rendered, view, &mut |_| {})
+    }
+
+    /// [`Self::evaluate`], calling `done(stage)` as each of its stages ends (an aware view
+    /// runs Blur, Loss, Adjoint, Loss, Adjoint), so that `metasplat bench step` times the
+    /// objective training runs rather than a copy of it.
+    pub fn evaluate_timed(
+        &self,
+        rendered: &[Vec3],
+        view: &View,
+        done: &mut dyn FnMut(Stage),
+    ) -> Result<(LossParts, Vec<Vec3>)> {
         let restored = || {
             view.restored.as_deref().ok_or_else(|| {
                 TrainError::Invalid(format!("view {} has no restored image", view.name))
@@ -98,6 +121,7 @@ impl Objective<'_> {
                     _ => restored()?,
                 };
                 let (v, g, p) = self.term(rendered, target)?;
+                done(Stage::Loss);
                 Ok((
                     LossParts {
                         total: v,
@@ -110,18 +134,23 @@ impl Objective<'_> {
             }
             Mode::Aware => {
                 let blurred = self.as_observed(rendered)?;
+                done(Stage::Blur);
                 let (v_abr, g_blurred, p) = self.term(&blurred, &view.observed)?;
+                done(Stage::Loss);
                 let g_abr = self.blur()?.plan().adjoint_pixels(&g_blurred)?;
+                done(Stage::Adjoint);
                 let (v_ac, g_ac, _) = if self.lambda != 0.0 {
                     self.term(rendered, restored()?)?
                 } else {
                     (0.0, vec![Vec3::ZERO; rendered.len()], 0.0)
                 };
+                done(Stage::Loss);
                 let grad = g_abr
                     .iter()
                     .zip(&g_ac)
                     .map(|(a, b)| *a + *b * self.lambda)
                     .collect();
+                done(Stage::Adjoint);
                 let parts = LossParts {
                     total: v_abr + self.lambda * v_ac,
                     main: v_abr,
