@@ -36,6 +36,46 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// `psf simulate` of the small test lens into `out`.
+fn small_psf(out: &Path) {
+    let mut args = vec!["psf", "simulate", "--out", s(out)];
+    args.extend_from_slice(SMALL_LENS);
+    ok(&args);
+}
+
+/// `scene procedural` of `views` views at `width`×`height` into `out`.
+fn procedural(out: &Path, width: u32, height: u32, views: u32) {
+    let (w, h, v) = (width.to_string(), height.to_string(), views.to_string());
+    ok(&[
+        "scene",
+        "procedural",
+        "--out",
+        s(out),
+        "--width",
+        &w,
+        "--height",
+        &h,
+        "--views",
+        &v,
+    ]);
+}
+
+/// `scene aberrate` of `clean` through `psf` into `out`, at full resolution.
+fn aberrate(clean: &Path, psf: &Path, out: &Path) {
+    ok(&[
+        "scene",
+        "aberrate",
+        "--scene",
+        s(clean),
+        "--psf",
+        s(psf),
+        "--out",
+        s(out),
+        "--downsample",
+        "1",
+    ]);
+}
+
 /// A small lens (same f-number as the paper's) so simulation takes well under a second.
 const SMALL_LENS: &[&str] = &[
     "--grid",
@@ -321,9 +361,7 @@ fn scene_aberrate_makes_fern_reproducibly() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let psf = d.join("psf.npy");
-    let mut args = vec!["psf", "simulate", "--out", s(&psf)];
-    args.extend_from_slice(SMALL_LENS);
-    ok(&args);
+    small_psf(&psf);
     let (a, b) = (d.join("a"), d.join("b"));
     for out in [&a, &b] {
         let text = ok(&[
@@ -375,33 +413,9 @@ fn train_then_render_and_clear_errors() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let (clean, abr, psf) = (d.join("clean"), d.join("abr"), d.join("psf.npy"));
-    let mut args = vec!["psf", "simulate", "--out", s(&psf)];
-    args.extend_from_slice(SMALL_LENS);
-    ok(&args);
-    ok(&[
-        "scene",
-        "procedural",
-        "--out",
-        s(&clean),
-        "--width",
-        "48",
-        "--height",
-        "32",
-        "--views",
-        "9",
-    ]);
-    ok(&[
-        "scene",
-        "aberrate",
-        "--scene",
-        s(&clean),
-        "--psf",
-        s(&psf),
-        "--out",
-        s(&abr),
-        "--downsample",
-        "1",
-    ]);
+    small_psf(&psf);
+    procedural(&clean, 48, 32, 9);
+    aberrate(&clean, &psf, &abr);
     let run = d.join("run");
     let text = ok(&[
         "train",
@@ -550,9 +564,7 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let psf = d.join("psf.npy");
-    let mut args = vec!["psf", "simulate", "--out", s(&psf)];
-    args.extend_from_slice(SMALL_LENS);
-    ok(&args);
+    small_psf(&psf);
     let imgs = d.join("photos");
     photos(&imgs, 3, 96, 80);
     let weights = d.join("w.bin");
@@ -676,30 +688,8 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
 
     // The restorer supplies I_ac to splat training.
     let (clean, capture) = (d.join("clean"), d.join("capture"));
-    ok(&[
-        "scene",
-        "procedural",
-        "--out",
-        s(&clean),
-        "--width",
-        "48",
-        "--height",
-        "32",
-        "--views",
-        "9",
-    ]);
-    ok(&[
-        "scene",
-        "aberrate",
-        "--scene",
-        s(&clean),
-        "--psf",
-        s(&psf),
-        "--out",
-        s(&capture),
-        "--downsample",
-        "1",
-    ]);
+    procedural(&clean, 48, 32, 9);
+    aberrate(&clean, &psf, &capture);
     let run = d.join("run");
     let text = ok(&[
         "train",
@@ -800,22 +790,9 @@ fn outputs_that_alias_inputs_are_refused_and_inputs_survive() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let psf = d.join("psf.npy");
-    let mut args = vec!["psf", "simulate", "--out", s(&psf)];
-    args.extend_from_slice(SMALL_LENS);
-    ok(&args);
+    small_psf(&psf);
     let scene = d.join("scene");
-    ok(&[
-        "scene",
-        "procedural",
-        "--out",
-        s(&scene),
-        "--width",
-        "32",
-        "--height",
-        "24",
-        "--views",
-        "5",
-    ]);
+    procedural(&scene, 32, 24, 5);
     let photo = scene.join("images/view000.png");
     let ply = d.join("model.ply");
     splat::ply::write_ply(&ply, &splat::synthetic::random_box_scene(1, 50, 0)).unwrap();
@@ -962,18 +939,7 @@ fn a_run_folder_is_continued_or_replaced_never_mixed() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let scene = d.join("scene");
-    ok(&[
-        "scene",
-        "procedural",
-        "--out",
-        s(&scene),
-        "--width",
-        "32",
-        "--height",
-        "24",
-        "--views",
-        "5",
-    ]);
+    procedural(&scene, 32, 24, 5);
     let run = d.join("run");
     let train = |extra: &[&str]| -> Vec<String> {
         let mut a: Vec<String> = [
@@ -1391,9 +1357,7 @@ fn the_defaults_improve_a_photo_at_the_papers_noise() {
 
     // Another PSF grid has no shipped network: the refusal names --weights.
     let other = d.join("other.npy");
-    let mut args = vec!["psf", "simulate", "--out", s(&other)];
-    args.extend_from_slice(SMALL_LENS);
-    ok(&args);
+    small_psf(&other);
     let err = fails(&[
         "restore",
         "--psf",
@@ -1412,18 +1376,7 @@ fn render_finds_the_image_folder_a_capture_has() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let scene = d.join("scene");
-    ok(&[
-        "scene",
-        "procedural",
-        "--out",
-        s(&scene),
-        "--width",
-        "48",
-        "--height",
-        "32",
-        "--views",
-        "3",
-    ]);
+    procedural(&scene, 48, 32, 3);
     assert!(scene.join("images").is_dir() && !scene.join("images_8").exists());
     let ply = d.join("truth.ply");
     splat::ply::write_ply(&ply, &metasplat::procedural::ground_truth(0)).unwrap();
@@ -1448,9 +1401,7 @@ fn the_budget_experiment_writes_its_table_and_plot() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let (clean, psf, out) = (d.join("clean"), d.join("psf.npy"), d.join("exp"));
-    let mut args = vec!["psf", "simulate", "--out", s(&psf)];
-    args.extend_from_slice(SMALL_LENS);
-    ok(&args);
+    small_psf(&psf);
     ok(&[
         "scene",
         "procedural",
