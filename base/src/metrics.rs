@@ -115,12 +115,12 @@ fn ssim_rgb(a: &[Vec3], b: &[Vec3], w: usize, h: usize, mut grad: Option<&mut [V
     with_scratch(n, |s| {
         for ch in 0..3 {
             let (x, y, g) = (&mut s.x[..n], &mut s.y[..n], &mut s.grad[..n]);
-            x.iter_mut().zip(a).for_each(|(d, v)| *d = v[ch]);
-            y.iter_mut().zip(b).for_each(|(d, v)| *d = v[ch]);
+            x.par_iter_mut().zip(a).for_each(|(d, v)| *d = v[ch]);
+            y.par_iter_mut().zip(b).for_each(|(d, v)| *d = v[ch]);
             let want = grad.is_some().then_some(&mut *g);
             ssim_channel(x, y, w, h, inv_count, &mut total, want, &mut s.work);
             if let Some(out) = grad.as_deref_mut() {
-                out.iter_mut().zip(&*g).for_each(|(o, v)| o[ch] = *v);
+                out.par_iter_mut().zip(&*g).for_each(|(o, v)| o[ch] = *v);
             }
         }
     });
@@ -173,11 +173,14 @@ fn with_scratch<R>(n: usize, f: impl FnOnce(&mut Scratch) -> R) -> R {
     })
 }
 
-/// `v` as `len` zeros, reusing its memory.
-fn zeroed(v: &mut Vec<f32>, len: usize) -> &mut [f32] {
-    v.clear();
-    v.resize(len, 0.0);
-    &mut v[..]
+/// The first `len` values of `v`, grown if needed, holding whatever they held: every caller
+/// writes each value before reading it (a serial fill of these buffers was a large part of
+/// an SSIM call's serial time).
+fn sized(v: &mut Vec<f32>, len: usize) -> &mut [f32] {
+    if v.len() < len {
+        v.resize(len, 0.0);
+    }
+    &mut v[..len]
 }
 
 fn check(rendered: usize, target: usize, width: u32, height: u32) -> Result<(), BaseError> {
@@ -227,11 +230,12 @@ fn blur_planes<const P: usize>(
 ) {
     let r = SSIM_WINDOW / 2;
     let stride = P * w;
-    let tmp = zeroed(tmp, h * stride);
+    let tmp = sized(tmp, h * stride);
     tmp.par_chunks_mut(stride)
         .with_min_len(ROWS_PER_TASK)
         .zip(src.par_chunks(stride))
         .for_each(|(t, s)| {
+            t.fill(0.0);
             for p in 0..P {
                 let (row, out) = (&s[p * w..(p + 1) * w], &mut t[p * w..(p + 1) * w]);
                 for (j, kj) in k.iter().enumerate() {
@@ -249,11 +253,12 @@ fn blur_planes<const P: usize>(
             }
         });
     let tmp = &*tmp;
-    zeroed(out, h * stride)
+    sized(out, h * stride)
         .par_chunks_mut(stride)
         .with_min_len(ROWS_PER_TASK)
         .enumerate()
         .for_each(|(y, o)| {
+            o.fill(0.0);
             for (j, kj) in k.iter().enumerate() {
                 let Some(yy) = (y + j).checked_sub(r).filter(|&yy| yy < h) else {
                     continue;
@@ -280,7 +285,7 @@ fn ssim_channel(
 ) {
     let k = window();
     // μx, μy, E[x²], E[y²], E[xy], blurred in one sweep.
-    zeroed(&mut work.stats, 5 * w * h)
+    sized(&mut work.stats, 5 * w * h)
         .par_chunks_mut(5 * w)
         .with_min_len(ROWS_PER_TASK)
         .enumerate()
@@ -294,14 +299,21 @@ fn ssim_channel(
                 s[4 * w + i] = xr[i] * yr[i];
             }
         });
-    blur_planes::<5>(&work.stats, w, h, &k, &mut work.tmp, &mut work.blurred);
+    blur_planes::<5>(
+        &work.stats[..5 * w * h],
+        w,
+        h,
+        &k,
+        &mut work.tmp,
+        &mut work.blurred,
+    );
     // The SSIM map and its derivatives with respect to μx, E[x²], E[xy].
-    let map = zeroed(&mut work.map, w * h);
-    let d = zeroed(&mut work.d, 3 * w * h);
+    let map = sized(&mut work.map, w * h);
+    let d = sized(&mut work.d, 3 * w * h);
     map.par_chunks_mut(w)
         .with_min_len(ROWS_PER_TASK)
         .zip(d.par_chunks_mut(3 * w))
-        .zip(work.blurred.par_chunks(5 * w))
+        .zip(work.blurred[..5 * w * h].par_chunks(5 * w))
         .for_each(|((m, d), b)| {
             for i in 0..w {
                 let (mx, my) = (b[i], b[w + i]);
@@ -323,14 +335,21 @@ fn ssim_channel(
             }
         });
     // Summed in pixel order, as the direct loops do.
-    for v in work.map.iter() {
+    for v in &work.map[..w * h] {
         *total += *v as f64;
     }
     let Some(grad) = grad else {
         return;
     };
     // The blur is symmetric, so it is its own adjoint (its output reuses the stats' memory).
-    blur_planes::<3>(&work.d, w, h, &k, &mut work.tmp, &mut work.stats);
+    blur_planes::<3>(
+        &work.d[..3 * w * h],
+        w,
+        h,
+        &k,
+        &mut work.tmp,
+        &mut work.stats,
+    );
     let g = &work.stats;
     grad.par_chunks_mut(w)
         .with_min_len(ROWS_PER_TASK)
