@@ -1473,3 +1473,51 @@ fn the_budget_experiment_writes_its_table_and_plot() {
     ]);
     assert!(err.contains("'0' is not a splat budget"), "{err}");
 }
+
+#[test]
+fn an_experiment_resumes_where_it_stopped() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (clean, psf, out) = (d.join("clean"), d.join("psf.npy"), d.join("exp"));
+    small_psf(&psf);
+    procedural(&clean, 40, 32, 8);
+    let base = vec![
+        "experiment",
+        "llff",
+        "--scene",
+        s(&clean),
+        "--out",
+        s(&out),
+        "--psf",
+        s(&psf),
+        "--downsample",
+        "1",
+        "--iters",
+        "20",
+        "--modes",
+        "plain",
+        "--device",
+        "cpu",
+    ];
+    let exp = |extra: &[&'static str]| [base.clone(), extra.to_vec()].concat();
+    ok(&exp(&[]));
+    let run = out.join("run_plain");
+    let seconds = |run: &Path| {
+        let m: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(run.join("metrics.json")).unwrap()).unwrap();
+        m["train_seconds"].as_f64().unwrap()
+    };
+    let (before, ply) = (
+        seconds(&run),
+        std::fs::read(run.join("point_cloud.ply")).unwrap(),
+    );
+    // Without --resume the finished run is refused, not mixed or replaced.
+    let err = fails(&exp(&[]));
+    assert!(err.contains("--resume"), "{err}");
+    // With it the finished run is evaluated again, not trained again, and the table rebuilt.
+    std::fs::remove_file(out.join("table.md")).unwrap();
+    ok(&exp(&["--resume"]));
+    assert_eq!(seconds(&run), before);
+    assert_eq!(std::fs::read(run.join("point_cloud.ply")).unwrap(), ply);
+    assert!(out.join("table.md").exists());
+}

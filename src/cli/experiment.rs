@@ -80,6 +80,10 @@ pub struct BudgetArgs {
     /// Replace runs already in --out.
     #[arg(long)]
     pub overwrite: bool,
+    /// Continue the runs already in --out from their checkpoints (a finished one is only
+    /// evaluated again): an interrupted experiment goes on where it stopped.
+    #[arg(long, conflicts_with = "overwrite")]
+    pub resume: bool,
 }
 
 #[derive(Args)]
@@ -110,6 +114,12 @@ pub struct LlffArgs {
     /// Replace runs already in --out (otherwise a folder holding a run is refused).
     #[arg(long)]
     pub overwrite: bool,
+    /// Continue the runs already in --out from their checkpoints (a finished one is only
+    /// evaluated again): an interrupted experiment goes on where it stopped, and a mode
+    /// trained on its own (`train --out OUT/run_MODE` with this experiment's settings) joins
+    /// the table.
+    #[arg(long, conflicts_with = "overwrite")]
+    pub resume: bool,
 }
 
 pub fn run(cmd: ExperimentCommand) -> Result<()> {
@@ -182,6 +192,7 @@ fn budget(a: BudgetArgs) -> Result<()> {
         seed: a.seed,
         device: a.device,
         overwrite: a.overwrite,
+        resume: a.resume,
         iters: a.iters,
     };
     for &b in &a.budgets {
@@ -258,19 +269,31 @@ struct Common<'a> {
     seed: u64,
     device: metasplat::device::DeviceChoice,
     overwrite: bool,
+    resume: bool,
     iters: u64,
 }
 
 impl Common<'_> {
     /// A run of `mode` on the aberrated capture into `run_dir`.
     fn run(&self, aberrated: &std::path::Path, run_dir: PathBuf, mode: Mode) -> RunRequest {
+        let (resume, overwrite) = match (
+            self.resume,
+            run_dir.join(metasplat::outputs::CHECKPOINT_FILE).exists(),
+        ) {
+            (true, true) => (true, false),
+            // A run stopped before its first checkpoint left nothing to continue: it starts
+            // again.
+            (true, false) => (false, run_dir.exists()),
+            (false, _) => (false, self.overwrite),
+        };
         let mut args = RunRequest::new(aberrated, run_dir);
         args.data.downsample = self.downsample;
         args.data.seed = self.seed;
         // The runs restore the same views: one I_ac cache serves them all.
         args.data.iac_cache = Some(self.out.join(metasplat::train::iac_cache::CACHE_DIR));
         args.device = self.device;
-        args.overwrite = self.overwrite;
+        args.overwrite = overwrite;
+        args.resume = resume;
         args.training.mode = mode;
         args.training.iters = self.iters;
         args
@@ -302,6 +325,7 @@ fn llff(a: LlffArgs) -> Result<()> {
         seed: a.seed,
         device: a.device,
         overwrite: a.overwrite,
+        resume: a.resume,
         iters: a.iters,
     };
     for &mode in &a.modes {
