@@ -42,18 +42,34 @@ pub fn psnr(a: &[f32], b: &[f32]) -> Result<f64, BaseError> {
     Ok(psnr_of(a.iter().zip(b).map(|(x, y)| (*x, *y)), a.len()))
 }
 
-/// [`psnr`] of two RGB images.
+/// [`psnr`] of two RGB images. Training computes one per step, so the squared errors are
+/// summed in parallel, in fixed chunks added in order (the same value for any thread count).
 pub fn psnr_rgb(a: &[Vec3], b: &[Vec3]) -> Result<f64, BaseError> {
     check_len(a.len(), b.len())?;
-    let pairs = a
+    const CHUNK: usize = 4096;
+    let se: f64 = a
+        .par_chunks(CHUNK)
+        .zip(b.par_chunks(CHUNK))
+        .map(|(a, b)| {
+            a.iter()
+                .zip(b)
+                .flat_map(|(x, y)| (0..3).map(move |c| (x[c] as f64 - y[c] as f64).powi(2)))
+                .sum::<f64>()
+        })
+        .collect::<Vec<f64>>()
         .iter()
-        .zip(b)
-        .flat_map(|(x, y)| (0..3).map(move |c| (x[c], y[c])));
-    Ok(psnr_of(pairs, 3 * a.len()))
+        .sum();
+    Ok(psnr_from_se(se, 3 * a.len()))
 }
 
 fn psnr_of(pairs: impl Iterator<Item = (f32, f32)>, count: usize) -> f64 {
-    let se: f64 = pairs.map(|(x, y)| (x as f64 - y as f64).powi(2)).sum();
+    psnr_from_se(
+        pairs.map(|(x, y)| (x as f64 - y as f64).powi(2)).sum(),
+        count,
+    )
+}
+
+fn psnr_from_se(se: f64, count: usize) -> f64 {
     -10.0 * (se / count as f64).max(PSNR_MSE_FLOOR).log10()
 }
 

@@ -3,6 +3,7 @@
 //! evaluation reports. Images are row-major `width * height` RGB.
 
 use glam::Vec3;
+use rayon::prelude::*;
 
 use crate::error::SplatError;
 
@@ -39,21 +40,35 @@ pub fn l1(
 ) -> Result<LossGrad, SplatError> {
     check(rendered, target, width, height)?;
     let inv = 1.0 / (3 * rendered.len()) as f32;
-    let mut value = 0.0f64;
     let grad = rendered
-        .iter()
+        .par_iter()
         .zip(target)
         .map(|(r, t)| {
             let d = *r - *t;
-            value += d.abs().element_sum() as f64;
             Vec3::new(sign(d.x), sign(d.y), sign(d.z)) * inv
         })
         .collect();
+    // Summed in fixed chunks, then the chunks in order: the same value for any thread count.
+    let value: f64 = rendered
+        .par_chunks(SUM_CHUNK)
+        .zip(target.par_chunks(SUM_CHUNK))
+        .map(|(r, t)| {
+            r.iter()
+                .zip(t)
+                .map(|(r, t)| (*r - *t).abs().element_sum() as f64)
+                .sum::<f64>()
+        })
+        .collect::<Vec<f64>>()
+        .iter()
+        .sum();
     Ok(LossGrad {
         value: (value * inv as f64) as f32,
         grad,
     })
 }
+
+/// Pixels per partial sum of a loss value.
+const SUM_CHUNK: usize = 4096;
 
 fn sign(v: f32) -> f32 {
     if v > 0.0 {
@@ -99,7 +114,7 @@ pub fn photometric_loss(
     let s = ssim(rendered, target, width, height)?;
     let grad = l
         .grad
-        .iter()
+        .par_iter()
         .zip(&s.grad)
         .map(|(a, b)| *a * (1.0 - dssim_weight) - *b * dssim_weight)
         .collect();

@@ -141,3 +141,40 @@ fn loss_size_mismatch_is_an_error() {
     assert!(ssim(&x, &x, 3, 3).is_err());
     assert!(l1(&x, &x[..9], 3, 3).is_err());
 }
+
+/// The loss value and gradient do not depend on the thread count, and the value is the plain
+/// float64 mean absolute difference.
+#[test]
+fn l1_is_the_same_for_any_thread_count() {
+    let (w, h) = (150, 97);
+    let (a, b) = (random_image(11, w * h), random_image(12, w * h));
+    let run = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| photometric_loss(&a, &b, w as u32, h as u32, 0.2).unwrap())
+    };
+    let one = run(1);
+    for threads in [2, 3] {
+        let other = run(threads);
+        assert_eq!(
+            one.value.to_bits(),
+            other.value.to_bits(),
+            "{threads} threads"
+        );
+        assert_eq!(one.l1.to_bits(), other.l1.to_bits(), "{threads} threads");
+        assert!(one.grad == other.grad, "{threads} threads");
+    }
+    let exact = flat(&a)
+        .iter()
+        .zip(flat(&b))
+        .map(|(x, y)| (x - y).abs())
+        .sum::<f64>()
+        / (3 * w * h) as f64;
+    assert!(
+        ((one.l1 as f64 - exact) / exact).abs() < 1e-6,
+        "{} vs {exact}",
+        one.l1
+    );
+}
