@@ -425,3 +425,23 @@ fn a_capture_taken_all_around_gets_resets_and_a_larger_budget() {
     assert!(f.recipe.opacity_reset_every.is_none());
     assert!(a.recipe.opacity_reset_every.is_some());
 }
+
+/// With the median-Wiener stand-in as `I_ac`, aware's λ falls to zero by the end of
+/// densification; other modes, and other restorers, keep a constant λ.
+#[test]
+fn the_stand_in_restorer_fades_lambda_out() {
+    let data = data::load(&fixture().aberrated, Mode::Aware, &options()).unwrap();
+    assert!(matches!(
+        data.restorer,
+        Some(metasplat::train::data::Restorer::MedianWiener)
+    ));
+    let cfg = config(Mode::Aware, 1000, &data);
+    assert_eq!(cfg.lambda_fade_until, Some(500));
+    assert_eq!(cfg.lambda_at(0), cfg.lambda);
+    assert!((cfg.lambda_at(250) - cfg.lambda / 2.0).abs() < 1e-6);
+    assert_eq!(cfg.lambda_at(500), 0.0);
+    assert_eq!(cfg.lambda_at(900), 0.0);
+    let plain = data::load(&fixture().aberrated, Mode::Plain, &options()).unwrap();
+    let cfg = config(Mode::Plain, 1000, &plain);
+    assert_eq!(cfg.lambda_fade_until, None);
+}

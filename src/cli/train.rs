@@ -64,7 +64,13 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
         if let Some(r) = &data.restorer {
             println!("{}", r.describe());
             if t.mode == Mode::Aware {
-                println!("lambda {} for L(render, I_ac)", config.lambda);
+                match config.lambda_fade_until {
+                    Some(end) => println!(
+                        "lambda {} for L(render, I_ac), falling to 0 by step {end}: a long run would learn the stand-in's ringing",
+                        config.lambda
+                    ),
+                    None => println!("lambda {} for L(render, I_ac)", config.lambda),
+                }
             }
         }
         if !data.can_evaluate() {

@@ -237,6 +237,10 @@ pub fn train(
                 view.name
             ))
         };
+        let objective = Objective {
+            lambda: config.lambda_at(s.step),
+            ..objective
+        };
         let (out, parts, grads) = device.forward_backward(&s.model, &view.camera, &rs, |out| {
             let (parts, v) = objective.evaluate(&out.color, view)?;
             if !parts.total.is_finite() {

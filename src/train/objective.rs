@@ -34,6 +34,7 @@ pub enum Stage {
     Adjoint,
 }
 
+#[derive(Clone, Copy)]
 pub struct Objective<'a> {
     pub mode: Mode,
     pub lambda: f32,
