@@ -287,6 +287,15 @@ pub fn train(
         drop((out, grads));
         s.step += 1;
         let step = s.step;
+        // SH bands are judged before densification acts on this step: an opacity reset falling
+        // on the same step would leave the probes comparing two nearly transparent models, and
+        // every band would look worthless.
+        for event in
+            s.sh.after_step(step, &mut s.model, &mut s.adam, &mut loss_at)?
+        {
+            sh_events.push(event);
+            on_event(Event::Sh { step, event });
+        }
         if let Some(edit) = s
             .densifier
             .after_step(step, &mut s.model, &mut s.adam, config.seed)?
@@ -302,12 +311,6 @@ pub fn train(
             if pruned > 0 {
                 on_event(Event::Unseen { step, pruned });
             }
-        }
-        for event in
-            s.sh.after_step(step, &mut s.model, &mut s.adam, &mut loss_at)?
-        {
-            sh_events.push(event);
-            on_event(Event::Sh { step, event });
         }
         s.train_seconds += started.elapsed().as_secs_f64();
         on_event(Event::Step {
