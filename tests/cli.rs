@@ -433,7 +433,7 @@ fn train_then_render_and_clear_errors() {
         "3",
     ]);
     assert!(
-        text.contains("median MAFG Wiener") && text.contains("mean"),
+        text.contains("Wiener image, K = 1e-2") && text.contains("mean"),
         "{text}"
     );
     let metrics = std::fs::read_to_string(run.join("metrics.json")).unwrap();
@@ -734,7 +734,7 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
         "--resume",
     ]);
     assert!(
-        err.contains("cannot resume") && err.contains("i_ac") && err.contains("median MAFG Wiener"),
+        err.contains("cannot resume") && err.contains("i_ac") && err.contains("Wiener K=1e-2"),
         "{err}"
     );
     let err = fails(&[

@@ -433,7 +433,7 @@ fn the_stand_in_restorer_fades_lambda_out() {
     let data = data::load(&fixture().aberrated, Mode::Aware, &options()).unwrap();
     assert!(matches!(
         data.restorer,
-        Some(metasplat::train::data::Restorer::MedianWiener)
+        Some(metasplat::train::data::Restorer::Wiener)
     ));
     let cfg = config(Mode::Aware, 1000, &data);
     assert_eq!(cfg.lambda_fade_until, Some(500));

@@ -133,10 +133,8 @@ pub struct TrainConfig {
     /// Weight of the mean-opacity penalty (0: none).
     #[serde(default)]
     pub opacity_reg: f32,
-    /// When set, λ falls linearly from `lambda` to zero at this step and stays there: with
-    /// the median-Wiener stand-in as `I_ac`, whose ringing a long run learns (on the demo
-    /// scene aware fell 2.5 dB from its best over 7000 steps at a constant λ, and stayed
-    /// within 0.2 dB of its best at λ = 0).
+    /// When set, λ falls linearly from `lambda` to zero at this step and stays there: with a
+    /// Wiener stand-in as `I_ac`, whose errors a long run learns (RESULTS.md, demo section).
     #[serde(default)]
     pub lambda_fade_until: Option<u64>,
 }
@@ -204,7 +202,7 @@ impl TrainConfig {
             lambda_fade_until: (settings.mode == Mode::Aware
                 && matches!(
                     data.restorer,
-                    Some(crate::train::data::Restorer::MedianWiener)
+                    Some(crate::train::data::Restorer::Wiener)
                 ))
             .then_some(iters / 2),
         }

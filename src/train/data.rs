@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use aberration::{BlurMode, ImagingModel, NoiseModel, PsfGrid, wiener_bank};
+use aberration::{BlurMode, ImagingModel, NoiseModel, PsfGrid};
 use glam::Vec3;
 use rayon::prelude::*;
 use scenes::aberrated::{self, AberrationRecord};
@@ -30,9 +30,9 @@ pub struct View {
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum RestorerChoice {
     /// The shipped transformer when it was trained for the capture's PSF grid, else the
-    /// median Wiener image (and every output says which).
+    /// Wiener image (and every output says which).
     Auto,
-    /// The median filter of the 13-filter MAFG Wiener bank.
+    /// The Wiener filter with `metasplat deconvolve`'s default constant.
     Wiener,
     /// Transformer weights from a file (refused if trained for another PSF grid).
     Weights(PathBuf),
@@ -53,8 +53,10 @@ impl std::str::FromStr for RestorerChoice {
 /// Where `I_ac` came from.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Restorer {
-    /// The median filter of the MAFG Wiener bank (no trained weights for this PSF grid).
-    MedianWiener,
+    /// The Wiener filter with `metasplat deconvolve`'s default constant (no trained weights
+    /// for this PSF grid). It replaced the median of the MAFG bank, which at low resolution is
+    /// worse than the aberrated input and whose ringing long runs learned (RESULTS.md).
+    Wiener,
     /// The MAFG + STAF transformer: its config name, where its weights came from, and a
     /// hash of the weights file.
     Network {
@@ -71,15 +73,15 @@ impl Restorer {
     /// sweep is in RESULTS.md).
     pub fn default_lambda(&self) -> f32 {
         match self {
-            Restorer::MedianWiener => 0.25,
+            Restorer::Wiener => 0.25,
             Restorer::Network { .. } => crate::train::config::PAPER_LAMBDA,
         }
     }
 
     pub fn describe(&self) -> String {
         match self {
-            Restorer::MedianWiener => {
-                "I_ac = median MAFG Wiener image (stand-in: no trained restorer fits this PSF grid and scale)"
+            Restorer::Wiener => {
+                "I_ac = Wiener image, K = 1e-2 (stand-in: no trained restorer fits this PSF grid and scale)"
                     .into()
             }
             Restorer::Network { config, source, .. } => {
@@ -92,7 +94,7 @@ impl Restorer {
     /// run must get its `I_ac` from the same source.
     pub fn identity(&self) -> String {
         match self {
-            Restorer::MedianWiener => "median MAFG Wiener".into(),
+            Restorer::Wiener => "Wiener K=1e-2".into(),
             Restorer::Network {
                 config, weights, ..
             } => format!("{config} network, weights fnv1a {weights}"),
@@ -124,7 +126,7 @@ fn open_restorer(
             Some(r) => (
                 None,
                 Some(format!(
-                    "{}: using the median Wiener image instead",
+                    "{}: using the Wiener image instead",
                     scale_note(&r, "the shipped restorer")
                 )),
             ),
@@ -152,7 +154,7 @@ pub struct DataOptions {
     #[arg(long)]
     pub psf: Option<PathBuf>,
     /// Source of I_ac: `auto` (the shipped transformer when trained for this PSF grid, else
-    /// the median MAFG Wiener image), `wiener`, or a restorer weights file.
+    /// the Wiener image), `wiener`, or a restorer weights file.
     #[arg(long, default_value = "auto")]
     pub restorer: RestorerChoice,
     #[arg(long, default_value_t = 0)]
@@ -342,7 +344,7 @@ impl CaptureModel {
                 source: source.clone(),
                 weights: r.weights_hash.clone().unwrap_or_default(),
             },
-            None => Restorer::MedianWiener,
+            None => Restorer::Wiener,
         });
         let keyer = match (&restorer, &imaging) {
             (Some(r), Some(m)) => Some(crate::train::iac_cache::Keyer::new(&r.identity(), m.psf())),
@@ -409,9 +411,13 @@ impl CaptureModel {
         let restored = match &self.network {
             Some((net, _)) => net.restore(&blurred, model.psf())?,
             None => {
-                let mut median = wiener_bank(&blurred, model.psf())?.median().clone();
-                median.clamp01();
-                median
+                let mut wiener = aberration::wiener::deconvolve(
+                    &blurred,
+                    model.psf(),
+                    aberration::wiener::Regularizer::Fixed(aberration::wiener::DEFAULT_K),
+                )?;
+                wiener.clamp01();
+                wiener
             }
         };
         Ok(Some(image_to_pixels(&restored)))
