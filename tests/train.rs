@@ -426,8 +426,8 @@ fn a_capture_taken_all_around_gets_resets_and_a_larger_budget() {
     assert!(a.recipe.opacity_reset_every.is_some());
 }
 
-/// With the median-Wiener stand-in as `I_ac`, aware's λ falls to zero by the end of
-/// densification; other modes, and other restorers, keep a constant λ.
+/// With the Wiener stand-in as `I_ac` and no λ given, aware's λ falls to zero by the end of
+/// densification; other modes, other restorers and a λ given keep a constant λ.
 #[test]
 fn the_stand_in_restorer_fades_lambda_out() {
     let data = data::load(&fixture().aberrated, Mode::Aware, &options()).unwrap();
@@ -444,4 +444,14 @@ fn the_stand_in_restorer_fades_lambda_out() {
     let plain = data::load(&fixture().aberrated, Mode::Plain, &options()).unwrap();
     let cfg = config(Mode::Plain, 1000, &plain);
     assert_eq!(cfg.lambda_fade_until, None);
+    // A λ given explicitly is used as given.
+    let settings = metasplat::run::TrainSettings {
+        mode: Mode::Aware,
+        iters: 1000,
+        lambda: Some(0.25),
+        ..Default::default()
+    };
+    let cfg = TrainConfig::build(&settings, 0, &data);
+    assert_eq!(cfg.lambda_fade_until, None);
+    assert_eq!(cfg.lambda_at(900), 0.25);
 }

@@ -200,10 +200,8 @@ impl TrainConfig {
             init: settings.init.as_ref().map(|p| p.display().to_string()),
             opacity_reg: settings.opacity_reg,
             lambda_fade_until: (settings.mode == Mode::Aware
-                && matches!(
-                    data.restorer,
-                    Some(crate::train::data::Restorer::Wiener)
-                ))
+                && settings.lambda.is_none()
+                && matches!(data.restorer, Some(crate::train::data::Restorer::Wiener)))
             .then_some(iters / 2),
         }
     }
