@@ -282,7 +282,7 @@ fn l_abr_gradient_through_the_blur_adjoint_matches_finite_differences() {
                 (
                     "opacity",
                     g.params.logit_opacities[i] as f64,
-                    0.04,
+                    0.05,
                     Box::new(move |m, e| m.logit_opacities[i] += e),
                 ),
                 (
