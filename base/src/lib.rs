@@ -17,5 +17,5 @@ pub use atomic::{
     write_bytes_atomically,
 };
 pub use error::BaseError;
-pub use metrics::{psnr, psnr_rgb, ssim, ssim_planar, ssim_value};
+pub use metrics::{psnr, psnr_rgb, ssim, ssim_planar, ssim_value, sum_pairs};
 pub use rng::{SplitMix64, mix64};

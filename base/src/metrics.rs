@@ -43,23 +43,26 @@ pub fn psnr(a: &[f32], b: &[f32]) -> Result<f64, BaseError> {
 }
 
 /// [`psnr`] of two RGB images. Training computes one per step, so the squared errors are
-/// summed in parallel, in fixed chunks added in order (the same value for any thread count).
+/// summed in parallel ([`sum_pairs`]).
 pub fn psnr_rgb(a: &[Vec3], b: &[Vec3]) -> Result<f64, BaseError> {
     check_len(a.len(), b.len())?;
+    let se = sum_pairs(a, b, |x, y| {
+        (0..3).map(|c| (x[c] as f64 - y[c] as f64).powi(2)).sum()
+    });
+    Ok(psnr_from_se(se, 3 * a.len()))
+}
+
+/// `Σ f(a[i], b[i])` over the pairs of two equally long slices, in parallel: fixed chunks of
+/// pixels, each summed in order, then the chunks' sums in order, so the value is the same for
+/// any thread count.
+pub fn sum_pairs<T: Sync>(a: &[T], b: &[T], f: impl Fn(&T, &T) -> f64 + Sync) -> f64 {
     const CHUNK: usize = 4096;
-    let se: f64 = a
-        .par_chunks(CHUNK)
+    a.par_chunks(CHUNK)
         .zip(b.par_chunks(CHUNK))
-        .map(|(a, b)| {
-            a.iter()
-                .zip(b)
-                .flat_map(|(x, y)| (0..3).map(move |c| (x[c] as f64 - y[c] as f64).powi(2)))
-                .sum::<f64>()
-        })
+        .map(|(a, b)| a.iter().zip(b).map(|(x, y)| f(x, y)).sum::<f64>())
         .collect::<Vec<f64>>()
         .iter()
-        .sum();
-    Ok(psnr_from_se(se, 3 * a.len()))
+        .sum()
 }
 
 fn psnr_of(pairs: impl Iterator<Item = (f32, f32)>, count: usize) -> f64 {

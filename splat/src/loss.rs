@@ -48,27 +48,14 @@ pub fn l1(
             Vec3::new(sign(d.x), sign(d.y), sign(d.z)) * inv
         })
         .collect();
-    // Summed in fixed chunks, then the chunks in order: the same value for any thread count.
-    let value: f64 = rendered
-        .par_chunks(SUM_CHUNK)
-        .zip(target.par_chunks(SUM_CHUNK))
-        .map(|(r, t)| {
-            r.iter()
-                .zip(t)
-                .map(|(r, t)| (*r - *t).abs().element_sum() as f64)
-                .sum::<f64>()
-        })
-        .collect::<Vec<f64>>()
-        .iter()
-        .sum();
+    let value = base::sum_pairs(rendered, target, |r, t| {
+        (*r - *t).abs().element_sum() as f64
+    });
     Ok(LossGrad {
         value: (value * inv as f64) as f32,
         grad,
     })
 }
-
-/// Pixels per partial sum of a loss value.
-const SUM_CHUNK: usize = 4096;
 
 fn sign(v: f32) -> f32 {
     if v > 0.0 {
