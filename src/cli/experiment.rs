@@ -54,40 +54,9 @@ impl std::fmt::Display for Budget {
 /// The cap an `unbounded` run gets: more than densification reaches on any capture we train.
 const UNBOUNDED: u64 = 100_000_000;
 
+/// What every experiment's runs share: the capture, where they go, and how they train.
 #[derive(Args)]
-pub struct BudgetArgs {
-    /// The clean capture.
-    #[arg(long)]
-    pub scene: PathBuf,
-    #[arg(long)]
-    pub out: PathBuf,
-    /// PSF grid; default: simulate the paper's 9x9 grid.
-    #[arg(long)]
-    pub psf: Option<PathBuf>,
-    /// Budgets to train with, in order (`unbounded`: no cap).
-    #[arg(long, value_delimiter = ',', default_values_t = [Budget(Some(10_000)), Budget(Some(20_000)), Budget(Some(40_000)), Budget(Some(95_000)), Budget(None)])]
-    pub budgets: Vec<Budget>,
-    #[arg(long, value_enum, default_value_t = Mode::Aware)]
-    pub mode: Mode,
-    #[arg(long, default_value_t = 3000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
-    pub iters: u64,
-    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
-    pub downsample: u32,
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    #[arg(long, value_enum, default_value_t = metasplat::device::DeviceChoice::Auto)]
-    pub device: metasplat::device::DeviceChoice,
-    /// Replace runs already in --out.
-    #[arg(long)]
-    pub overwrite: bool,
-    /// Continue the runs already in --out from their checkpoints (a finished one is only
-    /// evaluated again): an interrupted experiment goes on where it stopped.
-    #[arg(long, conflicts_with = "overwrite")]
-    pub resume: bool,
-}
-
-#[derive(Args)]
-pub struct LlffArgs {
+pub struct ExperimentRuns {
     /// The clean capture.
     #[arg(long)]
     pub scene: PathBuf,
@@ -100,14 +69,8 @@ pub struct LlffArgs {
     pub iters: u64,
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
-    /// Weight of L(render, I_ac) in aware mode (default: as `train`).
-    #[arg(long, value_parser = metasplat::flags::weight, allow_negative_numbers = true)]
-    pub lambda: Option<f32>,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Modes to run, in order.
-    #[arg(long, value_enum, value_delimiter = ',', default_values_t = Mode::ALL.to_vec())]
-    pub modes: Vec<Mode>,
     /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu`.
     #[arg(long, value_enum, default_value_t = metasplat::device::DeviceChoice::Auto)]
     pub device: metasplat::device::DeviceChoice,
@@ -115,11 +78,33 @@ pub struct LlffArgs {
     #[arg(long)]
     pub overwrite: bool,
     /// Continue the runs already in --out from their checkpoints (a finished one is only
-    /// evaluated again): an interrupted experiment goes on where it stopped, and a mode
-    /// trained on its own (`train --out OUT/run_MODE` with this experiment's settings) joins
-    /// the table.
+    /// evaluated again): an interrupted experiment goes on where it stopped, and a run trained
+    /// on its own into its folder (with this experiment's settings) joins the table.
     #[arg(long, conflicts_with = "overwrite")]
     pub resume: bool,
+}
+
+#[derive(Args)]
+pub struct BudgetArgs {
+    #[command(flatten)]
+    pub runs: ExperimentRuns,
+    /// Budgets to train with, in order (`unbounded`: no cap).
+    #[arg(long, value_delimiter = ',', default_values_t = [Budget(Some(10_000)), Budget(Some(20_000)), Budget(Some(40_000)), Budget(Some(95_000)), Budget(None)])]
+    pub budgets: Vec<Budget>,
+    #[arg(long, value_enum, default_value_t = Mode::Aware)]
+    pub mode: Mode,
+}
+
+#[derive(Args)]
+pub struct LlffArgs {
+    #[command(flatten)]
+    pub runs: ExperimentRuns,
+    /// Weight of L(render, I_ac) in aware mode (default: as `train`).
+    #[arg(long, value_parser = metasplat::flags::weight, allow_negative_numbers = true)]
+    pub lambda: Option<f32>,
+    /// Modes to run, in order.
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = Mode::ALL.to_vec())]
+    pub modes: Vec<Mode>,
 }
 
 pub fn run(cmd: ExperimentCommand) -> Result<()> {
@@ -184,22 +169,13 @@ fn aberrated_capture(
 }
 
 fn budget(a: BudgetArgs) -> Result<()> {
-    let aberrated = aberrated_capture(&a.scene, &a.out, a.psf.as_deref(), a.downsample, a.seed)?;
+    let aberrated = a.runs.aberrated()?;
     let mut rows = Vec::new();
-    let common = Common {
-        out: &a.out,
-        downsample: a.downsample,
-        seed: a.seed,
-        device: a.device,
-        overwrite: a.overwrite,
-        resume: a.resume,
-        iters: a.iters,
-    };
     for &b in &a.budgets {
-        let run_dir = a.out.join(format!("budget_{b}"));
-        let mut args = common.run(&aberrated, run_dir.clone(), a.mode);
+        let run_dir = a.runs.out.join(format!("budget_{b}"));
+        let mut args = a.runs.run(&aberrated, run_dir.clone(), a.mode);
         args.training.max_splats = Some(b.0.unwrap_or(UNBOUNDED));
-        args.training.eval_every = Some((a.iters / 10).max(1));
+        args.training.eval_every = Some((a.runs.iters / 10).max(1));
         println!("Training {} with a budget of {b} splats.", a.mode);
         let (summary, log) = train_run(&args, false)?;
         let ply_bytes =
@@ -241,7 +217,7 @@ fn budget(a: BudgetArgs) -> Result<()> {
         )?;
     }
     println!("\n{table}");
-    let table_path = a.out.join("budget.md");
+    let table_path = a.runs.out.join("budget.md");
     base::write_bytes_atomically(&table_path, table.as_bytes())
         .with_context(|| format!("cannot write {}", table_path.display()))?;
     let series = vec![Series {
@@ -252,28 +228,28 @@ fn budget(a: BudgetArgs) -> Result<()> {
             .collect(),
     }];
     line_plot(
-        &a.out.join("budget.png"),
+        &a.runs.out.join("budget.png"),
         "held-out PSNR against the splats kept",
         "splats at the end of training",
         "PSNR vs clean (dB)",
         &series,
     )?;
-    println!("Wrote {}/budget.md and budget.png.", a.out.display());
+    println!("Wrote {}/budget.md and budget.png.", a.runs.out.display());
     Ok(())
 }
 
-/// What every run of an experiment shares.
-struct Common<'a> {
-    out: &'a std::path::Path,
-    downsample: u32,
-    seed: u64,
-    device: metasplat::device::DeviceChoice,
-    overwrite: bool,
-    resume: bool,
-    iters: u64,
-}
+impl ExperimentRuns {
+    /// The aberrated copy of the capture the runs train on (made once under --out).
+    fn aberrated(&self) -> Result<PathBuf> {
+        aberrated_capture(
+            &self.scene,
+            &self.out,
+            self.psf.as_deref(),
+            self.downsample,
+            self.seed,
+        )
+    }
 
-impl Common<'_> {
     /// A run of `mode` on the aberrated capture into `run_dir`.
     fn run(&self, aberrated: &std::path::Path, run_dir: PathBuf, mode: Mode) -> RunRequest {
         let (resume, overwrite) = match (
@@ -316,23 +292,13 @@ fn near_final(log: &[metasplat::train::LogRow]) -> Option<(u64, f64, f64)> {
 }
 
 fn llff(a: LlffArgs) -> Result<()> {
-    let aberrated = aberrated_capture(&a.scene, &a.out, a.psf.as_deref(), a.downsample, a.seed)?;
-
+    let aberrated = a.runs.aberrated()?;
     let mut rows = Vec::new();
-    let common = Common {
-        out: &a.out,
-        downsample: a.downsample,
-        seed: a.seed,
-        device: a.device,
-        overwrite: a.overwrite,
-        resume: a.resume,
-        iters: a.iters,
-    };
     for &mode in &a.modes {
-        let run_dir = a.out.join(format!("run_{mode}"));
-        let mut args = common.run(&aberrated, run_dir, mode);
+        let run_dir = a.runs.out.join(format!("run_{mode}"));
+        let mut args = a.runs.run(&aberrated, run_dir, mode);
         args.training.lambda = a.lambda;
-        args.training.eval_every = Some((a.iters / 20).max(1));
+        args.training.eval_every = Some((a.runs.iters / 20).max(1));
         let (summary, log) = train_run(&args, false)?;
         rows.push((mode, summary, log));
     }
@@ -398,7 +364,7 @@ fn llff(a: LlffArgs) -> Result<()> {
     if let Some(r) = rows.iter().find_map(|(_, s, _)| s.restorer.clone()) {
         println!("({r})");
     }
-    let table_path = a.out.join("table.md");
+    let table_path = a.runs.out.join("table.md");
     base::write_bytes_atomically(&table_path, table.as_bytes())
         .with_context(|| format!("cannot write {}", table_path.display()))?;
     let series: Vec<Series> = rows
@@ -412,13 +378,16 @@ fn llff(a: LlffArgs) -> Result<()> {
         })
         .collect();
     line_plot(
-        &a.out.join("psnr_vs_time.png"),
+        &a.runs.out.join("psnr_vs_time.png"),
         "held-out PSNR vs training time",
         "training time (s)",
         "PSNR vs clean (dB)",
         &series,
     )?;
-    println!("wrote {}/table.md and psnr_vs_time.png", a.out.display());
+    println!(
+        "wrote {}/table.md and psnr_vs_time.png",
+        a.runs.out.display()
+    );
     Ok(())
 }
 
