@@ -170,6 +170,17 @@ impl TrainConfig {
         data: &crate::train::data::Dataset,
     ) -> TrainConfig {
         let iters = settings.iters;
+        let recipe = Recipe {
+            sh_min_gain: settings.sh_min_gain.unwrap_or_else(defaults::sh_min_gain),
+            ..Recipe::for_iters(
+                iters,
+                match settings.opacity_reset {
+                    crate::run::Toggle::On => true,
+                    crate::run::Toggle::Off => false,
+                    crate::run::Toggle::Auto => data.capture.surrounds_scene(),
+                },
+            )
+        };
         TrainConfig {
             mode: settings.mode,
             iters,
@@ -185,24 +196,14 @@ impl TrainConfig {
             background: [0.0; 3],
             eval_every: settings.eval_every.unwrap_or((iters / 10).max(1)),
             checkpoint_every: settings.checkpoint_every.unwrap_or((iters / 5).max(100)),
-            recipe: Recipe {
-                sh_min_gain: settings.sh_min_gain.unwrap_or_else(defaults::sh_min_gain),
-                ..Recipe::for_iters(
-                    iters,
-                    match settings.opacity_reset {
-                        crate::run::Toggle::On => true,
-                        crate::run::Toggle::Off => false,
-                        crate::run::Toggle::Auto => data.capture.surrounds_scene(),
-                    },
-                )
-            },
             i_ac: data.restorer.as_ref().map(|r| r.identity()),
             init: settings.init.as_ref().map(|p| p.display().to_string()),
             opacity_reg: settings.opacity_reg,
             lambda_fade_until: (settings.mode == Mode::Aware
                 && settings.lambda.is_none()
                 && matches!(data.restorer, Some(crate::train::data::Restorer::Wiener)))
-            .then_some(iters / 2),
+            .then_some(recipe.densify_until),
+            recipe,
         }
     }
 }
