@@ -54,6 +54,42 @@ pub enum Toggle {
     Off,
 }
 
+/// When aware's λ falls to zero (`--lambda-fade`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LambdaFade {
+    #[default]
+    Auto,
+    Never,
+    End,
+    Step(u64),
+}
+
+impl std::str::FromStr for LambdaFade {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s.trim() {
+            "auto" => Ok(LambdaFade::Auto),
+            "never" => Ok(LambdaFade::Never),
+            "end" => Ok(LambdaFade::End),
+            n => n
+                .parse()
+                .map(LambdaFade::Step)
+                .map_err(|_| format!("'{s}' is not auto, never, end or a step number")),
+        }
+    }
+}
+
+impl std::fmt::Display for LambdaFade {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LambdaFade::Auto => f.write_str("auto"),
+            LambdaFade::Never => f.write_str("never"),
+            LambdaFade::End => f.write_str("end"),
+            LambdaFade::Step(n) => write!(f, "{n}"),
+        }
+    }
+}
+
 /// How to train; what is left unset is derived from the capture in [`TrainConfig::build`].
 #[derive(Args, Clone, Debug)]
 pub struct TrainSettings {
@@ -63,6 +99,10 @@ pub struct TrainSettings {
     /// restorer, 0.25 with the median-Wiener stand-in.
     #[arg(long, value_parser = crate::flags::weight, allow_negative_numbers = true)]
     pub lambda: Option<f32>,
+    /// When λ falls linearly to zero: `auto` (by the end of densification with the Wiener
+    /// stand-in and no --lambda given, else never), `never`, `end` (the last step), or a step.
+    #[arg(long, default_value_t = LambdaFade::Auto)]
+    pub lambda_fade: LambdaFade,
     #[arg(long, default_value_t = 7000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub iters: u64,
     /// Splat budget; default: one per two pixels of a view, twice that for a capture whose

@@ -167,6 +167,32 @@ impl Gaussians {
         out
     }
 
+    /// The inverse of [`Gaussians::packed`]: `data` holds whole Gaussians of `sh_degree`.
+    pub fn from_packed(data: &[f32], sh_degree: u32) -> Result<Self, SplatError> {
+        let rc = sh_rest_count(sh_degree.min(MAX_SH_DEGREE));
+        let stride = 14 + 3 * rc;
+        if !data.len().is_multiple_of(stride) {
+            return Err(SplatError::InvalidInput(format!(
+                "{} packed values are not whole Gaussians of {stride}",
+                data.len()
+            )));
+        }
+        let n = data.len() / stride;
+        let v3 = |s: &[f32]| Vec3::new(s[0], s[1], s[2]);
+        let mut g = Gaussians::zeros(0, sh_degree.min(MAX_SH_DEGREE));
+        g.means.reserve(n);
+        g.sh_rest.reserve(n * rc);
+        for p in data.chunks_exact(stride) {
+            g.means.push(v3(&p[0..3]));
+            g.log_scales.push(v3(&p[3..6]));
+            g.rotations.push([p[6], p[7], p[8], p[9]]);
+            g.logit_opacities.push(p[10]);
+            g.sh_dc.push(v3(&p[11..14]));
+            g.sh_rest.extend(p[14..].chunks_exact(3).map(v3));
+        }
+        Ok(g)
+    }
+
     /// Checks that all arrays agree in length (fields are public, so this can be violated).
     pub fn validate(&self) -> Result<(), SplatError> {
         let n = self.len();

@@ -101,6 +101,27 @@ fn needles_and_hard_cases_stay_finite_and_match() {
     let out = gpu.render(&gpu.upload(&g).unwrap(), &cam, &s).unwrap();
     assert!(out.color.iter().all(|c| c.is_finite()));
     assert!(out.depth.iter().chain(&out.alpha).all(|v| v.is_finite()));
+    // Their gradients (the projection backward runs on the GPU too) stay finite and match.
+    let v_color = vec![Vec3::new(0.7, -0.4, 0.2); cam.num_pixels()];
+    let pixel = PixelGradients::color(&v_color);
+    let cpu = CpuRasterizer;
+    let cs = cpu.upload(&g).unwrap();
+    let (_, saved) = cpu.render_for_backward(&cs, &cam, &s).unwrap();
+    let want = cpu.backward(&cs, &saved, pixel).unwrap();
+    let gs = gpu.upload(&g).unwrap();
+    let (_, saved) = gpu.render_for_backward(&gs, &cam, &s).unwrap();
+    let got = gpu.backward(&gs, &saved, pixel).unwrap();
+    assert!(got.params.is_finite(), "a needle's gradient is not finite");
+    // A zero quaternion is the identity rotation; the non-finite splats are culled.
+    for i in 3..=5 {
+        assert_eq!(
+            got.params.means[i],
+            Vec3::ZERO,
+            "culled splat {i} has a gradient"
+        );
+    }
+    let e = rel(&got.params.packed(), &want.params.packed());
+    assert!(e <= 1e-3, "needle gradients differ by {e:e} (relative)");
     // An empty scene is the background.
     let empty = Gaussians::new(0);
     let bg = RenderSettings {

@@ -1,6 +1,7 @@
 //! What a training run does: the mode, the objective's weights, the 3DGS recipe scaled to the
 //! run's length, and the budget.
 
+use crate::run::LambdaFade;
 use serde::{Deserialize, Serialize};
 use splat::optim::LearningRates;
 
@@ -199,10 +200,15 @@ impl TrainConfig {
             i_ac: data.restorer.as_ref().map(|r| r.identity()),
             init: settings.init.as_ref().map(|p| p.display().to_string()),
             opacity_reg: settings.opacity_reg,
-            lambda_fade_until: (settings.mode == Mode::Aware
-                && settings.lambda.is_none()
-                && matches!(data.restorer, Some(crate::train::data::Restorer::Wiener)))
-            .then_some(recipe.densify_until),
+            lambda_fade_until: match settings.lambda_fade {
+                LambdaFade::Auto => (settings.mode == Mode::Aware
+                    && settings.lambda.is_none()
+                    && matches!(data.restorer, Some(crate::train::data::Restorer::Wiener)))
+                .then_some(recipe.densify_until),
+                LambdaFade::Never => None,
+                LambdaFade::End => Some(iters),
+                LambdaFade::Step(n) => Some(n),
+            },
             recipe,
         }
     }

@@ -169,7 +169,7 @@ impl Viewer {
         let ctx = GpuContext::from_parts(rs.device.clone(), rs.queue.clone(), info);
         let adapter = ctx.describe();
         let raster = GpuRasterizer::on(Arc::new(ctx));
-        let scene = raster.upload_owned(o.model.clone())?;
+        let scene = raster.upload_static(&o.model)?;
         let home = match &o.start {
             Start::LookAt { eye, target } => ViewCamera::looking(*eye, *target, o.fov_y),
             _ => ViewCamera::framing(&o.model.means, o.fov_y).ok_or_else(|| {
@@ -243,7 +243,7 @@ impl Viewer {
         for s in &mut g.log_scales {
             *s += Vec3::splat(shift);
         }
-        self.scene = self.raster.upload_owned(g)?;
+        self.scene = self.raster.upload_static(&g)?;
         self.uploaded_scale = self.splat_scale;
         self.generation += 1;
         Ok(())

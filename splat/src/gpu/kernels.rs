@@ -16,6 +16,7 @@ pub struct Kernels {
     pub raster: wgpu::ComputePipeline,
     pub raster_backward: wgpu::ComputePipeline,
     pub isect_reduce: wgpu::ComputePipeline,
+    pub project_backward: wgpu::ComputePipeline,
 }
 
 /// The constants, as WGSL. `{:?}` prints the shortest decimal that reads back as the same f32.
@@ -96,6 +97,11 @@ impl Kernels {
                 device,
                 "isect_reduce",
                 include_str!("wgsl/isect_reduce.wgsl"),
+            ),
+            project_backward: pipeline(
+                device,
+                "project_backward",
+                include_str!("wgsl/project_backward.wgsl"),
             ),
         }
     }

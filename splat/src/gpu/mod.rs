@@ -9,8 +9,8 @@
 //! The backward pass blends back to front per tile and sums each (tile, splat) pair's pixel
 //! contributions with a fixed-order tree into the pair's own slot, then sums each Gaussian's
 //! slots: no float atomics, so it is deterministic. The projection backward (screen-space to
-//! parameter gradients) runs on the CPU, shared with the CPU rasterizer; it reads back 48 bytes
-//! per Gaussian per step.
+//! parameter gradients, SH and quaternion included) runs on the GPU as well; the host reads
+//! back the parameter gradients and the screen-space mean gradients densification uses.
 
 mod context;
 mod kernels;
@@ -20,7 +20,7 @@ mod util;
 
 use std::sync::Arc;
 
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 
 pub use context::GpuContext;
 pub use wgpu::DeviceType;
@@ -29,9 +29,8 @@ use crate::camera::Camera;
 use crate::conventions::TILE_SIZE;
 use crate::error::SplatError;
 use crate::model::Gaussians;
-use crate::project::ScreenGrad;
 use crate::rasterizer::{PixelGradients, Rasterizer};
-use crate::render::{Gradients, RenderOutput, RenderSettings, gradients_from_screen};
+use crate::render::{Gradients, RenderOutput, RenderSettings};
 use kernels::Kernels;
 use sort::{KeyBuffers, radix_sort, scan};
 use util::{bind, blocks, dispatch, f32s, grid, read_back, storage, storage_init, u32s, uniform};
@@ -46,12 +45,11 @@ pub struct GpuRasterizer {
     kernels: Arc<Kernels>,
 }
 
-/// A model resident on the GPU: its parameters in one buffer, Gaussian by Gaussian, and the
-/// host model it came from (the projection backward still runs on the CPU). Training borrows
-/// the host model; a viewer, which keeps one scene for as long as it shows it, hands it over
-/// ([`GpuRasterizer::upload_owned`]).
+/// A model resident on the GPU: its parameters in one buffer, Gaussian by Gaussian (the
+/// layout of [`Gaussians::packed`]). It does not borrow the host model: the lifetime is the
+/// [`Rasterizer`] interface's, for renderers whose scenes do.
 pub struct GpuScene<'a> {
-    host: std::borrow::Cow<'a, Gaussians>,
+    _model: std::marker::PhantomData<&'a Gaussians>,
     params: wgpu::Buffer,
     n: u32,
     sh_degree: u32,
@@ -99,16 +97,9 @@ impl GpuRasterizer {
         &self.ctx
     }
 
-    /// [`Rasterizer::upload`] of a model the scene then owns, so it can live as long as the
-    /// caller keeps it.
-    pub fn upload_owned(&self, g: Gaussians) -> Result<GpuScene<'static>, SplatError> {
-        self.upload_cow(std::borrow::Cow::Owned(g))
-    }
-
-    fn upload_cow<'a>(
-        &self,
-        g: std::borrow::Cow<'a, Gaussians>,
-    ) -> Result<GpuScene<'a>, SplatError> {
+    /// [`Rasterizer::upload`] of a scene that can outlive `g` (a viewer keeps one scene for
+    /// as long as it shows it).
+    pub fn upload_static(&self, g: &Gaussians) -> Result<GpuScene<'static>, SplatError> {
         g.validate()?;
         let n = u32::try_from(g.len()).map_err(|_| {
             SplatError::Gpu(format!("{} splats are too many for one scene", g.len()))
@@ -120,7 +111,7 @@ impl GpuRasterizer {
         let params = storage_init(&self.ctx.device, "splats", bytemuck::cast_slice(&params));
         let sh_degree = g.sh_degree;
         Ok(GpuScene {
-            host: g,
+            _model: std::marker::PhantomData,
             params,
             n,
             sh_degree,
@@ -288,7 +279,6 @@ impl GpuRasterizer {
         };
         let saved = GpuSaved {
             camera: cam.clone(),
-            settings: settings.clone(),
             n,
             total,
             tiles: (tiles_x, tiles_y),
@@ -311,12 +301,10 @@ impl GpuRasterizer {
         st: &GpuSaved,
         pixel: PixelGradients<'_>,
     ) -> Result<Gradients, SplatError> {
-        let g = &*scene.host;
-        if g.len() != st.n as usize {
+        if scene.n != st.n {
             return Err(SplatError::InvalidInput(format!(
                 "backward called with {} Gaussians, the forward pass rendered {}",
-                g.len(),
-                st.n
+                scene.n, st.n
             )));
         }
         let np = st.camera.num_pixels();
@@ -369,6 +357,11 @@ impl GpuRasterizer {
             ],
         );
         dispatch(&mut enc, &k.raster_backward, &bg, st.tiles);
+        let grads = storage(
+            dev,
+            "parameter gradients",
+            4 * scene.stride as u64 * st.n as u64,
+        );
         if st.n > 0 {
             let len = uniform(dev, "gaussians", bytemuck::bytes_of(&st.n));
             let bg = bind(
@@ -377,38 +370,30 @@ impl GpuRasterizer {
                 &[&len, &st.offsets, &st.counts, &isect, &screen],
             );
             dispatch(&mut enc, &k.isect_reduce, &bg, grid(blocks(st.n)));
+            let bg = bind(
+                dev,
+                &k.project_backward,
+                &[&st.cam_u, &scene.params, &screen, &st.counts, &grads],
+            );
+            dispatch(&mut enc, &k.project_backward, &bg, grid(blocks(st.n)));
         }
         let n = st.n as u64;
         let bytes = read_back(
             dev,
             &ctx.queue,
             enc,
-            &[(&screen, 0, 48 * n), (&st.counts, 0, 4 * n)],
+            &[
+                (&screen, 0, 48 * n),
+                (&grads, 0, 4 * scene.stride as u64 * n),
+            ],
         )?;
         let sg = f32s(&bytes[0]);
-        let counts = u32s(&bytes[1]);
-        let screen: Vec<(ScreenGrad, Vec2)> = sg
-            .chunks_exact(12)
-            .map(|v| {
-                (
-                    ScreenGrad {
-                        mean2d: Vec2::new(v[0], v[1]),
-                        conic: [v[4], v[5], v[6]],
-                        color: Vec3::new(v[7], v[8], v[9]),
-                        opacity: v[10],
-                        depth: v[11],
-                    },
-                    Vec2::new(v[2], v[3]),
-                )
-            })
-            .collect();
-        Ok(gradients_from_screen(
-            g,
-            &st.camera,
-            &st.settings,
-            &screen,
-            |i| counts[i] > 0,
-        ))
+        let params = Gaussians::from_packed(&f32s(&bytes[1]), scene.sh_degree)?;
+        Ok(Gradients {
+            params,
+            means2d: sg.chunks_exact(12).map(|v| [v[0], v[1]]).collect(),
+            means2d_abs: sg.chunks_exact(12).map(|v| [v[2], v[3]]).collect(),
+        })
     }
 }
 
@@ -463,7 +448,6 @@ impl GpuRasterizer {
 /// What a GPU forward pass keeps for its backward pass: its buffers, still on the GPU.
 pub struct GpuSaved {
     camera: Camera,
-    settings: RenderSettings,
     n: u32,
     total: u32,
     tiles: (u32, u32),
@@ -487,7 +471,7 @@ impl Rasterizer for GpuRasterizer {
     }
 
     fn upload<'a>(&'a self, g: &'a Gaussians) -> Result<GpuScene<'a>, SplatError> {
-        self.upload_cow(std::borrow::Cow::Borrowed(g))
+        self.upload_static(g)
     }
 
     fn render(
