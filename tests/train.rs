@@ -104,23 +104,81 @@ fn aware_beats_plain_on_held_out_views() {
 
 #[test]
 fn training_on_the_gpu_reaches_the_cpu_result() {
-    let device = match Device::choose(metasplat::device::DeviceChoice::Gpu) {
+    let Some(device) = gpu_device() else { return };
+    let cpu = mean_psnr(Mode::Aware, 300, 0.0);
+    let gpu = mean_psnr_on(&device, Mode::Aware, 300, 0.0);
+    eprintln!("aware, 300 steps: CPU {cpu:.3} dB, GPU {gpu:.3} dB");
+    assert!((cpu - gpu).abs() <= 0.3, "CPU {cpu} dB vs GPU {gpu} dB");
+}
+
+fn gpu_device() -> Option<Device> {
+    match Device::choose(metasplat::device::DeviceChoice::Gpu) {
         Ok((d, note)) => {
             eprintln!("{note}");
-            d
+            Some(d)
         }
         Err(e) if std::env::var("METASPLAT_REQUIRE_GPU").is_ok_and(|v| v == "1") => {
             panic!("METASPLAT_REQUIRE_GPU=1 but there is no GPU: {e}")
         }
         Err(e) => {
             eprintln!("SKIP: training on the GPU needs a wgpu adapter: {e}");
-            return;
+            None
         }
+    }
+}
+
+/// The model and optimiser stay on the GPU between the steps that need them on the host;
+/// a checkpoint written from there resumes bit for bit on the GPU (whose passes are
+/// deterministic) and carries on on the CPU.
+#[test]
+fn a_gpu_run_resumes_exactly_and_carries_on_on_the_cpu() {
+    let Some(gpu) = gpu_device() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let data = data::load(&fixture().aberrated, Mode::Aware, &options()).unwrap();
+    let mut cfg = config(Mode::Aware, 240, &data);
+    cfg.checkpoint_every = 100;
+    cfg.opacity_reg = 0.01;
+    // Densification, an opacity reset, epoch boundaries and SH steps on both sides of the
+    // checkpoint.
+    cfg.recipe.densify_from = 50;
+    cfg.recipe.densify_every = 50;
+    cfg.recipe.densify_until = 200;
+    cfg.recipe.opacity_reset_every = Some(150);
+    cfg.recipe.sh_every = 70;
+    let ckpt = tmp.path().join("ckpt.bin");
+    let kept = tmp.path().join("at100.bin");
+    let (mut densified, mut sh) = (0, 0);
+    let full = train::train(&cfg, &data, &gpu, Some(&ckpt), false, &mut |e| {
+        match e {
+            Event::Densified { .. } => densified += 1,
+            Event::Sh { .. } => sh += 1,
+            _ => {}
+        }
+        if let Event::Checkpoint { step: 100 } = e {
+            std::fs::copy(&ckpt, &kept).unwrap();
+        }
+    })
+    .unwrap();
+    assert!(
+        densified >= 2 && sh >= 2,
+        "{densified} densifications, {sh} SH events"
+    );
+    let resumed = train::train(&cfg, &data, &gpu, Some(&kept), true, &mut |_| {}).unwrap();
+    assert_eq!(resumed.resumed_from, Some(100));
+    assert_eq!(full.model, resumed.model, "the resumed GPU run diverged");
+    let on_cpu = train::train(&cfg, &data, &Device::Cpu, Some(&kept), true, &mut |_| {}).unwrap();
+    let psnr = |m: &splat::Gaussians, s: &RenderSettings| {
+        metasplat::eval::evaluate(m, &data.test, s, &Device::Cpu)
+            .unwrap()
+            .unwrap()
+            .mean_psnr
     };
-    let cpu = mean_psnr(Mode::Aware, 300, 0.0);
-    let gpu = mean_psnr_on(&device, Mode::Aware, 300, 0.0);
-    eprintln!("aware, 300 steps: CPU {cpu:.3} dB, GPU {gpu:.3} dB");
-    assert!((cpu - gpu).abs() <= 0.3, "CPU {cpu} dB vs GPU {gpu} dB");
+    let (a, b) = (
+        psnr(&full.model, &full.settings),
+        psnr(&on_cpu.model, &on_cpu.settings),
+    );
+    eprintln!("GPU throughout {a:.3} dB, GPU then CPU {b:.3} dB");
+    assert!((a - b).abs() <= 0.3, "{a} vs {b}");
 }
 
 #[test]
@@ -454,4 +512,23 @@ fn the_stand_in_restorer_fades_lambda_out() {
     let cfg = TrainConfig::build(&settings, 0, &data);
     assert_eq!(cfg.lambda_fade_until, None);
     assert_eq!(cfg.lambda_at(900), 0.25);
+    // --lambda-fade overrides the rule, in either direction.
+    use metasplat::run::LambdaFade;
+    for (fade, want) in [
+        (LambdaFade::Never, None),
+        (LambdaFade::End, Some(1000)),
+        (LambdaFade::Step(300), Some(300)),
+    ] {
+        let settings = metasplat::run::TrainSettings {
+            mode: Mode::Aware,
+            iters: 1000,
+            lambda_fade: fade,
+            ..Default::default()
+        };
+        let cfg = TrainConfig::build(&settings, 0, &data);
+        assert_eq!(cfg.lambda_fade_until, want, "{fade}");
+    }
+    assert_eq!("end".parse::<LambdaFade>(), Ok(LambdaFade::End));
+    assert_eq!("250".parse::<LambdaFade>(), Ok(LambdaFade::Step(250)));
+    assert!("soon".parse::<LambdaFade>().unwrap_err().contains("soon"));
 }

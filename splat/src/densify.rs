@@ -135,12 +135,17 @@ impl DensifyStats {
     /// thresholds are resolution independent (3DGS's default threshold is 2e-4); `absgrad`
     /// uses the summed absolute per-pixel gradients instead.
     pub fn add(&mut self, grads: &Gradients, out: &RenderOutput, absgrad: bool) {
-        let (hw, hh) = (out.width as f32 * 0.5, out.height as f32 * 0.5);
         let src = if absgrad {
             &grads.means2d_abs
         } else {
             &grads.means2d
         };
+        self.add_screen(src, out);
+    }
+
+    /// [`DensifyStats::add`] from the screen-space mean gradients alone.
+    pub fn add_screen(&mut self, src: &[[f32; 2]], out: &RenderOutput) {
+        let (hw, hh) = (out.width as f32 * 0.5, out.height as f32 * 0.5);
         for (i, vis) in out.visible.iter().enumerate() {
             if !*vis {
                 continue;

@@ -252,3 +252,116 @@ fn backward_matches_the_cpu_backward() {
         );
     }
 }
+
+/// Largest elementwise difference relative to the larger magnitude (with a floor of `floor`).
+fn max_rel(a: &[f32], b: &[f32], floor: f32) -> f32 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs() / x.abs().max(y.abs()).max(floor))
+        .fold(0.0, f32::max)
+}
+
+/// The GPU optimiser against the CPU one on the same gradients: every group's own learning
+/// rate, bias correction over several steps, the opacity penalty, and a non-finite gradient
+/// that both skip (the GPU also reports it).
+#[test]
+fn gpu_adam_matches_the_cpu_optimiser() {
+    let Some(gpu) = gpu() else { return };
+    let mut model = random_scene(31, 300, 3, (0.02, 0.3), 1.2);
+    let lr = splat::optim::LearningRates {
+        means: 1e-3,
+        ..Default::default()
+    };
+    let reg = 0.5;
+    let mut adam = splat::optim::Adam::new(&model);
+    let mut resident = splat::gpu::GpuTraining::new(&gpu, &model, &adam).unwrap();
+    let mut rng = base::SplitMix64::new(8);
+    for step in 0..4 {
+        let mut grads = Gaussians::zeros(model.len(), model.sh_degree);
+        let mut values = grads.packed();
+        for v in &mut values {
+            *v = rng.normal() as f32 * 10f32.powi((rng.next_u64() % 5) as i32 - 3);
+        }
+        grads = Gaussians::from_packed(&values, model.sh_degree).unwrap();
+        if step == 2 {
+            grads.means[7].y = f32::NAN;
+        }
+        let report = resident.apply_gradients(&grads, &lr, reg).unwrap();
+        assert_eq!(report.nonfinite_gradient, step == 2);
+        assert!(!report.nonfinite_parameter);
+        // The CPU: the penalty's gradient added by hand, as the trainer does.
+        let k = reg / model.len() as f32;
+        for (g, &x) in grads.logit_opacities.iter_mut().zip(&model.logit_opacities) {
+            let o = splat::model::sigmoid(x);
+            *g += k * o * (1.0 - o);
+        }
+        adam.step(&mut model, &grads, &lr).unwrap();
+    }
+    let (got, got_adam) = resident.download().unwrap();
+    assert_eq!(got_adam.steps_taken(), adam.steps_taken());
+    let e = max_rel(&got.packed(), &model.packed(), 1e-3);
+    let (m, v) = adam.moments();
+    let (gm, gv) = got_adam.moments();
+    let em = max_rel(&gm.packed(), &m.packed(), 1e-9);
+    let ev = max_rel(&gv.packed(), &v.packed(), 1e-12);
+    eprintln!("Adam on the GPU: parameters {e:e}, m {em:e}, v {ev:e}");
+    assert!(e <= 1e-5 && em <= 1e-5 && ev <= 1e-5, "{e:e} {em:e} {ev:e}");
+    assert!(got.means[7].is_finite());
+}
+
+/// A resident training step (render, backward and Adam on the GPU; the loss gradient from the
+/// host) against the same step on the CPU.
+#[test]
+fn a_resident_training_step_matches_the_cpu_step() {
+    let Some(gpu) = gpu() else { return };
+    let cam = test_camera(61, 43, 50.0);
+    let model = random_scene(41, 400, 3, (0.02, 0.3), 1.2);
+    let s = RenderSettings {
+        sh_degree: 2,
+        ..Default::default()
+    };
+    let lr = splat::optim::LearningRates::default();
+    let np = cam.num_pixels();
+    let mut rng = base::SplitMix64::new(5);
+    let v_color: Vec<Vec3> = (0..np)
+        .map(|_| {
+            Vec3::new(
+                rng.normal() as f32,
+                rng.normal() as f32,
+                rng.normal() as f32,
+            )
+        })
+        .collect();
+    let pixel = PixelGradients::color(&v_color);
+
+    let cpu = CpuRasterizer;
+    let scene = cpu.upload(&model).unwrap();
+    let (_, saved) = cpu.render_for_backward(&scene, &cam, &s).unwrap();
+    let grads = cpu.backward(&scene, &saved, pixel).unwrap();
+    let mut want = model.clone();
+    splat::optim::Adam::new(&model)
+        .step(&mut want, &grads.params, &lr)
+        .unwrap();
+
+    let mut resident =
+        splat::gpu::GpuTraining::new(&gpu, &model, &splat::optim::Adam::new(&model)).unwrap();
+    let (out, saved) = resident.render_for_backward(&cam, &s).unwrap();
+    assert_eq!(out.color.len(), np);
+    let report = resident.step(&saved, pixel, &lr, 0.0).unwrap();
+    assert!(!report.nonfinite_gradient && !report.nonfinite_parameter);
+    let e2d = (rel(&report.means2d.concat(), &grads.means2d.concat())) as f32;
+    let (got, _) = resident.download().unwrap();
+    // Adam's first step moves each value by about its learning rate times the gradient's sign,
+    // so compare the updates; a gradient within rounding of zero may flip its sign.
+    let delta = |a: &Gaussians| -> Vec<f32> {
+        a.packed()
+            .iter()
+            .zip(model.packed())
+            .map(|(x, y)| x - y)
+            .collect()
+    };
+    let e = rel(&delta(&got), &delta(&want));
+    eprintln!("resident step: update differs by {e:e}, screen gradients by {e2d:e}");
+    assert!(e2d <= 1e-3, "screen-space mean gradients differ by {e2d:e}");
+    assert!(e <= 1e-2, "the update differs by {e:e} (relative)");
+}

@@ -10,7 +10,7 @@ use splat::densify::{
 };
 use splat::model::sigmoid;
 use splat::optim::{Adam, ParamGroup};
-use splat::{Gaussians, Gradients, RenderOutput};
+use splat::{Gaussians, RenderOutput};
 
 use crate::error::Result;
 use crate::train::config::Recipe;
@@ -83,13 +83,36 @@ impl Densifier {
     }
 
     /// Hook 1: accumulate this view's screen-space gradients and visibility.
-    pub fn after_backward(&mut self, step: u64, grads: &Gradients, out: &RenderOutput) {
+    pub fn after_backward(&mut self, step: u64, means2d: &[[f32; 2]], out: &RenderOutput) {
         for (s, v) in self.seen.iter_mut().zip(&out.visible) {
             *s |= *v;
         }
         if self.densifying(step) {
-            self.stats.add(grads, out, false);
+            self.stats.add_screen(means2d, out);
         }
+    }
+
+    fn grows_at(&self, step: u64) -> bool {
+        let r = &self.recipe;
+        self.densifying(step) && step >= r.densify_from && step.is_multiple_of(r.densify_every)
+    }
+
+    fn resets_at(&self, step: u64) -> bool {
+        self.densifying(step)
+            && self
+                .recipe
+                .opacity_reset_every
+                .is_some_and(|every| step.is_multiple_of(every))
+    }
+
+    /// Whether [`Densifier::after_step`] reads or edits the model at `step`.
+    pub fn acts_at(&self, step: u64) -> bool {
+        self.grows_at(step) || self.resets_at(step)
+    }
+
+    /// Whether [`Densifier::end_of_epoch`] would prune anything now.
+    pub fn has_unseen(&self) -> bool {
+        self.seen.iter().any(|s| !s)
     }
 
     /// Hook 2, after the optimiser step `step` (1-based count of steps done).
@@ -103,7 +126,7 @@ impl Densifier {
         let r = self.recipe.clone();
         let mut edit = Edit::default();
         let mut changed = false;
-        if self.densifying(step) && step >= r.densify_from && step.is_multiple_of(r.densify_every) {
+        if self.grows_at(step) {
             self.grow(model, adam, seed ^ step, &mut edit)?;
             let after_reset = r.opacity_reset_every.is_some_and(|every| step > every);
             let mask = prune_mask(
@@ -116,10 +139,7 @@ impl Densifier {
             self.stats = DensifyStats::new(model.len());
             changed = true;
         }
-        if let Some(every) = r.opacity_reset_every
-            && self.densifying(step)
-            && step.is_multiple_of(every)
-        {
+        if self.resets_at(step) {
             reset_opacity(model, 2.0 * r.prune_opacity);
             adam.reset_group(ParamGroup::Opacities);
             edit.opacity_reset = true;

@@ -16,8 +16,9 @@ use std::time::Instant;
 use base::SplitMix64;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
+use splat::gpu::GpuTraining;
 use splat::optim::{Adam, ExponentialLr};
-use splat::{Gaussians, RenderSettings};
+use splat::{Gaussians, PixelGradients, RenderSettings};
 
 use crate::device::Device;
 
@@ -224,6 +225,7 @@ pub fn train(
         Ok(sum / probe.len() as f64)
     };
 
+    let mut resident: Option<GpuTraining> = None;
     while s.step < config.iters {
         let started = Instant::now();
         let view = &data.train[view_index(config.seed, s.step, n_views)];
@@ -241,52 +243,101 @@ pub fn train(
             lambda: config.lambda_at(s.step),
             ..objective
         };
-        let (out, parts, grads) = device.forward_backward(&s.model, &view.camera, &rs, |out| {
-            let (parts, v) = objective.evaluate(&out.color, view)?;
-            if !parts.total.is_finite() {
-                return Err(at(
+        let lr = lrs.with_means(position_lr.at(s.step));
+        let check_loss = |parts: &LossParts| {
+            if parts.total.is_finite() {
+                Ok(())
+            } else {
+                Err(at(
                     "the loss",
                     "a non-finite pixel in the capture's images or I_ac, or a huge --lambda, is the likely cause",
-                ));
+                ))
             }
-            Ok((parts, v))
-        })?;
-        if !gradients_finite(&grads) {
-            return Err(at(
+        };
+        let not_finite_gradient = || {
+            at(
                 "a gradient",
                 "a degenerate splat or camera is the likely cause",
-            ));
-        }
-        let mut grads = grads;
-        if config.opacity_reg > 0.0 {
-            // d/dx of reg·mean(sigmoid(x)): a splat no view needs has no other gradient, so
-            // Adam turns even this small one into full steps towards transparency.
-            let k = config.opacity_reg / s.model.len().max(1) as f32;
-            for (g, &x) in grads
-                .params
-                .logit_opacities
-                .iter_mut()
-                .zip(&s.model.logit_opacities)
-            {
-                let o = splat::model::sigmoid(x);
-                *g += k * o * (1.0 - o);
-            }
-        }
-        s.densifier.after_backward(s.step, &grads, &out);
-        s.adam.step(
-            &mut s.model,
-            &grads.params,
-            &lrs.with_means(position_lr.at(s.step)),
-        )?;
-        if !s.model.is_finite() {
-            return Err(at(
+            )
+        };
+        let not_finite_parameter = || {
+            at(
                 "a parameter after the update",
                 "a learning rate too large for the scene is the likely cause",
-            ));
-        }
-        drop((out, grads));
+            )
+        };
+        let (out, parts, means2d) = match device {
+            // The model and its optimiser stay on the GPU between the steps that need them here.
+            Device::Gpu(gpu) => {
+                if resident.is_none() {
+                    resident = Some(GpuTraining::new(gpu, &s.model, &s.adam)?);
+                }
+                let r = resident.as_mut().expect("uploaded above");
+                let (out, saved) = r.render_for_backward(&view.camera, &rs)?;
+                let (parts, v) = objective.evaluate(&out.color, view)?;
+                check_loss(&parts)?;
+                let report = r.step(&saved, PixelGradients::color(&v), &lr, config.opacity_reg)?;
+                if report.nonfinite_gradient {
+                    return Err(not_finite_gradient());
+                }
+                if report.nonfinite_parameter {
+                    return Err(not_finite_parameter());
+                }
+                (out, parts, report.means2d)
+            }
+            Device::Cpu => {
+                let (out, parts, mut grads) =
+                    device.forward_backward(&s.model, &view.camera, &rs, |out| {
+                        let (parts, v) = objective.evaluate(&out.color, view)?;
+                        check_loss(&parts)?;
+                        Ok((parts, v))
+                    })?;
+                if !gradients_finite(&grads) {
+                    return Err(not_finite_gradient());
+                }
+                if config.opacity_reg > 0.0 {
+                    // d/dx of reg·mean(sigmoid(x)): a splat no view needs has no other
+                    // gradient, so Adam turns even this small one into full steps towards
+                    // transparency.
+                    let k = config.opacity_reg / s.model.len().max(1) as f32;
+                    for (g, &x) in grads
+                        .params
+                        .logit_opacities
+                        .iter_mut()
+                        .zip(&s.model.logit_opacities)
+                    {
+                        let o = splat::model::sigmoid(x);
+                        *g += k * o * (1.0 - o);
+                    }
+                }
+                s.adam.step(&mut s.model, &grads.params, &lr)?;
+                if !s.model.is_finite() {
+                    return Err(not_finite_parameter());
+                }
+                (out, parts, grads.means2d)
+            }
+        };
+        s.densifier.after_backward(s.step, &means2d, &out);
+        drop((out, means2d));
         s.step += 1;
         let step = s.step;
+        let eval_now =
+            step == config.iters || (config.eval_every > 0 && step % config.eval_every == 0);
+        let checkpoint_now = checkpoint_path.is_some()
+            && config.checkpoint_every > 0
+            && (step % config.checkpoint_every == 0 || step == config.iters);
+        let epoch_end = step % n_views as u64 == 0;
+        // The hooks below read the host model: bring it back from the GPU when one will.
+        if let Some(r) = &resident
+            && (eval_now
+                || checkpoint_now
+                || s.sh.acts_at(step)
+                || s.densifier.acts_at(step)
+                || (epoch_end && s.densifier.has_unseen()))
+        {
+            (s.model, s.adam) = r.download()?;
+        }
+        let mut edited = false;
         // SH bands are judged before densification acts on this step: an opacity reset falling
         // on the same step would leave the probes comparing two nearly transparent models, and
         // every band would look worthless.
@@ -295,22 +346,28 @@ pub fn train(
         {
             sh_events.push(event);
             on_event(Event::Sh { step, event });
+            edited = true;
         }
         if let Some(edit) = s
             .densifier
             .after_step(step, &mut s.model, &mut s.adam, config.seed)?
         {
+            edited = true;
             on_event(Event::Densified {
                 step,
                 edit,
                 splats: s.model.len(),
             });
         }
-        if step % n_views as u64 == 0 {
+        if epoch_end {
             let pruned = s.densifier.end_of_epoch(&mut s.model, &mut s.adam)?;
             if pruned > 0 {
+                edited = true;
                 on_event(Event::Unseen { step, pruned });
             }
+        }
+        if edited {
+            resident = None;
         }
         s.train_seconds += started.elapsed().as_secs_f64();
         on_event(Event::Step {
@@ -321,8 +378,6 @@ pub fn train(
             seconds: s.train_seconds,
         });
 
-        let eval_now =
-            step == config.iters || (config.eval_every > 0 && step % config.eval_every == 0);
         if eval_now {
             let metrics =
                 eval::evaluate(&s.model, &data.test, &settings(config, &s.model), device)?;
@@ -341,8 +396,7 @@ pub fn train(
             });
         }
         if let Some(p) = checkpoint_path
-            && config.checkpoint_every > 0
-            && (step % config.checkpoint_every == 0 || step == config.iters)
+            && checkpoint_now
         {
             checkpoint::save(p, &s)?;
             on_event(Event::Checkpoint { step });

@@ -95,6 +95,11 @@ impl ShBands {
         }
     }
 
+    /// Whether [`ShBands::after_step`] reads or edits the model at `step`.
+    pub fn acts_at(&self, step: u64) -> bool {
+        !self.frozen && step != 0 && step.is_multiple_of(self.every)
+    }
+
     /// Called after every step: on a band step, test the top band, then raise if it paid.
     pub fn after_step(
         &mut self,
@@ -104,7 +109,7 @@ impl ShBands {
         loss_at: &mut dyn FnMut(&Gaussians, u32) -> Result<f64>,
     ) -> Result<Vec<ShEvent>> {
         let mut events = Vec::new();
-        if self.frozen || step == 0 || !step.is_multiple_of(self.every) {
+        if !self.acts_at(step) {
             return Ok(events);
         }
         if let Some(e) = self.test_top(model, adam, loss_at)? {

@@ -17,6 +17,7 @@ pub struct Kernels {
     pub raster_backward: wgpu::ComputePipeline,
     pub isect_reduce: wgpu::ComputePipeline,
     pub project_backward: wgpu::ComputePipeline,
+    pub adam: wgpu::ComputePipeline,
 }
 
 /// The constants, as WGSL. `{:?}` prints the shortest decimal that reads back as the same f32.
@@ -103,6 +104,7 @@ impl Kernels {
                 "project_backward",
                 include_str!("wgsl/project_backward.wgsl"),
             ),
+            adam: pipeline(device, "adam", include_str!("wgsl/adam.wgsl")),
         }
     }
 }

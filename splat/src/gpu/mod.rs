@@ -16,6 +16,7 @@ mod context;
 mod kernels;
 #[doc(hidden)]
 pub mod sort;
+mod training;
 mod util;
 
 use std::sync::Arc;
@@ -23,6 +24,7 @@ use std::sync::Arc;
 use glam::Vec3;
 
 pub use context::GpuContext;
+pub use training::{GpuTraining, StepReport};
 pub use wgpu::DeviceType;
 
 use crate::camera::Camera;
@@ -295,12 +297,15 @@ impl GpuRasterizer {
         Ok((output, saved))
     }
 
-    fn backward_pass(
+    /// Records the backward pass into `enc`: the screen-space gradients (12 floats per
+    /// Gaussian) and the parameter gradients (the parameters' layout), left on the GPU.
+    fn encode_backward(
         &self,
         scene: &GpuScene,
         st: &GpuSaved,
         pixel: PixelGradients<'_>,
-    ) -> Result<Gradients, SplatError> {
+        enc: &mut wgpu::CommandEncoder,
+    ) -> Result<(wgpu::Buffer, wgpu::Buffer), SplatError> {
         if scene.n != st.n {
             return Err(SplatError::InvalidInput(format!(
                 "backward called with {} Gaussians, the forward pass rendered {}",
@@ -346,7 +351,6 @@ impl GpuRasterizer {
         ctx.check_size("the tile gradients", 48 * st.total as u64)?;
         let isect = storage(dev, "tile gradients", 48 * st.total as u64);
         let screen = storage(dev, "screen gradients", 48 * st.n as u64);
-        let mut enc = dev.create_command_encoder(&Default::default());
         enc.clear_buffer(&isect, 0, None);
         let bg = bind(
             dev,
@@ -356,7 +360,7 @@ impl GpuRasterizer {
                 &isect,
             ],
         );
-        dispatch(&mut enc, &k.raster_backward, &bg, st.tiles);
+        dispatch(enc, &k.raster_backward, &bg, st.tiles);
         let grads = storage(
             dev,
             "parameter gradients",
@@ -369,18 +373,30 @@ impl GpuRasterizer {
                 &k.isect_reduce,
                 &[&len, &st.offsets, &st.counts, &isect, &screen],
             );
-            dispatch(&mut enc, &k.isect_reduce, &bg, grid(blocks(st.n)));
+            dispatch(enc, &k.isect_reduce, &bg, grid(blocks(st.n)));
             let bg = bind(
                 dev,
                 &k.project_backward,
                 &[&st.cam_u, &scene.params, &screen, &st.counts, &grads],
             );
-            dispatch(&mut enc, &k.project_backward, &bg, grid(blocks(st.n)));
+            dispatch(enc, &k.project_backward, &bg, grid(blocks(st.n)));
         }
+        Ok((screen, grads))
+    }
+
+    fn backward_pass(
+        &self,
+        scene: &GpuScene,
+        st: &GpuSaved,
+        pixel: PixelGradients<'_>,
+    ) -> Result<Gradients, SplatError> {
+        let dev = &self.ctx.device;
+        let mut enc = dev.create_command_encoder(&Default::default());
+        let (screen, grads) = self.encode_backward(scene, st, pixel, &mut enc)?;
         let n = st.n as u64;
         let bytes = read_back(
             dev,
-            &ctx.queue,
+            &self.ctx.queue,
             enc,
             &[
                 (&screen, 0, 48 * n),

@@ -1,0 +1,234 @@
+//! A model trained on the GPU: its parameters and Adam moments stay resident across steps,
+//! and a step reads back only the rendered images (for the loss, which runs on the host), the
+//! screen-space mean gradients densification accumulates, and one word of finiteness flags.
+//! The host copy is brought back ([`GpuTraining::download`]) when something there needs it —
+//! densification, SH-band tests, evaluation, checkpoints — and the model is uploaded again
+//! only when the host changed it.
+
+use crate::camera::Camera;
+use crate::error::SplatError;
+use crate::model::Gaussians;
+use crate::optim::{Adam, LearningRates};
+use crate::rasterizer::PixelGradients;
+use crate::render::{RenderOutput, RenderSettings};
+
+use super::util::{
+    bind, blocks, dispatch, f32s, grid, read_back, storage, storage_init, u32s, uniform,
+};
+use super::{GpuRasterizer, GpuSaved, GpuScene};
+
+/// A model and its optimiser state on one GPU.
+pub struct GpuTraining {
+    raster: GpuRasterizer,
+    scene: GpuScene<'static>,
+    m: wgpu::Buffer,
+    v: wgpu::Buffer,
+    steps: u64,
+    beta1: f32,
+    beta2: f32,
+    eps: f32,
+}
+
+/// What one step leaves on the host.
+#[derive(Clone, Debug)]
+pub struct StepReport {
+    /// Screen-space mean gradient per Gaussian (what densification accumulates).
+    pub means2d: Vec<[f32; 2]>,
+    /// Some gradient was not finite: those values and their moments were left alone.
+    pub nonfinite_gradient: bool,
+    /// Some parameter is not finite after the update.
+    pub nonfinite_parameter: bool,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct AdamUniform {
+    n: u32,
+    stride: u32,
+    reg: f32,
+    eps: f32,
+    b1: f32,
+    b2: f32,
+    bc1: f32,
+    bc2: f32,
+    lr_a: [f32; 4],
+    lr_b: [f32; 4],
+}
+
+impl GpuTraining {
+    /// Uploads `model` and the moments of `adam`, which must have the model's shape.
+    pub fn new(raster: &GpuRasterizer, model: &Gaussians, adam: &Adam) -> Result<Self, SplatError> {
+        let (m, v) = adam.moments();
+        if m.len() != model.len() || m.sh_degree != model.sh_degree {
+            return Err(SplatError::InvalidInput(format!(
+                "optimiser state for {} Gaussians of SH degree {}, model has {} of degree {}",
+                m.len(),
+                m.sh_degree,
+                model.len(),
+                model.sh_degree
+            )));
+        }
+        let scene = raster.upload_static(model)?;
+        let dev = &raster.ctx.device;
+        Ok(Self {
+            m: storage_init(dev, "adam m", bytemuck::cast_slice(&m.packed())),
+            v: storage_init(dev, "adam v", bytemuck::cast_slice(&v.packed())),
+            raster: raster.clone(),
+            scene,
+            steps: adam.steps_taken(),
+            beta1: adam.beta1,
+            beta2: adam.beta2,
+            eps: adam.eps,
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.scene.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.scene.is_empty()
+    }
+
+    /// Renders the resident model, keeping what the backward pass needs.
+    pub fn render_for_backward(
+        &self,
+        cam: &Camera,
+        settings: &RenderSettings,
+    ) -> Result<(RenderOutput, GpuSaved), SplatError> {
+        self.raster.forward(&self.scene, cam, settings)
+    }
+
+    /// Backpropagates `pixel` through the render `saved` and takes one Adam step with `lr`,
+    /// adding the gradient of `opacity_reg · mean(sigmoid(logit opacity))` first.
+    pub fn step(
+        &mut self,
+        saved: &GpuSaved,
+        pixel: PixelGradients<'_>,
+        lr: &LearningRates,
+        opacity_reg: f32,
+    ) -> Result<StepReport, SplatError> {
+        let (raster, scene) = (&self.raster, &self.scene);
+        let dev = &raster.ctx.device;
+        let mut enc = dev.create_command_encoder(&Default::default());
+        let (screen, grads) = raster.encode_backward(scene, saved, pixel, &mut enc)?;
+        let flags = self.encode_adam(&grads, lr, opacity_reg, &mut enc)?;
+        self.finish(enc, Some(&screen), &flags)
+    }
+
+    /// One Adam step with gradients given by the host (the optimiser on its own, for tests).
+    #[doc(hidden)]
+    pub fn apply_gradients(
+        &mut self,
+        grads: &Gaussians,
+        lr: &LearningRates,
+        opacity_reg: f32,
+    ) -> Result<StepReport, SplatError> {
+        if grads.len() != self.len() || grads.sh_degree != self.scene.sh_degree {
+            return Err(SplatError::InvalidInput(
+                "gradients differ in shape from the model".into(),
+            ));
+        }
+        let dev = &self.raster.ctx.device;
+        let g = storage_init(dev, "gradients", bytemuck::cast_slice(&grads.packed()));
+        let mut enc = dev.create_command_encoder(&Default::default());
+        let flags = self.encode_adam(&g, lr, opacity_reg, &mut enc)?;
+        self.finish(enc, None, &flags)
+    }
+
+    fn encode_adam(
+        &mut self,
+        grads: &wgpu::Buffer,
+        lr: &LearningRates,
+        opacity_reg: f32,
+        enc: &mut wgpu::CommandEncoder,
+    ) -> Result<wgpu::Buffer, SplatError> {
+        let (raster, scene) = (&self.raster, &self.scene);
+        let dev = &raster.ctx.device;
+        let values = scene.n as u64 * scene.stride as u64;
+        let n = u32::try_from(values).map_err(|_| {
+            SplatError::Gpu(format!("{values} parameters are more than a u32 counts"))
+        })?;
+        self.steps += 1;
+        let t = self.steps as i32;
+        let u = AdamUniform {
+            n,
+            stride: scene.stride,
+            reg: opacity_reg / scene.n.max(1) as f32,
+            eps: self.eps,
+            b1: self.beta1,
+            b2: self.beta2,
+            bc1: 1.0 - self.beta1.powi(t),
+            bc2: 1.0 - self.beta2.powi(t),
+            lr_a: [lr.means, lr.log_scales, lr.rotations, lr.opacities],
+            lr_b: [lr.sh_dc, lr.sh_rest, 0.0, 0.0],
+        };
+        let flags = storage(dev, "adam flags", 4);
+        enc.clear_buffer(&flags, 0, None);
+        if n > 0 {
+            let cfg = uniform(dev, "adam step", bytemuck::bytes_of(&u));
+            let k = &raster.kernels;
+            let g = bind(
+                dev,
+                &k.adam,
+                &[&cfg, &scene.params, grads, &self.m, &self.v, &flags],
+            );
+            dispatch(enc, &k.adam, &g, grid(blocks(n)));
+        }
+        Ok(flags)
+    }
+
+    fn finish(
+        &self,
+        enc: wgpu::CommandEncoder,
+        screen: Option<&wgpu::Buffer>,
+        flags: &wgpu::Buffer,
+    ) -> Result<StepReport, SplatError> {
+        let raster = &self.raster;
+        let screen_bytes = if screen.is_some() {
+            48 * self.scene.n as u64
+        } else {
+            0
+        };
+        let bytes = read_back(
+            &raster.ctx.device,
+            &raster.ctx.queue,
+            enc,
+            &[(flags, 0, 4), (screen.unwrap_or(flags), 0, screen_bytes)],
+        )?;
+        let flag = u32s(&bytes[0])[0];
+        Ok(StepReport {
+            means2d: f32s(&bytes[1])
+                .chunks_exact(12)
+                .map(|v| [v[0], v[1]])
+                .collect(),
+            nonfinite_gradient: flag & 1 != 0,
+            nonfinite_parameter: flag & 2 != 0,
+        })
+    }
+
+    /// The model and optimiser as they stand on the GPU.
+    pub fn download(&self) -> Result<(Gaussians, Adam), SplatError> {
+        let raster = &self.raster;
+        let dev = &raster.ctx.device;
+        let bytes = 4 * self.scene.n as u64 * self.scene.stride as u64;
+        let enc = dev.create_command_encoder(&Default::default());
+        let b = read_back(
+            dev,
+            &raster.ctx.queue,
+            enc,
+            &[
+                (&self.scene.params, 0, bytes),
+                (&self.m, 0, bytes),
+                (&self.v, 0, bytes),
+            ],
+        )?;
+        let d = self.scene.sh_degree;
+        let model = Gaussians::from_packed(&f32s(&b[0]), d)?;
+        let m = Gaussians::from_packed(&f32s(&b[1]), d)?;
+        let v = Gaussians::from_packed(&f32s(&b[2]), d)?;
+        let mut adam = Adam::from_state(self.steps, m, v)?;
+        (adam.beta1, adam.beta2, adam.eps) = (self.beta1, self.beta2, self.eps);
+        Ok((model, adam))
+    }
+}
