@@ -1,0 +1,89 @@
+//! The CPU and GPU paths side by side in one process, for sizes too large for criterion's ten
+//! samples on a software adapter (1M splats on lavapipe takes seconds per call) and as the
+//! one script to run on a real GPU: forward, and a whole training step (forward, backward,
+//! Adam; on the GPU the resident step), median wall milliseconds of `repeats` calls after one
+//! warm-up, with the GPU image's largest difference from the CPU image.
+//! `cargo run --release -p splat --example gpu_step -- [splats] [scale] [repeats]`
+//! (scale 1: 504×378, 2: 1008×756).
+
+use std::time::Instant;
+
+use glam::Vec3;
+use splat::gpu::{GpuRasterizer, GpuTraining};
+use splat::optim::{Adam, LearningRates};
+use splat::synthetic::{benchmark_camera, random_box_scene};
+use splat::{CpuRasterizer, PixelGradients, Rasterizer, RenderSettings};
+
+/// Median wall milliseconds of `repeats` calls of `f`, after one call not timed.
+fn median_ms(repeats: usize, mut f: impl FnMut()) -> f64 {
+    f();
+    let mut t: Vec<f64> = (0..repeats)
+        .map(|_| {
+            let start = Instant::now();
+            f();
+            start.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[t.len() / 2]
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let n: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(100_000);
+    let scale: u32 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(1).max(1);
+    let repeats: usize = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(3).max(1);
+    let gpu = match GpuRasterizer::new() {
+        Ok(g) => g,
+        Err(e) => {
+            eprintln!("no GPU: {e}");
+            std::process::exit(1);
+        }
+    };
+    let g = random_box_scene(0, n, 3);
+    let cam = benchmark_camera().resized(504 * scale, 378 * scale);
+    let settings = RenderSettings {
+        sh_degree: 3,
+        ..Default::default()
+    };
+    let v = vec![Vec3::splat(1e-3); cam.num_pixels()];
+    let lr = LearningRates::default();
+    let cpu = CpuRasterizer;
+
+    let (cs, gs) = (cpu.upload(&g).unwrap(), gpu.upload(&g).unwrap());
+    let want = cpu.render(&cs, &cam, &settings).unwrap();
+    let got = gpu.render(&gs, &cam, &settings).unwrap();
+    let err = want
+        .color
+        .iter()
+        .zip(&got.color)
+        .map(|(a, b)| (*a - *b).abs().max_element())
+        .fold(0.0f32, f32::max);
+    let cpu_fwd = median_ms(repeats, || {
+        cpu.render(&cs, &cam, &settings).unwrap();
+    });
+    let gpu_fwd = median_ms(repeats, || {
+        gpu.render(&gs, &cam, &settings).unwrap();
+    });
+    drop((cs, gs));
+    let (mut model, mut adam) = (g.clone(), Adam::new(&g));
+    let cpu_step = median_ms(repeats, || {
+        let cs = cpu.upload(&model).unwrap();
+        let (_, s) = cpu.render_for_backward(&cs, &cam, &settings).unwrap();
+        let grads = cpu.backward(&cs, &s, PixelGradients::color(&v)).unwrap();
+        adam.step(&mut model, &grads.params, &lr).unwrap();
+    });
+    let mut t = GpuTraining::new(&gpu, &g, &Adam::new(&g)).unwrap();
+    let gpu_step = median_ms(repeats, || {
+        let (_, s) = t.render_for_backward(&cam, &settings).unwrap();
+        t.step(&s, PixelGradients::color(&v), &lr, 0.0).unwrap();
+    });
+    println!(
+        "{}x{} {n} splats, CPU {} threads, GPU {}: forward CPU {cpu_fwd:.1} ms, GPU {gpu_fwd:.1} ms; \
+         training step CPU {cpu_step:.1} ms, GPU {gpu_step:.1} ms; max |GPU - CPU| colour {err:e}",
+        cam.width,
+        cam.height,
+        rayon::current_num_threads(),
+        gpu.context().describe(),
+    );
+}
