@@ -65,3 +65,74 @@ fn tile_rect(m: vec2<f32>, r: vec2<f32>, tiles_x: u32, tiles_y: u32) -> vec4<u32
         u32(clamp(ceil((m.y + r.y) / ts), 0.0, ty)),
     );
 }
+
+// The SH basis at unit direction `d` up to `deg` (`sh::basis`); higher entries are zero.
+fn sh_basis(deg: u32, d: vec3<f32>) -> array<f32, 16> {
+    var b: array<f32, 16>;
+    b[0] = SH_C0;
+    let x = d.x;
+    let y = d.y;
+    let z = d.z;
+    if (deg >= 1u) {
+        b[1] = -SH_C1 * y;
+        b[2] = SH_C1 * z;
+        b[3] = -SH_C1 * x;
+    }
+    if (deg >= 2u) {
+        let xx = x * x;
+        let yy = y * y;
+        let zz = z * z;
+        b[4] = SH_C2_XY * x * y;
+        b[5] = -SH_C2_XY * y * z;
+        b[6] = SH_C2_ZZ * zz - SH_C2_ZZ0;
+        b[7] = -SH_C2_XY * x * z;
+        b[8] = SH_C2_XX * (xx - yy);
+        if (deg >= 3u) {
+            let a = SH_C3_C * zz + SH_C3_C0;
+            b[9] = SH_C3_A * (3.0 * xx * y - yy * y);
+            b[10] = SH_C3_B * z * 2.0 * x * y;
+            b[11] = a * y;
+            b[12] = z * (SH_C3_D * zz - SH_C3_D0);
+            b[13] = a * x;
+            b[14] = SH_C3_B * z * (xx - yy);
+            b[15] = SH_C3_A * (xx * x - 3.0 * x * yy);
+        }
+    }
+    return b;
+}
+
+// A quaternion's rotation (`project::quat_to_rotmat`).
+struct QuatRot {
+    rot: mat3x3<f32>,
+    // The normalised quaternion (w, x, y, z).
+    qn: vec4<f32>,
+    // Its length; 0 for the zero (or a non-finite) quaternion, whose rotation is the identity.
+    len: f32,
+}
+
+// Scaled by the largest component first, so huge quaternions do not overflow.
+fn quat_rot(q: vec4<f32>) -> QuatRot {
+    var out = QuatRot(
+        mat3x3<f32>(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
+        vec4<f32>(1.0, 0.0, 0.0, 0.0),
+        0.0,
+    );
+    let m = max(max(abs(q.x), abs(q.y)), max(abs(q.z), abs(q.w)));
+    if (finite(m) && m > 0.0) {
+        let s = q / m;
+        let len_s = sqrt(dot(s, s));
+        let qn = s / len_s;
+        out.qn = qn;
+        out.len = m * len_s;
+        let w = qn.x;
+        let x = qn.y;
+        let y = qn.z;
+        let z = qn.w;
+        out.rot = mat3x3<f32>(
+            1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y),
+            2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x),
+            2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y),
+        );
+    }
+    return out;
+}

@@ -16,36 +16,7 @@ fn cull(i: u32) {
 fn sh_color(i: u32, base: u32, dir: vec3<f32>) -> vec3<f32> {
     let deg = cam.cfg.y;
     let dc = vec3<f32>(params[base + 11u], params[base + 12u], params[base + 13u]);
-    var b: array<f32, 16>;
-    b[0] = SH_C0;
-    let x = dir.x;
-    let y = dir.y;
-    let z = dir.z;
-    if (deg >= 1u) {
-        b[1] = -SH_C1 * y;
-        b[2] = SH_C1 * z;
-        b[3] = -SH_C1 * x;
-    }
-    if (deg >= 2u) {
-        let xx = x * x;
-        let yy = y * y;
-        let zz = z * z;
-        b[4] = SH_C2_XY * x * y;
-        b[5] = -SH_C2_XY * y * z;
-        b[6] = SH_C2_ZZ * zz - SH_C2_ZZ0;
-        b[7] = -SH_C2_XY * x * z;
-        b[8] = SH_C2_XX * (xx - yy);
-        if (deg >= 3u) {
-            let a = SH_C3_C * zz + SH_C3_C0;
-            b[9] = SH_C3_A * (3.0 * xx * y - yy * y);
-            b[10] = SH_C3_B * z * 2.0 * x * y;
-            b[11] = a * y;
-            b[12] = z * (SH_C3_D * zz - SH_C3_D0);
-            b[13] = a * x;
-            b[14] = SH_C3_B * z * (xx - yy);
-            b[15] = SH_C3_A * (xx * x - 3.0 * x * yy);
-        }
-    }
+    let b = sh_basis(deg, dir);
     var c = dc * b[0];
     let nb = (deg + 1u) * (deg + 1u);
     for (var k = 1u; k < nb; k = k + 1u) {
@@ -74,23 +45,8 @@ fn main(
         cull(i);
         return;
     }
-    // Rotation of the quaternion (w, x, y, z), scaled by its largest component first.
     let q = vec4<f32>(params[base + 6u], params[base + 7u], params[base + 8u], params[base + 9u]);
-    let m = max(max(abs(q.x), abs(q.y)), max(abs(q.z), abs(q.w)));
-    var rot = mat3x3<f32>(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0);
-    if (finite(m) && m > 0.0) {
-        let s = q / m;
-        let qn = s / sqrt(dot(s, s));
-        let w = qn.x;
-        let x = qn.y;
-        let y = qn.z;
-        let zq = qn.w;
-        rot = mat3x3<f32>(
-            1.0 - 2.0 * (y * y + zq * zq), 2.0 * (x * y + w * zq), 2.0 * (x * zq - w * y),
-            2.0 * (x * y - w * zq), 1.0 - 2.0 * (x * x + zq * zq), 2.0 * (y * zq + w * x),
-            2.0 * (x * zq + w * y), 2.0 * (y * zq - w * x), 1.0 - 2.0 * (x * x + y * y),
-        );
-    }
+    let rot = quat_rot(q).rot;
     let scale = exp(vec3<f32>(params[base + 3u], params[base + 4u], params[base + 5u]));
     let mm = mat3x3<f32>(rot[0] * scale.x, rot[1] * scale.y, rot[2] * scale.z);
     let cov_world = mm * transpose(mm);

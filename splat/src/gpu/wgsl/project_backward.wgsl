@@ -15,40 +15,6 @@ fn zero_all(base: u32) {
     }
 }
 
-fn basis(deg: u32, d: vec3<f32>) -> array<f32, 16> {
-    var b: array<f32, 16>;
-    b[0] = SH_C0;
-    let x = d.x;
-    let y = d.y;
-    let z = d.z;
-    if (deg >= 1u) {
-        b[1] = -SH_C1 * y;
-        b[2] = SH_C1 * z;
-        b[3] = -SH_C1 * x;
-    }
-    if (deg >= 2u) {
-        let xx = x * x;
-        let yy = y * y;
-        let zz = z * z;
-        b[4] = SH_C2_XY * x * y;
-        b[5] = -SH_C2_XY * y * z;
-        b[6] = SH_C2_ZZ * zz - SH_C2_ZZ0;
-        b[7] = -SH_C2_XY * x * z;
-        b[8] = SH_C2_XX * (xx - yy);
-        if (deg >= 3u) {
-            let a = SH_C3_C * zz + SH_C3_C0;
-            b[9] = SH_C3_A * (3.0 * xx * y - yy * y);
-            b[10] = SH_C3_B * z * 2.0 * x * y;
-            b[11] = a * y;
-            b[12] = z * (SH_C3_D * zz - SH_C3_D0);
-            b[13] = a * x;
-            b[14] = SH_C3_B * z * (xx - yy);
-            b[15] = SH_C3_A * (xx * x - 3.0 * x * yy);
-        }
-    }
-    return b;
-}
-
 // d basis_k / d direction (`sh::basis_grad`).
 fn basis_grad(k: u32, d: vec3<f32>) -> vec3<f32> {
     let x = d.x;
@@ -106,27 +72,11 @@ fn main(
         zero_all(base);
         return;
     }
-    // Rotation, normalised quaternion and its length (`project::quat_to_rotmat`).
     let q = vec4<f32>(params[base + 6u], params[base + 7u], params[base + 8u], params[base + 9u]);
-    let qm = max(max(abs(q.x), abs(q.y)), max(abs(q.z), abs(q.w)));
-    var rot = mat3x3<f32>(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0);
-    var qn = vec4<f32>(1.0, 0.0, 0.0, 0.0);
-    var qlen = 0.0;
-    if (finite(qm) && qm > 0.0) {
-        let s = q / qm;
-        let len_s = sqrt(dot(s, s));
-        qn = s / len_s;
-        qlen = qm * len_s;
-        let w = qn.x;
-        let x = qn.y;
-        let y = qn.z;
-        let zq = qn.w;
-        rot = mat3x3<f32>(
-            1.0 - 2.0 * (y * y + zq * zq), 2.0 * (x * y + w * zq), 2.0 * (x * zq - w * y),
-            2.0 * (x * y - w * zq), 1.0 - 2.0 * (x * x + zq * zq), 2.0 * (y * zq + w * x),
-            2.0 * (x * zq + w * y), 2.0 * (y * zq - w * x), 1.0 - 2.0 * (x * x + y * y),
-        );
-    }
+    let qr = quat_rot(q);
+    let rot = qr.rot;
+    let qn = qr.qn;
+    let qlen = qr.len;
     let scale = exp(vec3<f32>(params[base + 3u], params[base + 4u], params[base + 5u]));
     let mm = mat3x3<f32>(rot[0] * scale.x, rot[1] * scale.y, rot[2] * scale.z);
     let cov_cam = wr * (mm * transpose(mm)) * transpose(wr);
@@ -260,7 +210,7 @@ fn main(
         dir = raw / len;
     }
     let dc = vec3<f32>(params[base + 11u], params[base + 12u], params[base + 13u]);
-    let bs = basis(deg, dir);
+    let bs = sh_basis(deg, dir);
     let nb = (deg + 1u) * (deg + 1u);
     var pre = dc * bs[0];
     for (var k = 1u; k < nb; k = k + 1u) {
