@@ -61,7 +61,10 @@ pub enum LambdaFade {
     Auto,
     Never,
     End,
+    /// Falls from the first step to zero at this one.
     Step(u64),
+    /// Holds until the first step, falls to zero at the second.
+    Range(u64, u64),
 }
 
 impl std::str::FromStr for LambdaFade {
@@ -71,10 +74,16 @@ impl std::str::FromStr for LambdaFade {
             "auto" => Ok(LambdaFade::Auto),
             "never" => Ok(LambdaFade::Never),
             "end" => Ok(LambdaFade::End),
-            n => n
-                .parse()
-                .map(LambdaFade::Step)
-                .map_err(|_| format!("'{s}' is not auto, never, end or a step number")),
+            n => {
+                let bad = || format!("'{s}' is not auto, never, end, a step or FROM:TO steps");
+                match n.split_once(':') {
+                    Some((a, b)) => match (a.trim().parse(), b.trim().parse()) {
+                        (Ok(a), Ok(b)) if a <= b => Ok(LambdaFade::Range(a, b)),
+                        _ => Err(bad()),
+                    },
+                    None => n.parse().map(LambdaFade::Step).map_err(|_| bad()),
+                }
+            }
         }
     }
 }
@@ -86,6 +95,7 @@ impl std::fmt::Display for LambdaFade {
             LambdaFade::Never => f.write_str("never"),
             LambdaFade::End => f.write_str("end"),
             LambdaFade::Step(n) => write!(f, "{n}"),
+            LambdaFade::Range(a, b) => write!(f, "{a}:{b}"),
         }
     }
 }
@@ -100,7 +110,8 @@ pub struct TrainSettings {
     #[arg(long, value_parser = crate::flags::weight, allow_negative_numbers = true)]
     pub lambda: Option<f32>,
     /// When λ falls linearly to zero: `auto` (by the end of densification with the Wiener
-    /// stand-in and no --lambda given, else never), `never`, `end` (the last step), or a step.
+    /// stand-in and no --lambda given, else never), `never`, `end` (the last step), a step, or
+    /// FROM:TO (held until FROM, zero at TO).
     #[arg(long, default_value_t = LambdaFade::Auto)]
     pub lambda_fade: LambdaFade,
     #[arg(long, default_value_t = 7000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]

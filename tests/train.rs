@@ -528,6 +528,23 @@ fn the_stand_in_restorer_fades_lambda_out() {
         let cfg = TrainConfig::build(&settings, 0, &data);
         assert_eq!(cfg.lambda_fade_until, want, "{fade}");
     }
+    // Held, then falling: FROM:TO.
+    let settings = metasplat::run::TrainSettings {
+        mode: Mode::Aware,
+        iters: 1000,
+        lambda: Some(0.4),
+        lambda_fade: LambdaFade::Range(200, 600),
+        ..Default::default()
+    };
+    let cfg = TrainConfig::build(&settings, 0, &data);
+    assert_eq!(cfg.lambda_at(200), 0.4);
+    assert!((cfg.lambda_at(400) - 0.2).abs() < 1e-6);
+    assert_eq!(cfg.lambda_at(600), 0.0);
+    assert_eq!(
+        "200:600".parse::<LambdaFade>(),
+        Ok(LambdaFade::Range(200, 600))
+    );
+    assert!("600:200".parse::<LambdaFade>().is_err());
     assert_eq!("end".parse::<LambdaFade>(), Ok(LambdaFade::End));
     assert_eq!("250".parse::<LambdaFade>(), Ok(LambdaFade::Step(250)));
     assert!("soon".parse::<LambdaFade>().unwrap_err().contains("soon"));

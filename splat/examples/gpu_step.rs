@@ -3,8 +3,10 @@
 //! one script to run on a real GPU: forward, and a whole training step (forward, backward,
 //! Adam; on the GPU the resident step), median wall milliseconds of `repeats` calls after one
 //! warm-up, with the GPU image's largest difference from the CPU image.
-//! `cargo run --release -p splat --example gpu_step -- [splats] [scale] [repeats]`
-//! (scale 1: 504×378, 2: 1008×756).
+//! `cargo run --release -p splat --example gpu_step -- [splats] [scale] [repeats] [export-dir]`
+//! (scale 1: 504×378, 2: 1008×756). With an export folder it also writes the scene
+//! (`scene.ply`), the camera (`camera.json`), the CPU image (`cpu_rgb.f32`, row-major RGB) and
+//! these timings (`ours.json`), for `benches/gsplat/side_by_side.py` to render the same view.
 
 use std::time::Instant;
 
@@ -78,6 +80,16 @@ fn main() {
         let (_, s) = t.render_for_backward(&cam, &settings).unwrap();
         t.step(&s, PixelGradients::color(&v), &lr, 0.0).unwrap();
     });
+    if let Some(dir) = args.get(4) {
+        export(
+            std::path::Path::new(dir),
+            &g,
+            &cam,
+            &want.color,
+            [cpu_fwd, gpu_fwd, cpu_step, gpu_step],
+        )
+        .expect("writing the export folder");
+    }
     println!(
         "{}x{} {n} splats, CPU {} threads, GPU {}: forward CPU {cpu_fwd:.1} ms, GPU {gpu_fwd:.1} ms; \
          training step CPU {cpu_step:.1} ms, GPU {gpu_step:.1} ms; max |GPU - CPU| colour {err:e}",
@@ -86,4 +98,44 @@ fn main() {
         rayon::current_num_threads(),
         gpu.context().describe(),
     );
+}
+
+fn export(
+    dir: &std::path::Path,
+    g: &splat::Gaussians,
+    cam: &splat::Camera,
+    rgb: &[Vec3],
+    [cpu_fwd, gpu_fwd, cpu_step, gpu_step]: [f64; 4],
+) -> std::io::Result<()> {
+    std::fs::create_dir_all(dir)?;
+    splat::ply::write_ply(dir.join("scene.ply"), g).map_err(std::io::Error::other)?;
+    let r = cam.rotation;
+    let t = cam.translation;
+    // Row-major world-to-camera matrix.
+    let view = [
+        [r.x_axis.x, r.y_axis.x, r.z_axis.x, t.x],
+        [r.x_axis.y, r.y_axis.y, r.z_axis.y, t.y],
+        [r.x_axis.z, r.y_axis.z, r.z_axis.z, t.z],
+        [0.0, 0.0, 0.0, 1.0],
+    ];
+    std::fs::write(
+        dir.join("camera.json"),
+        format!(
+            "{{\"width\": {}, \"height\": {}, \"fx\": {}, \"fy\": {}, \"cx\": {}, \"cy\": {}, \"near\": {}, \"far\": {}, \"world_to_camera\": {:?}}}\n",
+            cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, cam.near, cam.far, view
+        ),
+    )?;
+    let bytes: Vec<u8> = rgb
+        .iter()
+        .flat_map(|c| c.to_array())
+        .flat_map(f32::to_le_bytes)
+        .collect();
+    std::fs::write(dir.join("cpu_rgb.f32"), bytes)?;
+    std::fs::write(
+        dir.join("ours.json"),
+        format!(
+            "{{\"splats\": {}, \"cpu_forward_ms\": {cpu_fwd}, \"gpu_forward_ms\": {gpu_fwd}, \"cpu_step_ms\": {cpu_step}, \"gpu_step_ms\": {gpu_step}}}\n",
+            g.len()
+        ),
+    )
 }

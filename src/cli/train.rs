@@ -64,12 +64,16 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
         if let Some(r) = &data.restorer {
             println!("{}", r.describe());
             if t.mode == Mode::Aware {
+                let lambda = config.lambda;
                 match config.lambda_fade_until {
-                    Some(end) => println!(
-                        "lambda {} for L(render, I_ac), falling to 0 by step {end}: a long run would learn the stand-in's ringing",
-                        config.lambda
+                    Some(end) if config.lambda_hold_until.min(end) > 0 => println!(
+                        "lambda {lambda} for L(render, I_ac), held until step {} and falling to 0 by step {end}",
+                        config.lambda_hold_until.min(end)
                     ),
-                    None => println!("lambda {} for L(render, I_ac)", config.lambda),
+                    Some(end) => {
+                        println!("lambda {lambda} for L(render, I_ac), falling to 0 by step {end}")
+                    }
+                    None => println!("lambda {lambda} for L(render, I_ac)"),
                 }
             }
         }

@@ -138,6 +138,9 @@ pub struct TrainConfig {
     /// Wiener stand-in as `I_ac`, whose errors a long run learns (RESULTS.md, demo section).
     #[serde(default)]
     pub lambda_fade_until: Option<u64>,
+    /// With a fade, λ holds its value until this step and falls from there.
+    #[serde(default)]
+    pub lambda_hold_until: u64,
 }
 
 /// The paper's weight of `L(render, I_ac)` for LLFF scenes with its trained restorer.
@@ -155,10 +158,16 @@ pub fn default_max_splats(width: u32, height: u32, surrounds: bool) -> usize {
 impl TrainConfig {
     /// λ at `step`.
     pub fn lambda_at(&self, step: u64) -> f32 {
-        match self.lambda_fade_until {
-            Some(end) if end > 0 => self.lambda * (1.0 - step as f32 / end as f32).max(0.0),
-            Some(_) => 0.0,
-            None => self.lambda,
+        let Some(end) = self.lambda_fade_until else {
+            return self.lambda;
+        };
+        let from = self.lambda_hold_until.min(end);
+        if step <= from {
+            self.lambda
+        } else if end > from {
+            self.lambda * (1.0 - (step - from) as f32 / (end - from) as f32).max(0.0)
+        } else {
+            0.0
         }
     }
 
@@ -208,6 +217,11 @@ impl TrainConfig {
                 LambdaFade::Never => None,
                 LambdaFade::End => Some(iters),
                 LambdaFade::Step(n) => Some(n),
+                LambdaFade::Range(_, b) => Some(b),
+            },
+            lambda_hold_until: match settings.lambda_fade {
+                LambdaFade::Range(a, _) => a,
+                _ => 0,
             },
             recipe,
         }
