@@ -364,4 +364,27 @@ fn a_resident_training_step_matches_the_cpu_step() {
     eprintln!("resident step: update differs by {e:e}, screen gradients by {e2d:e}");
     assert!(e2d <= 1e-3, "screen-space mean gradients differ by {e2d:e}");
     assert!(e <= 1e-2, "the update differs by {e:e} (relative)");
+
+    // Later steps reuse the first step's working buffers (the same view needs no more), and a
+    // render whose buffers a later render took cannot be backpropagated.
+    let held = resident.scratch_bytes();
+    assert!(held > 0);
+    for _ in 0..3 {
+        let (_, saved) = resident.render_for_backward(&cam, &s).unwrap();
+        resident.step(&saved, pixel, &lr, 0.0).unwrap();
+    }
+    assert_eq!(resident.scratch_bytes(), held, "working buffers were reallocated");
+    // Reused buffers' old contents do not matter: a step in them equals the same step in
+    // fresh ones, bit for bit.
+    let (state, adam) = resident.download().unwrap();
+    let mut fresh = splat::gpu::GpuTraining::new(&gpu, &state, &adam).unwrap();
+    for t in [&mut resident, &mut fresh] {
+        let (_, saved) = t.render_for_backward(&cam, &s).unwrap();
+        t.step(&saved, pixel, &lr, 0.0).unwrap();
+    }
+    assert_eq!(resident.download().unwrap().0, fresh.download().unwrap().0);
+    let (_, old) = resident.render_for_backward(&cam, &s).unwrap();
+    let (_, _new) = resident.render_for_backward(&cam, &s).unwrap();
+    let err = resident.step(&old, pixel, &lr, 0.0).unwrap_err().to_string();
+    assert!(err.contains("reused"), "{err}");
 }

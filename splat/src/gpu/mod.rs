@@ -35,7 +35,9 @@ use crate::rasterizer::{PixelGradients, Rasterizer};
 use crate::render::{Gradients, RenderOutput, RenderSettings};
 use kernels::Kernels;
 use sort::{KeyBuffers, radix_sort, scan};
-use util::{bind, blocks, dispatch, f32s, grid, read_back, storage, storage_init, u32s, uniform};
+use util::{
+    Scratch, bind, blocks, dispatch, f32s, grid, read_back, storage, storage_init, u32s, uniform,
+};
 
 /// Floats per projected Gaussian (`PROJ_STRIDE` in the shaders).
 const PROJ_STRIDE: u64 = 12;
@@ -126,6 +128,7 @@ impl GpuRasterizer {
         scene: &GpuScene,
         cam: &Camera,
         settings: &RenderSettings,
+        scratch: &mut Scratch,
     ) -> Result<(RenderOutput, GpuSaved), SplatError> {
         cam.validate()?;
         if settings.sh_degree > scene.sh_degree {
@@ -168,10 +171,10 @@ impl GpuRasterizer {
             ],
         };
         let cam_u = uniform(dev, "camera", bytemuck::bytes_of(&cu));
-        let proj = storage(dev, "projected", 4 * PROJ_STRIDE * n as u64);
-        let counts = storage(dev, "tile counts", 4 * n as u64);
-        let offsets = storage(dev, "tile offsets", 4 * n as u64);
-        let radii = storage(dev, "radii", 8 * n as u64);
+        let proj = scratch.storage(dev, "projected", 4 * PROJ_STRIDE * n as u64);
+        let counts = scratch.storage(dev, "tile counts", 4 * n as u64);
+        let offsets = scratch.storage(dev, "tile offsets", 4 * n as u64);
+        let radii = scratch.storage(dev, "radii", 8 * n as u64);
 
         // Projection and the scan of tile counts; read back how many keys there are.
         let mut enc = dev.create_command_encoder(&Default::default());
@@ -182,7 +185,7 @@ impl GpuRasterizer {
                 &[&cam_u, &scene.params, &proj, &counts, &radii],
             );
             dispatch(&mut enc, &k.project, &g, grid(blocks(n)));
-            scan(dev, k, &mut enc, &counts, &offsets, n);
+            scan(dev, k, &mut enc, &counts, &offsets, n, scratch);
             let last = 4 * (n as u64 - 1);
             let b = read_back(
                 dev,
@@ -202,9 +205,9 @@ impl GpuRasterizer {
         })?;
 
         // Keys, sort, ranges, blending.
-        let a = KeyBuffers::new(dev, total);
-        let b = KeyBuffers::new(dev, total);
-        let owner = storage(dev, "key owners", 4 * total as u64);
+        let a = KeyBuffers::new(dev, total, scratch);
+        let b = KeyBuffers::new(dev, total, scratch);
+        let owner = scratch.storage(dev, "key owners", 4 * total as u64);
         if total > 0 {
             let g = bind(
                 dev,
@@ -217,21 +220,21 @@ impl GpuRasterizer {
         }
         let num_tiles = tiles_x * tiles_y;
         let hi_bits = 32 - (num_tiles.max(2) - 1).leading_zeros();
-        let sorted = if radix_sort(dev, k, &mut enc, &a, &b, total, hi_bits) {
+        let sorted = if radix_sort(dev, k, &mut enc, &a, &b, total, hi_bits, scratch) {
             b
         } else {
             a
         };
-        let ranges = storage(dev, "tile ranges", 8 * num_tiles as u64);
+        let ranges = scratch.storage(dev, "tile ranges", 8 * num_tiles as u64);
         enc.clear_buffer(&ranges, 0, None);
         if total > 0 {
             let len = uniform(dev, "keys len", bytemuck::bytes_of(&total));
             let g = bind(dev, &k.ranges, &[&len, &sorted.hi, &ranges]);
             dispatch(&mut enc, &k.ranges, &g, grid(blocks(total)));
         }
-        let out = storage(dev, "images", 4 * 5 * np);
-        let state = storage(dev, "pixel state", 4 * 2 * np);
-        let stats = storage(dev, "stats", 4);
+        let out = scratch.storage(dev, "images", 4 * 5 * np);
+        let state = scratch.storage(dev, "pixel state", 4 * 2 * np);
+        let stats = scratch.storage(dev, "stats", 4);
         enc.clear_buffer(&stats, 0, None);
         let g = bind(
             dev,
@@ -281,6 +284,7 @@ impl GpuRasterizer {
         };
         let saved = GpuSaved {
             camera: cam.clone(),
+            generation: scratch.0.as_ref().map(|p| p.generation()),
             n,
             total,
             tiles: (tiles_x, tiles_y),
@@ -305,7 +309,16 @@ impl GpuRasterizer {
         st: &GpuSaved,
         pixel: PixelGradients<'_>,
         enc: &mut wgpu::CommandEncoder,
+        scratch: &mut Scratch,
     ) -> Result<(wgpu::Buffer, wgpu::Buffer), SplatError> {
+        if st
+            .generation
+            .is_some_and(|g| scratch.0.as_ref().is_none_or(|p| p.generation() != g))
+        {
+            return Err(SplatError::InvalidInput(
+                "backward of a render whose working buffers a later render reused".into(),
+            ));
+        }
         if scene.n != st.n {
             return Err(SplatError::InvalidInput(format!(
                 "backward called with {} Gaussians, the forward pass rendered {}",
@@ -347,10 +360,15 @@ impl GpuRasterizer {
         pix.extend(pixel.color.iter().flat_map(|c| c.to_array()));
         pix.extend_from_slice(pixel.alpha.unwrap_or(&vec![0.0; np]));
         pix.extend_from_slice(pixel.depth.unwrap_or(&vec![0.0; np]));
-        let pix = storage_init(dev, "pixel gradients", bytemuck::cast_slice(&pix));
+        let pix = scratch.storage_init(
+            dev,
+            &ctx.queue,
+            "pixel gradients",
+            bytemuck::cast_slice(&pix),
+        );
         ctx.check_size("the tile gradients", 48 * st.total as u64)?;
-        let isect = storage(dev, "tile gradients", 48 * st.total as u64);
-        let screen = storage(dev, "screen gradients", 48 * st.n as u64);
+        let isect = scratch.storage(dev, "tile gradients", 48 * st.total as u64);
+        let screen = scratch.storage(dev, "screen gradients", 48 * st.n as u64);
         enc.clear_buffer(&isect, 0, None);
         let bg = bind(
             dev,
@@ -361,7 +379,7 @@ impl GpuRasterizer {
             ],
         );
         dispatch(enc, &k.raster_backward, &bg, st.tiles);
-        let grads = storage(
+        let grads = scratch.storage(
             dev,
             "parameter gradients",
             4 * scene.stride as u64 * st.n as u64,
@@ -392,7 +410,8 @@ impl GpuRasterizer {
     ) -> Result<Gradients, SplatError> {
         let dev = &self.ctx.device;
         let mut enc = dev.create_command_encoder(&Default::default());
-        let (screen, grads) = self.encode_backward(scene, st, pixel, &mut enc)?;
+        let (screen, grads) =
+            self.encode_backward(scene, st, pixel, &mut enc, &mut Scratch::fresh())?;
         let n = st.n as u64;
         let bytes = read_back(
             dev,
@@ -422,7 +441,15 @@ impl GpuRasterizer {
         let input = storage_init(dev, "scan in", bytemuck::cast_slice(values));
         let output = storage(dev, "scan out", 4 * n as u64);
         let mut enc = dev.create_command_encoder(&Default::default());
-        scan(dev, &self.kernels, &mut enc, &input, &output, n);
+        scan(
+            dev,
+            &self.kernels,
+            &mut enc,
+            &input,
+            &output,
+            n,
+            &mut Scratch::fresh(),
+        );
         let b = read_back(dev, &self.ctx.queue, enc, &[(&output, 0, 4 * n as u64)])?;
         Ok(u32s(&b[0]))
     }
@@ -442,9 +469,18 @@ impl GpuRasterizer {
             lo: storage_init(dev, "lo", bytemuck::cast_slice(lo)),
             val: storage_init(dev, "val", bytemuck::cast_slice(values)),
         };
-        let b = KeyBuffers::new(dev, n);
+        let b = KeyBuffers::new(dev, n, &mut Scratch::fresh());
         let mut enc = dev.create_command_encoder(&Default::default());
-        let s = if radix_sort(dev, &self.kernels, &mut enc, &a, &b, n, hi_bits) {
+        let s = if radix_sort(
+            dev,
+            &self.kernels,
+            &mut enc,
+            &a,
+            &b,
+            n,
+            hi_bits,
+            &mut Scratch::fresh(),
+        ) {
             &b
         } else {
             &a
@@ -464,6 +500,8 @@ impl GpuRasterizer {
 /// What a GPU forward pass keeps for its backward pass: its buffers, still on the GPU.
 pub struct GpuSaved {
     camera: Camera,
+    /// The pool generation whose buffers these are (None: buffers of its own).
+    generation: Option<u64>,
     n: u32,
     total: u32,
     tiles: (u32, u32),
@@ -496,7 +534,8 @@ impl Rasterizer for GpuRasterizer {
         cam: &Camera,
         settings: &RenderSettings,
     ) -> Result<RenderOutput, SplatError> {
-        self.forward(scene, cam, settings).map(|(out, _)| out)
+        self.forward(scene, cam, settings, &mut Scratch::fresh())
+            .map(|(out, _)| out)
     }
 
     fn render_for_backward(
@@ -505,7 +544,7 @@ impl Rasterizer for GpuRasterizer {
         cam: &Camera,
         settings: &RenderSettings,
     ) -> Result<(RenderOutput, GpuSaved), SplatError> {
-        self.forward(scene, cam, settings)
+        self.forward(scene, cam, settings, &mut Scratch::fresh())
     }
 
     fn backward(

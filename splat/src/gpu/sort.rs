@@ -3,7 +3,7 @@
 //! subgroup size (software drivers and GPUs differ).
 
 use super::kernels::Kernels;
-use super::util::{bind, blocks, dispatch, grid, storage, uniform};
+use super::util::{Scratch, bind, blocks, dispatch, grid, uniform};
 
 /// Records an exclusive scan of `n` u32 from `input` into `output` (may not alias).
 pub fn scan(
@@ -13,18 +13,19 @@ pub fn scan(
     input: &wgpu::Buffer,
     output: &wgpu::Buffer,
     n: u32,
+    scratch: &mut Scratch,
 ) {
     if n == 0 {
         return;
     }
     let nb = blocks(n);
-    let sums = storage(device, "block sums", 4 * nb as u64);
+    let sums = scratch.storage(device, "block sums", 4 * nb as u64);
     let len = uniform(device, "scan len", bytemuck::bytes_of(&n));
     let g = bind(device, &k.scan, &[&len, input, output, &sums]);
     dispatch(encoder, &k.scan, &g, grid(nb));
     if nb > 1 {
-        let offsets = storage(device, "block offsets", 4 * nb as u64);
-        scan(device, k, encoder, &sums, &offsets, nb);
+        let offsets = scratch.storage(device, "block offsets", 4 * nb as u64);
+        scan(device, k, encoder, &sums, &offsets, nb, scratch);
         let g = bind(device, &k.scan_add, &[&len, &offsets, output]);
         dispatch(encoder, &k.scan_add, &g, grid(nb));
     }
@@ -38,12 +39,12 @@ pub struct KeyBuffers {
 }
 
 impl KeyBuffers {
-    pub fn new(device: &wgpu::Device, n: u32) -> Self {
+    pub fn new(device: &wgpu::Device, n: u32, scratch: &mut Scratch) -> Self {
         let bytes = 4 * n as u64;
         Self {
-            hi: storage(device, "keys hi", bytes),
-            lo: storage(device, "keys lo", bytes),
-            val: storage(device, "values", bytes),
+            hi: scratch.storage(device, "keys hi", bytes),
+            lo: scratch.storage(device, "keys lo", bytes),
+            val: scratch.storage(device, "values", bytes),
         }
     }
 }
@@ -58,13 +59,14 @@ pub fn radix_sort(
     b: &KeyBuffers,
     n: u32,
     hi_bits: u32,
+    scratch: &mut Scratch,
 ) -> bool {
     if n == 0 {
         return false;
     }
     let nb = blocks(n);
-    let counts = storage(device, "digit counts", 4 * 16 * nb as u64);
-    let offsets = storage(device, "digit offsets", 4 * 16 * nb as u64);
+    let counts = scratch.storage(device, "digit counts", 4 * 16 * nb as u64);
+    let offsets = scratch.storage(device, "digit offsets", 4 * 16 * nb as u64);
     let passes = (0..8)
         .map(|p| (4 * p, 0u32))
         .chain((0..hi_bits.div_ceil(4)).map(|p| (4 * p, 1u32)));
@@ -78,7 +80,7 @@ pub fn radix_sort(
         );
         let g = bind(device, &k.sort_count, &[&params, &src.hi, &src.lo, &counts]);
         dispatch(encoder, &k.sort_count, &g, grid(nb));
-        scan(device, k, encoder, &counts, &offsets, 16 * nb);
+        scan(device, k, encoder, &counts, &offsets, 16 * nb, scratch);
         let g = bind(
             device,
             &k.sort_scatter,

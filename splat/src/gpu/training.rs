@@ -13,7 +13,7 @@ use crate::rasterizer::PixelGradients;
 use crate::render::{RenderOutput, RenderSettings};
 
 use super::util::{
-    bind, blocks, dispatch, f32s, grid, read_back, storage, storage_init, u32s, uniform,
+    Pool, Scratch, bind, blocks, dispatch, f32s, grid, read_back, storage_init, u32s, uniform,
 };
 use super::{GpuRasterizer, GpuSaved, GpuScene};
 
@@ -27,6 +27,8 @@ pub struct GpuTraining {
     beta1: f32,
     beta2: f32,
     eps: f32,
+    /// Working buffers, reused from step to step.
+    pool: Pool,
 }
 
 /// What one step leaves on the host.
@@ -79,6 +81,7 @@ impl GpuTraining {
             beta1: adam.beta1,
             beta2: adam.beta2,
             eps: adam.eps,
+            pool: Pool::default(),
         })
     }
 
@@ -90,13 +93,25 @@ impl GpuTraining {
         self.scene.is_empty()
     }
 
-    /// Renders the resident model, keeping what the backward pass needs.
+    /// Renders the resident model, keeping what the backward pass needs (in working buffers
+    /// the next render reuses, so only the latest render can be backpropagated).
     pub fn render_for_backward(
-        &self,
+        &mut self,
         cam: &Camera,
         settings: &RenderSettings,
     ) -> Result<(RenderOutput, GpuSaved), SplatError> {
-        self.raster.forward(&self.scene, cam, settings)
+        self.pool.reset();
+        self.raster.forward(
+            &self.scene,
+            cam,
+            settings,
+            &mut Scratch(Some(&mut self.pool)),
+        )
+    }
+
+    /// Bytes of working buffers kept between steps.
+    pub fn scratch_bytes(&self) -> u64 {
+        self.pool.bytes()
     }
 
     /// Backpropagates `pixel` through the render `saved` and takes one Adam step with `lr`,
@@ -111,7 +126,13 @@ impl GpuTraining {
         let (raster, scene) = (&self.raster, &self.scene);
         let dev = &raster.ctx.device;
         let mut enc = dev.create_command_encoder(&Default::default());
-        let (screen, grads) = raster.encode_backward(scene, saved, pixel, &mut enc)?;
+        let (screen, grads) = raster.encode_backward(
+            scene,
+            saved,
+            pixel,
+            &mut enc,
+            &mut Scratch(Some(&mut self.pool)),
+        )?;
         let flags = self.encode_adam(&grads, lr, opacity_reg, &mut enc)?;
         self.finish(enc, Some(&screen), &flags)
     }
@@ -163,7 +184,7 @@ impl GpuTraining {
             lr_a: [lr.means, lr.log_scales, lr.rotations, lr.opacities],
             lr_b: [lr.sh_dc, lr.sh_rest, 0.0, 0.0],
         };
-        let flags = storage(dev, "adam flags", 4);
+        let flags = Scratch(Some(&mut self.pool)).storage(dev, "adam flags", 4);
         enc.clear_buffer(&flags, 0, None);
         if n > 0 {
             let cfg = uniform(dev, "adam step", bytemuck::bytes_of(&u));

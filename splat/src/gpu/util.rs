@@ -28,6 +28,83 @@ pub fn storage(device: &wgpu::Device, label: &str, bytes: u64) -> wgpu::Buffer {
     })
 }
 
+/// Working buffers kept from one training step to the next: the step's `k`-th request gets
+/// slot `k` again, grown when it is too small. Every kernel writes (or the encoder clears)
+/// what it later reads, so a buffer's old contents never matter.
+#[derive(Default)]
+pub struct Pool {
+    slots: Vec<wgpu::Buffer>,
+    next: usize,
+    generation: u64,
+}
+
+impl Pool {
+    /// Starts a step: every slot is free again, and what the last step handed out is stale.
+    pub fn reset(&mut self) -> u64 {
+        self.next = 0;
+        self.generation += 1;
+        self.generation
+    }
+
+    pub fn generation(&self) -> u64 {
+        self.generation
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> u64 {
+        self.slots.iter().map(|b| b.size()).sum()
+    }
+}
+
+/// Where a pass takes its working buffers from: fresh ones, or a [`Pool`].
+pub struct Scratch<'p>(pub Option<&'p mut Pool>);
+
+impl Scratch<'_> {
+    pub fn fresh() -> Scratch<'static> {
+        Scratch(None)
+    }
+
+    pub fn storage(&mut self, device: &wgpu::Device, label: &str, bytes: u64) -> wgpu::Buffer {
+        let Some(pool) = self.0.as_deref_mut() else {
+            return storage(device, label, bytes);
+        };
+        let k = pool.next;
+        pool.next += 1;
+        match pool.slots.get(k) {
+            Some(b) if b.size() >= bytes.max(4) => b.clone(),
+            _ => {
+                // A quarter more than asked: sizes that change from step to step (the number of
+                // tile keys) then reallocate rarely.
+                let b = storage(device, label, (bytes + bytes / 4).next_multiple_of(256));
+                if k < pool.slots.len() {
+                    pool.slots[k] = b.clone();
+                } else {
+                    pool.slots.push(b.clone());
+                }
+                b
+            }
+        }
+    }
+
+    /// A working buffer holding `data`.
+    pub fn storage_init(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        label: &str,
+        data: &[u8],
+    ) -> wgpu::Buffer {
+        if self.0.is_none() {
+            return storage_init(device, label, data);
+        }
+        let b = self.storage(device, label, data.len() as u64);
+        if !data.is_empty() {
+            queue.write_buffer(&b, 0, data);
+        }
+        b
+    }
+}
+
 pub fn storage_init(device: &wgpu::Device, label: &str, data: &[u8]) -> wgpu::Buffer {
     let padded;
     let contents = if data.is_empty() {
