@@ -373,7 +373,11 @@ fn a_resident_training_step_matches_the_cpu_step() {
         let (_, saved) = resident.render_for_backward(&cam, &s).unwrap();
         resident.step(&saved, pixel, &lr, 0.0).unwrap();
     }
-    assert_eq!(resident.scratch_bytes(), held, "working buffers were reallocated");
+    assert_eq!(
+        resident.scratch_bytes(),
+        held,
+        "working buffers were reallocated"
+    );
     // Reused buffers' old contents do not matter: a step in them equals the same step in
     // fresh ones, bit for bit.
     let (state, adam) = resident.download().unwrap();
@@ -385,6 +389,9 @@ fn a_resident_training_step_matches_the_cpu_step() {
     assert_eq!(resident.download().unwrap().0, fresh.download().unwrap().0);
     let (_, old) = resident.render_for_backward(&cam, &s).unwrap();
     let (_, _new) = resident.render_for_backward(&cam, &s).unwrap();
-    let err = resident.step(&old, pixel, &lr, 0.0).unwrap_err().to_string();
+    let err = resident
+        .step(&old, pixel, &lr, 0.0)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("reused"), "{err}");
 }

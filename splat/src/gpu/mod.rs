@@ -220,7 +220,7 @@ impl GpuRasterizer {
         }
         let num_tiles = tiles_x * tiles_y;
         let hi_bits = 32 - (num_tiles.max(2) - 1).leading_zeros();
-        let sorted = if radix_sort(dev, k, &mut enc, &a, &b, total, hi_bits, scratch) {
+        let sorted = if radix_sort(dev, k, &mut enc, (&a, &b), total, hi_bits, scratch) {
             b
         } else {
             a
@@ -475,8 +475,7 @@ impl GpuRasterizer {
             dev,
             &self.kernels,
             &mut enc,
-            &a,
-            &b,
+            (&a, &b),
             n,
             hi_bits,
             &mut Scratch::fresh(),
