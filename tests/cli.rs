@@ -1059,135 +1059,72 @@ fn nonsense_numbers_are_refused_naming_the_flag() {
     let d = dir.path();
     let out = d.join("out");
     let o = s(&out);
-    let cases: Vec<(&str, Vec<&str>)> = vec![
+    // Each command with the arguments it needs before the flag under test, then the flags
+    // and a value each must refuse.
+    let train = ["train", "--scene", "x", "--out", o];
+    let restorer = [
+        "restorer", "train", "--images", "x", "--val", "x", "--psf", "x", "--out", o,
+    ];
+    let render = ["render", "--ply", "x.ply", "--scene", "x", "--out", o];
+    let psf = ["psf", "simulate", "--out", o];
+    let groups: [(&[&str], &[(&str, &str)]); 8] = [
         (
-            "--lambda",
-            vec!["train", "--scene", "x", "--out", o, "--lambda", "-1"],
+            &train,
+            &[
+                ("--lambda", "-1"),
+                ("--lambda", "NaN"),
+                ("--lambda-fade", "900:300"),
+                ("--lambda-fade", "soon"),
+                ("--max-splats", "0"),
+                ("--downsample", "0"),
+                ("--max-sh-degree", "9"),
+                ("--iters", "0"),
+                ("--llffhold", "1"),
+                ("--spiral", "4294967296"),
+            ],
+        ),
+        (&render, &[("--spiral", "0")]),
+        (
+            &restorer,
+            &[("--lr", "NaN"), ("--batch", "0"), ("--steps", "0")],
         ),
         (
-            "--lambda",
-            vec!["train", "--scene", "x", "--out", o, "--lambda", "NaN"],
-        ),
-        (
-            "--max-splats",
-            vec!["train", "--scene", "x", "--out", o, "--max-splats", "0"],
-        ),
-        (
-            "--downsample",
-            vec!["train", "--scene", "x", "--out", o, "--downsample", "0"],
-        ),
-        (
-            "--max-sh-degree",
-            vec!["train", "--scene", "x", "--out", o, "--max-sh-degree", "9"],
-        ),
-        (
-            "--iters",
-            vec!["train", "--scene", "x", "--out", o, "--iters", "0"],
-        ),
-        (
-            "--llffhold",
-            vec!["train", "--scene", "x", "--out", o, "--llffhold", "1"],
-        ),
-        (
-            "--spiral",
-            vec![
-                "train",
-                "--scene",
-                "x",
-                "--out",
-                o,
-                "--spiral",
-                "4294967296",
+            &psf,
+            &[
+                ("--fft-size", "100000"),
+                ("--grid", "100000"),
+                ("--supersample", "0"),
+                ("--aperture-um", "-5"),
+                ("--max-field-deg", "inf"),
             ],
         ),
         (
-            "--spiral",
-            vec![
-                "render", "--ply", "x.ply", "--scene", "x", "--out", o, "--spiral", "0",
-            ],
+            &["scene", "procedural", "--out", o],
+            &[("--width", "100000"), ("--views", "0")],
         ),
         (
-            "--lr",
-            vec![
-                "restorer", "train", "--images", "x", "--val", "x", "--psf", "x", "--out", o,
-                "--lr", "NaN",
-            ],
+            &["aberrate", "--psf", "x", "--in", "x", "--out", o],
+            &[("--sensor-px", "1")],
         ),
         (
-            "--batch",
-            vec![
-                "restorer", "train", "--images", "x", "--val", "x", "--psf", "x", "--out", o,
-                "--batch", "0",
-            ],
+            &["deconvolve", "--psf", "x", "--in", "x", "--out", o],
+            &[("--k", "0")],
         ),
         (
-            "--steps",
-            vec![
-                "restorer", "train", "--images", "x", "--val", "x", "--psf", "x", "--out", o,
-                "--steps", "0",
-            ],
-        ),
-        (
-            "--fft-size",
-            vec!["psf", "simulate", "--out", o, "--fft-size", "100000"],
-        ),
-        (
-            "--grid",
-            vec!["psf", "simulate", "--out", o, "--grid", "100000"],
-        ),
-        (
-            "--supersample",
-            vec!["psf", "simulate", "--out", o, "--supersample", "0"],
-        ),
-        (
-            "--aperture-um",
-            vec!["psf", "simulate", "--out", o, "--aperture-um", "-5"],
-        ),
-        (
-            "--max-field-deg",
-            vec!["psf", "simulate", "--out", o, "--max-field-deg", "inf"],
-        ),
-        (
-            "--width",
-            vec!["scene", "procedural", "--out", o, "--width", "100000"],
-        ),
-        (
-            "--views",
-            vec!["scene", "procedural", "--out", o, "--views", "0"],
-        ),
-        (
-            "--sensor-px",
-            vec![
-                "aberrate",
-                "--psf",
-                "x",
-                "--in",
-                "x",
-                "--out",
-                o,
-                "--sensor-px",
-                "1",
-            ],
-        ),
-        (
-            "--k",
-            vec![
-                "deconvolve",
-                "--psf",
-                "x",
-                "--in",
-                "x",
-                "--out",
-                o,
-                "--k",
-                "0",
-            ],
-        ),
-        (
-            "--sh-degree",
-            vec!["export", "--in", "x.ply", "--out", o, "--sh-degree", "4"],
+            &["export", "--in", "x.ply", "--out", o],
+            &[("--sh-degree", "4")],
         ),
     ];
+    let cases: Vec<(&str, Vec<&str>)> = groups
+        .iter()
+        .flat_map(|(command, flags)| {
+            flags.iter().map(|&(flag, value)| {
+                let mut args = command.to_vec();
+                args.extend([flag, value]);
+                (flag, args)
+            })
+        })
+        .collect();
     for (flag, case) in &cases {
         let err = fails(case);
         assert!(
