@@ -1067,7 +1067,8 @@ fn nonsense_numbers_are_refused_naming_the_flag() {
     ];
     let render = ["render", "--ply", "x.ply", "--scene", "x", "--out", o];
     let psf = ["psf", "simulate", "--out", o];
-    let groups: [(&[&str], &[(&str, &str)]); 8] = [
+    type Group<'a> = (&'a [&'a str], &'a [(&'a str, &'a str)]);
+    let groups: [Group; 8] = [
         (
             &train,
             &[
