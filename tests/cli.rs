@@ -1,63 +1,16 @@
 //! End-to-end tests of the `metasplat` binary on small inputs.
 
+mod common;
+
 use std::path::Path;
-use std::process::{Command, Output};
 
-fn metasplat(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_metasplat"))
-        .args(args)
-        .output()
-        .expect("the binary runs")
-}
-
-fn ok(args: &[&str]) -> String {
-    let out = metasplat(args);
-    let text =
-        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "metasplat {args:?} failed:\n{text}");
-    text
-}
-
-fn fails(args: &[&str]) -> String {
-    let out = metasplat(args);
-    let text = String::from_utf8_lossy(&out.stderr).to_string();
-    assert!(
-        !out.status.success(),
-        "metasplat {args:?} should have failed"
-    );
-    assert!(
-        !text.contains("panicked"),
-        "metasplat {args:?} panicked:\n{text}"
-    );
-    text
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
+use common::cli::{fails, ok, procedural, s};
 
 /// `psf simulate` of the small test lens into `out`.
 fn small_psf(out: &Path) {
     let mut args = vec!["psf", "simulate", "--out", s(out)];
     args.extend_from_slice(SMALL_LENS);
     ok(&args);
-}
-
-/// `scene procedural` of `views` views at `width`×`height` into `out`.
-fn procedural(out: &Path, width: u32, height: u32, views: u32) {
-    let (w, h, v) = (width.to_string(), height.to_string(), views.to_string());
-    ok(&[
-        "scene",
-        "procedural",
-        "--out",
-        s(out),
-        "--width",
-        &w,
-        "--height",
-        &h,
-        "--views",
-        &v,
-    ]);
 }
 
 /// `scene aberrate` of `clean` through `psf` into `out`, at full resolution.

@@ -5,9 +5,12 @@
 //! the bad file or flag, and a working folder whose every file and folder (inputs included,
 //! compared by checksum) is exactly as before: no output, no temporary file, no change.
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::Command;
+
+use common::cli::{ok as run_ok, procedural};
 
 /// Every file (with the FNV-1a of its bytes) and folder under `dir`.
 fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Option<u64>> {
@@ -32,18 +35,6 @@ fn s(p: &Path) -> String {
     p.to_str().unwrap().to_string()
 }
 
-fn run_ok(args: &[String]) {
-    let out = Command::new(env!("CARGO_BIN_EXE_metasplat"))
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "metasplat {args:?} failed:\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
-
 /// Runs the cases against one working folder, counting them.
 struct Suite {
     root: PathBuf,
@@ -65,10 +56,7 @@ impl Suite {
     fn case(&mut self, label: &str, args: &[String], names: &[&str]) {
         self.cases += 1;
         let before = snapshot(&self.root);
-        let out = Command::new(env!("CARGO_BIN_EXE_metasplat"))
-            .args(args)
-            .output()
-            .unwrap();
+        let out = common::cli::metasplat().args(args).output().unwrap();
         let err = String::from_utf8_lossy(&out.stderr).to_string();
         let after = snapshot(&self.root);
         if std::env::var_os("HOSTILE_VERBOSE").is_some() {
@@ -178,18 +166,7 @@ fn psf_dict(shape: &str) -> String {
 /// A tiny LLFF capture made by the binary: 5 views of 32×24 with `sparse/0/points3D.txt`.
 fn llff_scene(dir: &Path) -> PathBuf {
     let scene = dir.join("llff");
-    run_ok(&args(&[
-        "scene",
-        "procedural",
-        "--out",
-        &s(&scene),
-        "--width",
-        "32",
-        "--height",
-        "24",
-        "--views",
-        "5",
-    ]));
+    procedural(&scene, 32, 24, 5);
     scene
 }
 

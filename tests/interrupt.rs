@@ -2,24 +2,16 @@
 //! own temporary files, which the next run in that folder removes); `--resume` finishes it,
 //! and the result equals an uninterrupted run bit for bit.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
+
+use common::cli::{metasplat, ok as run_ok, procedural};
 
 fn s(p: &Path) -> String {
     p.to_str().unwrap().to_string()
-}
-
-fn metasplat() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_metasplat"))
-}
-
-fn run_ok(args: &[String]) -> String {
-    let out = metasplat().args(args).output().unwrap();
-    let text =
-        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "metasplat {args:?} failed:\n{text}");
-    text
 }
 
 const ITERS: &str = "240";
@@ -167,21 +159,7 @@ fn a_killed_run_leaves_complete_files_and_resumes_to_the_same_result() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let scene = d.join("scene");
-    run_ok(
-        &[
-            "scene",
-            "procedural",
-            "--out",
-            &s(&scene),
-            "--width",
-            "32",
-            "--height",
-            "24",
-            "--views",
-            "5",
-        ]
-        .map(String::from),
-    );
+    procedural(&scene, 32, 24, 5);
     let reference = d.join("reference");
     run_ok(&train_args(&scene, &reference, &[]));
     let expected = results(&reference);

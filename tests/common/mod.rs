@@ -1,5 +1,8 @@
-//! What several end-to-end tests build: a procedural capture and its aberrated copy.
+//! What several end-to-end tests share: running the binary ([`cli`]), a procedural capture
+//! and its aberrated copy.
 #![allow(dead_code)]
+
+pub mod cli;
 
 use std::path::{Path, PathBuf};
 

@@ -1,0 +1,59 @@
+//! Running the `metasplat` binary from end-to-end tests.
+
+use std::ffi::OsStr;
+use std::fmt::Debug;
+use std::path::Path;
+use std::process::{Command, Output};
+
+pub fn metasplat() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_metasplat"))
+}
+
+pub fn output<S: AsRef<OsStr>>(args: &[S]) -> Output {
+    metasplat().args(args).output().expect("the binary runs")
+}
+
+/// Runs the binary, which must succeed; its stdout and stderr.
+pub fn ok<S: AsRef<OsStr> + Debug>(args: &[S]) -> String {
+    let out = output(args);
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "metasplat {args:?} failed:\n{text}");
+    text
+}
+
+/// Runs the binary, which must fail without panicking; its stderr.
+pub fn fails<S: AsRef<OsStr> + Debug>(args: &[S]) -> String {
+    let out = output(args);
+    let text = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(
+        !out.status.success(),
+        "metasplat {args:?} should have failed"
+    );
+    assert!(
+        !text.contains("panicked"),
+        "metasplat {args:?} panicked:\n{text}"
+    );
+    text
+}
+
+pub fn s(p: &Path) -> &str {
+    p.to_str().expect("test paths are UTF-8")
+}
+
+/// `scene procedural` of `views` views at `width`×`height` into `out`.
+pub fn procedural(out: &Path, width: u32, height: u32, views: u32) {
+    let (w, h, v) = (width.to_string(), height.to_string(), views.to_string());
+    ok(&[
+        "scene",
+        "procedural",
+        "--out",
+        s(out),
+        "--width",
+        &w,
+        "--height",
+        &h,
+        "--views",
+        &v,
+    ]);
+}
