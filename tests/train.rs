@@ -484,8 +484,9 @@ fn a_capture_taken_all_around_gets_resets_and_a_larger_budget() {
     assert!(a.recipe.opacity_reset_every.is_some());
 }
 
-/// With the Wiener stand-in as `I_ac` and no λ given, aware's λ falls to zero by the end of
-/// densification; other modes, other restorers and a λ given keep a constant λ.
+/// With the Wiener stand-in as `I_ac` and no λ given, aware's λ holds for the first thousand
+/// steps and falls to zero by the end of densification; other modes, other restorers and a λ
+/// given keep a constant λ; `--lambda-fade` overrides the rule.
 #[test]
 fn the_stand_in_restorer_fades_lambda_out() {
     let data = data::load(&fixture().aberrated, Mode::Aware, &options()).unwrap();
@@ -493,12 +494,23 @@ fn the_stand_in_restorer_fades_lambda_out() {
         data.restorer,
         Some(metasplat::train::data::Restorer::Wiener)
     ));
-    let cfg = config(Mode::Aware, 1000, &data);
-    assert_eq!(cfg.lambda_fade_until, Some(500));
+    // A run of the default length: held for the first thousand steps, zero by the end of
+    // densification.
+    let cfg = config(Mode::Aware, 7000, &data);
+    assert_eq!(cfg.lambda_fade_until, Some(3500));
+    assert_eq!(cfg.lambda_hold_until, 1000);
     assert_eq!(cfg.lambda_at(0), cfg.lambda);
-    assert!((cfg.lambda_at(250) - cfg.lambda / 2.0).abs() < 1e-6);
-    assert_eq!(cfg.lambda_at(500), 0.0);
-    assert_eq!(cfg.lambda_at(900), 0.0);
+    assert_eq!(cfg.lambda_at(1000), cfg.lambda);
+    assert!((cfg.lambda_at(2250) - cfg.lambda / 2.0).abs() < 1e-6);
+    assert_eq!(cfg.lambda_at(3500), 0.0);
+    assert_eq!(cfg.lambda_at(6000), 0.0);
+    // A short run keeps λ throughout.
+    let cfg = config(Mode::Aware, 1000, &data);
+    assert!((0..=1000).all(|t| cfg.lambda_at(t) == cfg.lambda));
+    // One ending between the hold and the end of densification: λ stops at the hold.
+    let cfg = config(Mode::Aware, 1500, &data);
+    assert_eq!(cfg.lambda_at(1000), cfg.lambda);
+    assert_eq!(cfg.lambda_at(1001), 0.0);
     let plain = data::load(&fixture().aberrated, Mode::Plain, &options()).unwrap();
     let cfg = config(Mode::Plain, 1000, &plain);
     assert_eq!(cfg.lambda_fade_until, None);

@@ -65,15 +65,21 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             println!("{}", r.describe());
             if t.mode == Mode::Aware {
                 let lambda = config.lambda;
-                match config.lambda_fade_until {
-                    Some(end) if config.lambda_hold_until.min(end) > 0 => println!(
-                        "lambda {lambda} for L(render, I_ac), held until step {} and falling to 0 by step {end}",
-                        config.lambda_hold_until.min(end)
+                let hold = config.lambda_fade_until.map(|e| config.lambda_hold_until.min(e));
+                match (config.lambda_fade_until, hold) {
+                    (Some(_), Some(h)) if h >= config.iters => {
+                        println!("lambda {lambda} for L(render, I_ac)")
+                    }
+                    (Some(end), Some(h)) if h == end => println!(
+                        "lambda {lambda} for L(render, I_ac) until step {h}, then 0 (the stand-in's ringing would be learnt)"
                     ),
-                    Some(end) => {
+                    (Some(end), Some(h)) if h > 0 => println!(
+                        "lambda {lambda} for L(render, I_ac), held until step {h} and falling to 0 by step {end} (the stand-in's ringing would be learnt)"
+                    ),
+                    (Some(end), _) => {
                         println!("lambda {lambda} for L(render, I_ac), falling to 0 by step {end}")
                     }
-                    None => println!("lambda {lambda} for L(render, I_ac)"),
+                    (None, _) => println!("lambda {lambda} for L(render, I_ac)"),
                 }
             }
         }

@@ -134,14 +134,20 @@ pub struct TrainConfig {
     /// Weight of the mean-opacity penalty (0: none).
     #[serde(default)]
     pub opacity_reg: f32,
-    /// When set, λ falls linearly from `lambda` to zero at this step and stays there: with a
-    /// Wiener stand-in as `I_ac`, whose errors a long run learns (RESULTS.md, demo section).
+    /// When set, λ falls linearly from `lambda` (from step `lambda_hold_until`) to zero at
+    /// this step and stays there: with a Wiener stand-in as `I_ac`, whose errors a long run
+    /// learns (RESULTS.md, all-around section).
     #[serde(default)]
     pub lambda_fade_until: Option<u64>,
     /// With a fade, λ holds its value until this step and falls from there.
     #[serde(default)]
     pub lambda_hold_until: u64,
 }
+
+/// With the Wiener stand-in as `I_ac`, λ holds for this many steps before it fades (to zero by
+/// the end of densification): early on the stand-in speeds the fit up, later the model would
+/// learn its ringing. Measured on two scenes at four lengths (RESULTS.md, all-around section).
+pub const STAND_IN_HOLD: u64 = 1000;
 
 /// The paper's weight of `L(render, I_ac)` for LLFF scenes with its trained restorer.
 pub const PAPER_LAMBDA: f32 = 0.75;
@@ -191,6 +197,9 @@ impl TrainConfig {
                 },
             )
         };
+        let stand_in = settings.mode == Mode::Aware
+            && settings.lambda.is_none()
+            && matches!(data.restorer, Some(crate::train::data::Restorer::Wiener));
         TrainConfig {
             mode: settings.mode,
             iters,
@@ -210,16 +219,14 @@ impl TrainConfig {
             init: settings.init.as_ref().map(|p| p.display().to_string()),
             opacity_reg: settings.opacity_reg,
             lambda_fade_until: match settings.lambda_fade {
-                LambdaFade::Auto => (settings.mode == Mode::Aware
-                    && settings.lambda.is_none()
-                    && matches!(data.restorer, Some(crate::train::data::Restorer::Wiener)))
-                .then_some(recipe.densify_until),
+                LambdaFade::Auto => stand_in.then_some(recipe.densify_until.max(STAND_IN_HOLD)),
                 LambdaFade::Never => None,
                 LambdaFade::End => Some(iters),
                 LambdaFade::Step(n) => Some(n),
                 LambdaFade::Range(_, b) => Some(b),
             },
             lambda_hold_until: match settings.lambda_fade {
+                LambdaFade::Auto if stand_in => STAND_IN_HOLD,
                 LambdaFade::Range(a, _) => a,
                 _ => 0,
             },
