@@ -106,7 +106,7 @@ pub struct TrainSettings {
     #[arg(long, value_enum, default_value_t = Mode::Aware)]
     pub mode: Mode,
     /// Weight of L(render, I_ac) in aware mode; default 0.75 (the paper's) with a trained
-    /// restorer, 0.25 with the median-Wiener stand-in.
+    /// restorer, 0.25 with the Wiener stand-in.
     #[arg(long, value_parser = crate::flags::weight, allow_negative_numbers = true)]
     pub lambda: Option<f32>,
     /// When λ falls linearly to zero: `auto` (by the end of densification with the Wiener
