@@ -65,7 +65,9 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             println!("{}", r.describe());
             if t.mode == Mode::Aware {
                 let lambda = config.lambda;
-                let hold = config.lambda_fade_until.map(|e| config.lambda_hold_until.min(e));
+                let hold = config
+                    .lambda_fade_until
+                    .map(|e| config.lambda_hold_until.min(e));
                 match (config.lambda_fade_until, hold) {
                     (Some(_), Some(h)) if h >= config.iters => {
                         println!("lambda {lambda} for L(render, I_ac)")
