@@ -136,3 +136,57 @@ fn quat_rot(q: vec4<f32>) -> QuatRot {
     }
     return out;
 }
+
+// What the projection and its backward share for one Gaussian (`project::geometry`): camera-space
+// mean, rotation, scale, the EWA Jacobian at the clamped point and the screen covariance before
+// the low-pass. `valid` is false when the Gaussian is culled before its footprint exists.
+struct Geometry {
+    valid: bool,
+    p_cam: vec3<f32>,
+    q: QuatRot,
+    scale: vec3<f32>,
+    // R diag(scale).
+    mm: mat3x3<f32>,
+    cov_cam: mat3x3<f32>,
+    j0: vec3<f32>,
+    j1: vec3<f32>,
+    // The clamped x/z and y/z at which the Jacobian is taken, and whether each clamped.
+    txy: vec2<f32>,
+    clamped_x: bool,
+    clamped_y: bool,
+    // (a, b, c) of [[a, b], [b, c]].
+    cov: vec3<f32>,
+}
+
+fn geometry(cam: Camera, mean: vec3<f32>, log_scale: vec3<f32>, quat: vec4<f32>) -> Geometry {
+    var g: Geometry;
+    g.valid = false;
+    g.p_cam = vec3<f32>(dot(cam.r0.xyz, mean), dot(cam.r1.xyz, mean), dot(cam.r2.xyz, mean))
+        + cam.t.xyz;
+    let z = g.p_cam.z;
+    if (!(finite3(g.p_cam) && z >= cam.t.w && z <= cam.pos.w)) {
+        return g;
+    }
+    g.q = quat_rot(quat);
+    let rot = g.q.rot;
+    g.scale = exp(log_scale);
+    g.mm = mat3x3<f32>(rot[0] * g.scale.x, rot[1] * g.scale.y, rot[2] * g.scale.z);
+    let wr = transpose(mat3x3<f32>(cam.r0.xyz, cam.r1.xyz, cam.r2.xyz));
+    g.cov_cam = wr * (g.mm * transpose(g.mm)) * transpose(wr);
+    let rx = g.p_cam.x / z;
+    let ry = g.p_cam.y / z;
+    let cx = clamp(rx, -cam.lim.x, cam.lim.y);
+    let cy = clamp(ry, -cam.lim.z, cam.lim.w);
+    g.clamped_x = cx != rx;
+    g.clamped_y = cy != ry;
+    g.txy = vec2<f32>(z * cx, z * cy);
+    let rz = 1.0 / z;
+    let rz2 = rz * rz;
+    g.j0 = vec3<f32>(cam.intr.x * rz, 0.0, -cam.intr.x * g.txy.x * rz2);
+    g.j1 = vec3<f32>(0.0, cam.intr.y * rz, -cam.intr.y * g.txy.y * rz2);
+    let s0 = g.cov_cam * g.j0;
+    let s1 = g.cov_cam * g.j1;
+    g.cov = vec3<f32>(dot(g.j0, s0), dot(g.j0, s1), dot(g.j1, s1));
+    g.valid = finite3(g.cov);
+    return g;
+}

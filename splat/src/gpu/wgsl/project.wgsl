@@ -38,37 +38,21 @@ fn main(
     }
     let base = i * cam.cfg.z;
     let mean = vec3<f32>(params[base], params[base + 1u], params[base + 2u]);
-    let p_cam = vec3<f32>(dot(cam.r0.xyz, mean), dot(cam.r1.xyz, mean), dot(cam.r2.xyz, mean))
-        + cam.t.xyz;
+    let geo = geometry(
+        cam,
+        mean,
+        vec3<f32>(params[base + 3u], params[base + 4u], params[base + 5u]),
+        vec4<f32>(params[base + 6u], params[base + 7u], params[base + 8u], params[base + 9u]),
+    );
+    if (!geo.valid) {
+        cull(i);
+        return;
+    }
+    let p_cam = geo.p_cam;
     let z = p_cam.z;
-    if (!(finite3(p_cam) && z >= cam.t.w && z <= cam.pos.w)) {
-        cull(i);
-        return;
-    }
-    let q = vec4<f32>(params[base + 6u], params[base + 7u], params[base + 8u], params[base + 9u]);
-    let rot = quat_rot(q).rot;
-    let scale = exp(vec3<f32>(params[base + 3u], params[base + 4u], params[base + 5u]));
-    let mm = mat3x3<f32>(rot[0] * scale.x, rot[1] * scale.y, rot[2] * scale.z);
-    let cov_world = mm * transpose(mm);
-    let wr = transpose(mat3x3<f32>(cam.r0.xyz, cam.r1.xyz, cam.r2.xyz));
-    let cov_cam = wr * cov_world * transpose(wr);
-    let rx = p_cam.x / z;
-    let ry = p_cam.y / z;
-    let tx = z * clamp(rx, -cam.lim.x, cam.lim.y);
-    let ty = z * clamp(ry, -cam.lim.z, cam.lim.w);
-    let rz = 1.0 / z;
-    let rz2 = rz * rz;
-    let j0 = vec3<f32>(cam.intr.x * rz, 0.0, -cam.intr.x * tx * rz2);
-    let j1 = vec3<f32>(0.0, cam.intr.y * rz, -cam.intr.y * ty * rz2);
-    let s0 = cov_cam * j0;
-    let s1 = cov_cam * j1;
-    let ca = dot(j0, s0);
-    let cb = dot(j0, s1);
-    let cc = dot(j1, s1);
-    if (!(finite(ca) && finite(cb) && finite(cc))) {
-        cull(i);
-        return;
-    }
+    let ca = geo.cov.x;
+    let cb = geo.cov.y;
+    let cc = geo.cov.z;
     let ab = ca + COV2D_BLUR;
     let cbb = cc + COV2D_BLUR;
     let det_b = ab * cbb - cb * cb;

@@ -65,43 +65,38 @@ fn main(
         return;
     }
     let mean = vec3<f32>(params[base], params[base + 1u], params[base + 2u]);
-    let wr = transpose(mat3x3<f32>(cam.r0.xyz, cam.r1.xyz, cam.r2.xyz));
-    let p_cam = wr * mean + cam.t.xyz;
-    let z = p_cam.z;
-    if (!(finite3(p_cam) && z >= cam.t.w && z <= cam.pos.w)) {
+    let geo = geometry(
+        cam,
+        mean,
+        vec3<f32>(params[base + 3u], params[base + 4u], params[base + 5u]),
+        vec4<f32>(params[base + 6u], params[base + 7u], params[base + 8u], params[base + 9u]),
+    );
+    if (!geo.valid) {
         zero_all(base);
         return;
     }
-    let q = vec4<f32>(params[base + 6u], params[base + 7u], params[base + 8u], params[base + 9u]);
-    let qr = quat_rot(q);
-    let rot = qr.rot;
-    let qn = qr.qn;
-    let qlen = qr.len;
-    let scale = exp(vec3<f32>(params[base + 3u], params[base + 4u], params[base + 5u]));
-    let mm = mat3x3<f32>(rot[0] * scale.x, rot[1] * scale.y, rot[2] * scale.z);
-    let cov_cam = wr * (mm * transpose(mm)) * transpose(wr);
-    let rx = p_cam.x / z;
-    let ry = p_cam.y / z;
-    let cxr = clamp(rx, -cam.lim.x, cam.lim.y);
-    let cyr = clamp(ry, -cam.lim.z, cam.lim.w);
-    let tx = z * cxr;
-    let ty = z * cyr;
+    let wr = transpose(mat3x3<f32>(cam.r0.xyz, cam.r1.xyz, cam.r2.xyz));
+    let p_cam = geo.p_cam;
+    let z = p_cam.z;
+    let rot = geo.q.rot;
+    let qn = geo.q.qn;
+    let qlen = geo.q.len;
+    let scale = geo.scale;
+    let mm = geo.mm;
+    let tx = geo.txy.x;
+    let ty = geo.txy.y;
     let rz = 1.0 / z;
     let rz2 = rz * rz;
     let rz3 = rz2 * rz;
     let fx = cam.intr.x;
     let fy = cam.intr.y;
-    let j0 = vec3<f32>(fx * rz, 0.0, -fx * tx * rz2);
-    let j1 = vec3<f32>(0.0, fy * rz, -fy * ty * rz2);
-    let s0 = cov_cam * j0;
-    let s1 = cov_cam * j1;
-    let a = dot(j0, s0);
-    let b = dot(j0, s1);
-    let c = dot(j1, s1);
-    if (!(finite(a) && finite(b) && finite(c))) {
-        zero_all(base);
-        return;
-    }
+    let j0 = geo.j0;
+    let j1 = geo.j1;
+    let s0 = geo.cov_cam * j0;
+    let s1 = geo.cov_cam * j1;
+    let a = geo.cov.x;
+    let b = geo.cov.y;
+    let c = geo.cov.z;
     let ab = a + COV2D_BLUR;
     let cb = c + COV2D_BLUR;
     let det_b = ab * cb - b * b;
@@ -187,13 +182,13 @@ fn main(
         -(v_mean2d.x * fx * p_cam.x + v_mean2d.y * fy * p_cam.y) * rz2 + v_depth,
     );
     v_pc.z = v_pc.z + (-fx * rz2 * v_j0.x - fy * rz2 * v_j1.y);
-    if (cxr != rx) {
+    if (geo.clamped_x) {
         v_pc.z = v_pc.z + fx * tx * rz3 * v_j0.z;
     } else {
         v_pc.x = v_pc.x - fx * rz2 * v_j0.z;
         v_pc.z = v_pc.z + 2.0 * fx * tx * rz3 * v_j0.z;
     }
-    if (cyr != ry) {
+    if (geo.clamped_y) {
         v_pc.z = v_pc.z + fy * ty * rz3 * v_j1.z;
     } else {
         v_pc.y = v_pc.y - fy * rz2 * v_j1.z;
