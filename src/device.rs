@@ -7,8 +7,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 use splat::gpu::{GpuContext, GpuRasterizer};
 use splat::{
-    Camera, CpuRasterizer, Gaussians, Gradients, PixelGradients, Rasterizer, RenderOutput,
-    RenderSettings,
+    Camera, Gaussians, Gradients, PixelGradients, Rasterizer, RenderOutput, RenderSettings,
 };
 
 use crate::error::{Result, TrainError};
@@ -99,24 +98,12 @@ impl Device {
         let mut v = self.render_views(g, std::slice::from_ref(camera), settings)?;
         Ok(v.pop().expect("one camera, one image"))
     }
-
-    /// Renders, scores the image with `loss` (which returns the loss and `∂loss/∂colour`)
-    /// and backpropagates: one training step's gradients.
-    pub fn forward_backward<T>(
-        &self,
-        g: &Gaussians,
-        camera: &Camera,
-        settings: &RenderSettings,
-        loss: impl FnOnce(&RenderOutput) -> Result<(T, Vec<Vec3>)>,
-    ) -> Result<(RenderOutput, T, Gradients)> {
-        match self {
-            Device::Cpu => step(&CpuRasterizer, g, camera, settings, loss),
-            Device::Gpu(gpu) => step(gpu, g, camera, settings, loss),
-        }
-    }
 }
 
-fn step<R: Rasterizer, T>(
+/// Renders with `r`, scores the image with `loss` (which returns the loss and
+/// `∂loss/∂colour`) and backpropagates: one training step's gradients. (A GPU run trains on
+/// [`splat::gpu::GpuTraining`] instead, which keeps the model resident.)
+pub fn forward_backward<R: Rasterizer, T>(
     r: &R,
     g: &Gaussians,
     camera: &Camera,

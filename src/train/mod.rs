@@ -18,9 +18,9 @@ use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use splat::gpu::GpuTraining;
 use splat::optim::{Adam, ExponentialLr};
-use splat::{Gaussians, PixelGradients, RenderSettings};
+use splat::{CpuRasterizer, Gaussians, PixelGradients, RenderSettings};
 
-use crate::device::Device;
+use crate::device::{Device, forward_backward};
 
 use crate::error::{Result, TrainError};
 use crate::eval::{self, Metrics};
@@ -287,7 +287,7 @@ pub fn train(
             }
             Device::Cpu => {
                 let (out, parts, mut grads) =
-                    device.forward_backward(&s.model, &view.camera, &rs, |out| {
+                    forward_backward(&CpuRasterizer, &s.model, &view.camera, &rs, |out| {
                         let (parts, v) = objective.evaluate(&out.color, view)?;
                         check_loss(&parts)?;
                         Ok((parts, v))
