@@ -133,7 +133,7 @@ impl GpuTraining {
             &mut enc,
             &mut Scratch(Some(&mut self.pool)),
         )?;
-        let flags = self.encode_adam(&grads, lr, opacity_reg, &mut enc)?;
+        let flags = self.encode_adam(&grads, lr, opacity_reg, &mut enc, true)?;
         self.finish(enc, Some(&screen), &flags)
     }
 
@@ -153,7 +153,7 @@ impl GpuTraining {
         let dev = &self.raster.ctx.device;
         let g = storage_init(dev, "gradients", bytemuck::cast_slice(&grads.packed()));
         let mut enc = dev.create_command_encoder(&Default::default());
-        let flags = self.encode_adam(&g, lr, opacity_reg, &mut enc)?;
+        let flags = self.encode_adam(&g, lr, opacity_reg, &mut enc, false)?;
         self.finish(enc, None, &flags)
     }
 
@@ -163,6 +163,8 @@ impl GpuTraining {
         lr: &LearningRates,
         opacity_reg: f32,
         enc: &mut wgpu::CommandEncoder,
+        // In the step's pool (after a render, which starts the pool over) or a buffer of its own.
+        pooled: bool,
     ) -> Result<wgpu::Buffer, SplatError> {
         let (raster, scene) = (&self.raster, &self.scene);
         let dev = &raster.ctx.device;
@@ -184,7 +186,7 @@ impl GpuTraining {
             lr_a: [lr.means, lr.log_scales, lr.rotations, lr.opacities],
             lr_b: [lr.sh_dc, lr.sh_rest, 0.0, 0.0],
         };
-        let flags = Scratch(Some(&mut self.pool)).storage(dev, "adam flags", 4);
+        let flags = Scratch(pooled.then_some(&mut self.pool)).storage(dev, "adam flags", 4);
         enc.clear_buffer(&flags, 0, None);
         if n > 0 {
             let cfg = uniform(dev, "adam step", bytemuck::bytes_of(&u));
