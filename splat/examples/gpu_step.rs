@@ -119,6 +119,10 @@ fn export(
     [cpu_fwd, gpu_fwd, cpu_step, gpu_step]: [f64; 4],
 ) -> std::io::Result<()> {
     std::fs::create_dir_all(dir)?;
+    // Written as every output of the project is: a temporary beside the file, renamed on success.
+    let write = |name: &str, bytes: &[u8]| {
+        base::write_atomically(&dir.join(name), |w| std::io::Write::write_all(w, bytes))
+    };
     splat::ply::write_ply(dir.join("scene.ply"), g).map_err(std::io::Error::other)?;
     let r = cam.rotation;
     let t = cam.translation;
@@ -129,24 +133,26 @@ fn export(
         [r.x_axis.z, r.y_axis.z, r.z_axis.z, t.z],
         [0.0, 0.0, 0.0, 1.0],
     ];
-    std::fs::write(
-        dir.join("camera.json"),
+    write(
+        "camera.json",
         format!(
             "{{\"width\": {}, \"height\": {}, \"fx\": {}, \"fy\": {}, \"cx\": {}, \"cy\": {}, \"near\": {}, \"far\": {}, \"world_to_camera\": {:?}}}\n",
             cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, cam.near, cam.far, view
-        ),
+        )
+        .as_bytes(),
     )?;
     let bytes: Vec<u8> = rgb
         .iter()
         .flat_map(|c| c.to_array())
         .flat_map(f32::to_le_bytes)
         .collect();
-    std::fs::write(dir.join("cpu_rgb.f32"), bytes)?;
-    std::fs::write(
-        dir.join("ours.json"),
+    write("cpu_rgb.f32", &bytes)?;
+    write(
+        "ours.json",
         format!(
             "{{\"splats\": {}, \"cpu_forward_ms\": {cpu_fwd}, \"gpu_forward_ms\": {gpu_fwd}, \"cpu_step_ms\": {cpu_step}, \"gpu_step_ms\": {gpu_step}}}\n",
             g.len()
-        ),
+        )
+        .as_bytes(),
     )
 }
