@@ -58,6 +58,17 @@ impl GpuContext {
         )
     }
 
+    /// Refuses a buffer larger than the device can create.
+    pub fn check_buffer(&self, what: &str, bytes: u64) -> Result<(), SplatError> {
+        let max = self.limits.max_buffer_size;
+        if bytes > max {
+            return Err(SplatError::Gpu(format!(
+                "{what} needs {bytes} bytes, more than this GPU holds in one buffer ({max})"
+            )));
+        }
+        Ok(())
+    }
+
     /// Refuses a buffer larger than the device can bind.
     pub fn check_size(&self, what: &str, bytes: u64) -> Result<(), SplatError> {
         let max = self

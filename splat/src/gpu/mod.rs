@@ -36,17 +36,33 @@ use crate::render::{Gradients, RenderOutput, RenderSettings};
 use kernels::Kernels;
 use sort::{KeyBuffers, radix_sort, scan};
 use util::{
-    Scratch, bind, blocks, dispatch, f32s, grid, read_back, storage, storage_init, u32s, uniform,
+    Scratch, bind, bind_resources, blocks, dispatch, f32s, grid, part, read_back, storage,
+    storage_init, u32s, uniform,
 };
 
 /// Floats per projected Gaussian (`PROJ_STRIDE` in the shaders).
 const PROJ_STRIDE: u64 = 12;
+
+/// Pieces of a parameter buffer start at multiples of this many Gaussians: 256 bytes per
+/// float of a Gaussian, the largest storage offset alignment WebGPU allows.
+pub const CHUNK_ALIGN: u32 = 64;
+
+/// The uniform naming a piece (`Chunk` in the shaders).
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ChunkUniform {
+    first: u32,
+    count: u32,
+}
 
 /// The rasterizer on one GPU. Cheap to clone: the device and pipelines are shared.
 #[derive(Clone)]
 pub struct GpuRasterizer {
     ctx: Arc<GpuContext>,
     kernels: Arc<Kernels>,
+    /// Bytes one binding may span: per-Gaussian parameter buffers larger than this are bound
+    /// and processed in pieces ([`GpuRasterizer::chunks`]).
+    max_binding: u64,
 }
 
 /// A model resident on the GPU: its parameters in one buffer, Gaussian by Gaussian (the
@@ -94,7 +110,35 @@ impl GpuRasterizer {
     /// The rasterizer on an already opened device.
     pub fn on(ctx: Arc<GpuContext>) -> Self {
         let kernels = Arc::new(Kernels::new(&ctx.device));
-        Self { ctx, kernels }
+        let l = &ctx.limits;
+        let max_binding = l.max_storage_buffer_binding_size.min(l.max_buffer_size);
+        Self {
+            ctx,
+            kernels,
+            max_binding,
+        }
+    }
+
+    /// The same rasterizer binding at most `bytes` of a buffer at once (at least one piece of
+    /// [`CHUNK_ALIGN`] Gaussians), so tests can split small scenes the way a small-limit driver
+    /// splits large ones.
+    #[doc(hidden)]
+    pub fn with_binding_limit(mut self, bytes: u64) -> Self {
+        self.max_binding = bytes.min(self.max_binding);
+        self
+    }
+
+    /// The pieces `(first, count)` in which `n` Gaussians of `stride` floats each are bound:
+    /// as large as one binding allows, each starting at a multiple of [`CHUNK_ALIGN`] Gaussians
+    /// (so its byte offset meets every device's storage offset alignment).
+    #[doc(hidden)]
+    pub fn chunks(&self, n: u32, stride: u32) -> Vec<(u32, u32)> {
+        let fits = self.max_binding / (4 * stride as u64);
+        let size = (fits / CHUNK_ALIGN as u64 * CHUNK_ALIGN as u64)
+            .clamp(CHUNK_ALIGN as u64, u32::MAX as u64) as u32;
+        (0..n.div_ceil(size))
+            .map(|k| (k * size, size.min(n - k * size)))
+            .collect()
     }
 
     pub fn context(&self) -> &GpuContext {
@@ -109,8 +153,9 @@ impl GpuRasterizer {
             SplatError::Gpu(format!("{} splats are too many for one scene", g.len()))
         })?;
         let stride = 14 + 3 * g.rest_count() as u32;
+        // Bound in pieces: only the whole buffer must fit the device.
         self.ctx
-            .check_size("the splat parameters", 4 * stride as u64 * n as u64)?;
+            .check_buffer("the splat parameters", 4 * stride as u64 * n as u64)?;
         let params = g.packed();
         let params = storage_init(&self.ctx.device, "splats", bytemuck::cast_slice(&params));
         let sh_degree = g.sh_degree;
@@ -179,12 +224,24 @@ impl GpuRasterizer {
         // Projection and the scan of tile counts; read back how many keys there are.
         let mut enc = dev.create_command_encoder(&Default::default());
         let total = if n > 0 {
-            let g = bind(
-                dev,
-                &k.project,
-                &[&cam_u, &scene.params, &proj, &counts, &radii],
-            );
-            dispatch(&mut enc, &k.project, &g, grid(blocks(n)));
+            let bytes = 4 * scene.stride as u64;
+            for (first, count) in self.chunks(n, scene.stride) {
+                let chunk = ChunkUniform { first, count };
+                let chunk = uniform(dev, "chunk", bytemuck::bytes_of(&chunk));
+                let g = bind_resources(
+                    dev,
+                    &k.project,
+                    vec![
+                        cam_u.as_entire_binding(),
+                        part(&scene.params, bytes * first as u64, bytes * count as u64),
+                        proj.as_entire_binding(),
+                        counts.as_entire_binding(),
+                        radii.as_entire_binding(),
+                        chunk.as_entire_binding(),
+                    ],
+                );
+                dispatch(&mut enc, &k.project, &g, grid(blocks(count)));
+            }
             scan(dev, k, &mut enc, &counts, &offsets, n, scratch);
             let last = 4 * (n as u64 - 1);
             let b = read_back(
@@ -379,11 +436,9 @@ impl GpuRasterizer {
             ],
         );
         dispatch(enc, &k.raster_backward, &bg, st.tiles);
-        let grads = scratch.storage(
-            dev,
-            "parameter gradients",
-            4 * scene.stride as u64 * st.n as u64,
-        );
+        let grad_bytes = 4 * scene.stride as u64 * st.n as u64;
+        ctx.check_buffer("the parameter gradients", grad_bytes)?;
+        let grads = scratch.storage(dev, "parameter gradients", grad_bytes);
         if st.n > 0 {
             let len = uniform(dev, "gaussians", bytemuck::bytes_of(&st.n));
             let bg = bind(
@@ -392,12 +447,25 @@ impl GpuRasterizer {
                 &[&len, &st.offsets, &st.counts, &isect, &screen],
             );
             dispatch(enc, &k.isect_reduce, &bg, grid(blocks(st.n)));
-            let bg = bind(
-                dev,
-                &k.project_backward,
-                &[&st.cam_u, &scene.params, &screen, &st.counts, &grads],
-            );
-            dispatch(enc, &k.project_backward, &bg, grid(blocks(st.n)));
+            let bytes = 4 * scene.stride as u64;
+            for (first, count) in self.chunks(st.n, scene.stride) {
+                let chunk = ChunkUniform { first, count };
+                let chunk = uniform(dev, "chunk", bytemuck::bytes_of(&chunk));
+                let (at, len) = (bytes * first as u64, bytes * count as u64);
+                let bg = bind_resources(
+                    dev,
+                    &k.project_backward,
+                    vec![
+                        st.cam_u.as_entire_binding(),
+                        part(&scene.params, at, len),
+                        screen.as_entire_binding(),
+                        st.counts.as_entire_binding(),
+                        part(&grads, at, len),
+                        chunk.as_entire_binding(),
+                    ],
+                );
+                dispatch(enc, &k.project_backward, &bg, grid(blocks(count)));
+            }
         }
         Ok((screen, grads))
     }

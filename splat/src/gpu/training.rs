@@ -13,7 +13,8 @@ use crate::rasterizer::PixelGradients;
 use crate::render::{RenderOutput, RenderSettings};
 
 use super::util::{
-    Pool, Scratch, bind, blocks, dispatch, f32s, grid, read_back, storage_init, u32s, uniform,
+    Pool, Scratch, bind_resources, blocks, dispatch, f32s, grid, part, read_back, storage_init,
+    u32s, uniform,
 };
 use super::{GpuRasterizer, GpuSaved, GpuScene};
 
@@ -188,15 +189,30 @@ impl GpuTraining {
         };
         let flags = Scratch(pooled.then_some(&mut self.pool)).storage(dev, "adam flags", 4);
         enc.clear_buffer(&flags, 0, None);
-        if n > 0 {
-            let cfg = uniform(dev, "adam step", bytemuck::bytes_of(&u));
-            let k = &raster.kernels;
-            let g = bind(
+        let k = &raster.kernels;
+        let bytes = 4 * scene.stride as u64;
+        // Piece by piece, as the projection binds the parameters: each piece starts at a
+        // Gaussian, so a value's group is still its index modulo the stride.
+        for (first, count) in raster.chunks(scene.n, scene.stride) {
+            let cfg = AdamUniform {
+                n: count * scene.stride,
+                ..u
+            };
+            let cfg = uniform(dev, "adam step", bytemuck::bytes_of(&cfg));
+            let (at, len) = (bytes * first as u64, bytes * count as u64);
+            let g = bind_resources(
                 dev,
                 &k.adam,
-                &[&cfg, &scene.params, grads, &self.m, &self.v, &flags],
+                vec![
+                    cfg.as_entire_binding(),
+                    part(&scene.params, at, len),
+                    part(grads, at, len),
+                    part(&self.m, at, len),
+                    part(&self.v, at, len),
+                    flags.as_entire_binding(),
+                ],
             );
-            dispatch(enc, &k.adam, &g, grid(blocks(n)));
+            dispatch(enc, &k.adam, &g, grid(blocks(count * scene.stride)));
         }
         Ok(flags)
     }

@@ -56,6 +56,18 @@ impl Pool {
     }
 }
 
+/// The size of a pool slot asked for `bytes`: a quarter more, so sizes that change from step
+/// to step (the number of tile keys) reallocate rarely, but never past the largest binding
+/// `cap` when the request fits it, since a slot is bound whole.
+pub fn pooled_size(bytes: u64, cap: u64) -> u64 {
+    let roomy = (bytes + bytes / 4).next_multiple_of(256);
+    if roomy <= cap {
+        roomy
+    } else {
+        cap.max(bytes.max(4))
+    }
+}
+
 /// Where a pass takes its working buffers from: fresh ones, or a [`Pool`].
 pub struct Scratch<'p>(pub Option<&'p mut Pool>);
 
@@ -73,9 +85,8 @@ impl Scratch<'_> {
         match pool.slots.get(k) {
             Some(b) if b.size() >= bytes.max(4) => b.clone(),
             _ => {
-                // A quarter more than asked: sizes that change from step to step (the number of
-                // tile keys) then reallocate rarely.
-                let b = storage(device, label, (bytes + bytes / 4).next_multiple_of(256));
+                let cap = device.limits().max_storage_buffer_binding_size;
+                let b = storage(device, label, pooled_size(bytes, cap));
                 if k < pool.slots.len() {
                     pool.slots[k] = b.clone();
                 } else {
@@ -135,12 +146,31 @@ pub fn bind(
     pipeline: &wgpu::ComputePipeline,
     buffers: &[&wgpu::Buffer],
 ) -> wgpu::BindGroup {
-    let entries: Vec<wgpu::BindGroupEntry> = buffers
-        .iter()
+    let whole: Vec<_> = buffers.iter().map(|b| b.as_entire_binding()).collect();
+    bind_resources(device, pipeline, whole)
+}
+
+/// `bytes` bytes of `buffer` from `offset` on, as one binding.
+pub fn part(buffer: &wgpu::Buffer, offset: u64, bytes: u64) -> wgpu::BindingResource<'_> {
+    wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+        buffer,
+        offset,
+        size: wgpu::BufferSize::new(bytes.max(4)),
+    })
+}
+
+/// A bind group of whole buffers and [`part`]s, binding `i` the `i`-th.
+pub fn bind_resources(
+    device: &wgpu::Device,
+    pipeline: &wgpu::ComputePipeline,
+    resources: Vec<wgpu::BindingResource<'_>>,
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry> = resources
+        .into_iter()
         .enumerate()
-        .map(|(i, b)| wgpu::BindGroupEntry {
+        .map(|(i, resource)| wgpu::BindGroupEntry {
             binding: i as u32,
-            resource: b.as_entire_binding(),
+            resource,
         })
         .collect();
     device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -217,4 +247,22 @@ pub fn u32s(bytes: &[u8]) -> Vec<u32> {
 
 pub fn f32s(bytes: &[u8]) -> Vec<f32> {
     bytemuck::pod_collect_to_vec(bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::pooled_size;
+
+    #[test]
+    fn a_pool_slot_has_room_to_grow_but_stays_bindable() {
+        let cap = 1 << 27;
+        assert_eq!(pooled_size(1000, cap), 1280);
+        assert!(pooled_size(1000, cap) >= 1000);
+        // A request that fits one binding gets a slot that still fits it.
+        let near = cap - (cap >> 4);
+        assert_eq!(pooled_size(near, cap), cap);
+        assert_eq!(pooled_size(cap, cap), cap);
+        // One bound only in pieces (the parameters' gradients) gets what it asked for.
+        assert_eq!(pooled_size(cap + 4, cap), cap + 4);
+    }
 }

@@ -24,6 +24,13 @@ struct Camera {
     cfg: vec4<u32>,
 }
 
+// The Gaussians one dispatch handles: the parameter buffers are bound from Gaussian `first`
+// on, so a scene larger than the device binds in one buffer is projected in pieces.
+struct Chunk {
+    first: u32,
+    count: u32,
+}
+
 // The element count of a one-dimensional pass.
 struct Len {
     n: u32,

@@ -6,6 +6,7 @@
 @group(0) @binding(2) var<storage, read_write> proj: array<f32>;
 @group(0) @binding(3) var<storage, read_write> counts: array<u32>;
 @group(0) @binding(4) var<storage, read_write> radii: array<f32>;
+@group(0) @binding(5) var<uniform> chunk: Chunk;
 
 fn cull(i: u32) {
     counts[i] = 0u;
@@ -32,11 +33,12 @@ fn main(
     @builtin(num_workgroups) nwg: vec3<u32>,
     @builtin(local_invocation_index) li: u32,
 ) {
-    let i = linear_group(wid, nwg) * 256u + li;
-    if (i >= cam.cfg.x) {
+    let local = linear_group(wid, nwg) * 256u + li;
+    if (local >= chunk.count) {
         return;
     }
-    let base = i * cam.cfg.z;
+    let i = chunk.first + local;
+    let base = local * cam.cfg.z;
     let mean = vec3<f32>(params[base], params[base + 1u], params[base + 2u]);
     let geo = geometry(
         cam,

@@ -8,6 +8,7 @@
 @group(0) @binding(2) var<storage, read> screen: array<f32>;
 @group(0) @binding(3) var<storage, read> counts: array<u32>;
 @group(0) @binding(4) var<storage, read_write> grads: array<f32>;
+@group(0) @binding(5) var<uniform> chunk: Chunk;
 
 fn zero_all(base: u32) {
     for (var k = 0u; k < cam.cfg.z; k = k + 1u) {
@@ -54,12 +55,13 @@ fn main(
     @builtin(num_workgroups) nwg: vec3<u32>,
     @builtin(local_invocation_index) li: u32,
 ) {
-    let i = linear_group(wid, nwg) * 256u + li;
-    if (i >= cam.cfg.x) {
+    let local = linear_group(wid, nwg) * 256u + li;
+    if (local >= chunk.count) {
         return;
     }
+    let i = chunk.first + local;
     let stride = cam.cfg.z;
-    let base = i * stride;
+    let base = local * stride;
     if (counts[i] == 0u) {
         zero_all(base);
         return;
