@@ -324,7 +324,6 @@ mod avx2 {
                         ),
                         _mm256_mul_ps(_mm256_mul_ps(cb, dx), dy),
                     );
-                    let alpha = _mm256_min_ps(max_alpha, _mm256_mul_ps(o, exp_neg(sigma)));
                     // Lanes inside the box (its columns lx0..=lx1) and not finished.
                     let lx = _mm256_add_epi32(_mm256_set1_epi32(bx as i32), lane_i);
                     let inside = _mm256_andnot_si256(
@@ -344,16 +343,20 @@ mod avx2 {
                     };
                     let done = unsafe { _mm256_loadu_si256(p_done) };
                     let live = _mm256_castsi256_ps(_mm256_andnot_si256(done, inside));
-                    let ok = _mm256_and_ps(
+                    let near = _mm256_and_ps(
                         _mm256_and_ps(
                             live,
                             _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, _mm256_setzero_ps()),
                         ),
-                        _mm256_and_ps(
-                            _mm256_cmp_ps::<_CMP_LE_OQ>(sigma, cut),
-                            _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, thr),
-                        ),
+                        _mm256_cmp_ps::<_CMP_LE_OQ>(sigma, cut),
                     );
+                    // A block of the box's corners, outside the ellipse, skips the exponential.
+                    if _mm256_movemask_ps(near) == 0 {
+                        bx += LANES;
+                        continue;
+                    }
+                    let alpha = _mm256_min_ps(max_alpha, _mm256_mul_ps(o, exp_neg(sigma)));
+                    let ok = _mm256_and_ps(near, _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, thr));
                     let okm = _mm256_movemask_ps(ok);
                     if okm == 0 {
                         bx += LANES;
@@ -443,9 +446,6 @@ mod avx2 {
                     ),
                     _mm256_mul_ps(_mm256_mul_ps(cb, dx), dy),
                 );
-                let vis = exp_neg(sigma);
-                let raw = _mm256_mul_ps(o, vis);
-                let alpha = _mm256_min_ps(max_alpha, raw);
                 let lx = _mm256_add_epi32(_mm256_set1_epi32(bx as i32), lane_i);
                 // SAFETY (every pointer below): `i + 8 <= TILE_PX`, as in the forward.
                 let p = |a: &mut [f32; TILE_PX]| unsafe { a.as_mut_ptr().add(i) };
@@ -455,16 +455,22 @@ mod avx2 {
                     _mm256_cmpgt_epi32(_mm256_set1_epi32(lx0), lx),
                     _mm256_cmpgt_epi32(lx, _mm256_set1_epi32(lx1)),
                 );
-                let ok = _mm256_and_ps(
+                let near = _mm256_and_ps(
                     _mm256_castsi256_ps(_mm256_andnot_si256(outside, in_list)),
                     _mm256_and_ps(
-                        _mm256_and_ps(
-                            _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero),
-                            _mm256_cmp_ps::<_CMP_LE_OQ>(sigma, cut),
-                        ),
-                        _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, thr),
+                        _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero),
+                        _mm256_cmp_ps::<_CMP_LE_OQ>(sigma, cut),
                     ),
                 );
+                // As in the forward: no exponential for a block no lane of which can blend.
+                if _mm256_movemask_ps(near) == 0 {
+                    bx += LANES;
+                    continue;
+                }
+                let vis = exp_neg(sigma);
+                let raw = _mm256_mul_ps(o, vis);
+                let alpha = _mm256_min_ps(max_alpha, raw);
+                let ok = _mm256_and_ps(near, _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, thr));
                 if _mm256_movemask_ps(ok) == 0 {
                     bx += LANES;
                     continue;
