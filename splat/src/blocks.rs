@@ -6,15 +6,16 @@
 //! rows its box covers, every per-pixel decision of the rule (inside the box, `σ` in range,
 //! `α ≥ 1/255`, transmittance stop) becomes a lane mask, and the tile's state is kept as
 //! structure of arrays. Two builds of each kernel: AVX2 intrinsics, chosen at run time when
-//! the CPU has AVX2 (`METASPLAT_NO_AVX2` turns them off), and portable lane loops for every
+//! the CPU has AVX2 and FMA (`METASPLAT_NO_AVX2` turns them off), and portable lane loops for every
 //! other CPU. The compiler does not vectorise the loops (RESULTS.md has the attempt); they are
 //! the operation-for-operation twin of the intrinsics, which the tests check bit for bit.
 //!
 //! Each pixel still sees its splats in list order with the same operations in the same order
 //! as `raster`, so the kernels agree with it up to the exponential: they use [`exp_neg`], a
 //! polynomial whose relative error against the exact `e^(−σ)` is below [`EXP_REL_ERROR`]
-//! (tested), where `raster` calls the C library's `expf`. No lane mixes with another and no
-//! multiply-add is fused, so the AVX2 and portable builds give identical bits. The backward
+//! (tested), where `raster` calls the C library's `expf`. No lane mixes with another, and the
+//! portable loops fuse a multiply-add (`mul_add`, exactly rounded everywhere) wherever the
+//! intrinsics do, so the AVX2 and portable builds give identical bits. The backward
 //! sums each splat's per-lane contributions in lane vectors and reduces them once per splat,
 //! in a fixed order: results do not depend on the thread count.
 
@@ -44,15 +45,16 @@ pub fn exp_neg(sigma: f32) -> f32 {
     // Adding and removing 1.5·2²³ rounds to the nearest integer without a rounding call.
     const ROUND: f32 = 12_582_912.0;
     let x = -sigma.clamp(0.0, 87.0);
-    let n = (x * LOG2E + ROUND) - ROUND;
-    let r = x - n * LN2_HI - n * LN2_LO;
-    let p = 1.987_569_1e-4;
-    let p = p * r + 1.398_199_9e-3;
-    let p = p * r + 8.333_452e-3;
-    let p = p * r + 4.166_579_6e-2;
-    let p = p * r + 1.666_666_5e-1;
-    let p = p * r + 0.5;
-    let e = p * r * r + r + 1.0;
+    let n = x.mul_add(LOG2E, ROUND) - ROUND;
+    let r = (-n).mul_add(LN2_HI, x);
+    let r = (-n).mul_add(LN2_LO, r);
+    let p: f32 = 1.987_569_1e-4;
+    let p = p.mul_add(r, 1.398_199_9e-3);
+    let p = p.mul_add(r, 8.333_452e-3);
+    let p = p.mul_add(r, 4.166_579_6e-2);
+    let p = p.mul_add(r, 1.666_666_5e-1);
+    let p = p.mul_add(r, 0.5);
+    let e = (p * r).mul_add(r, r) + 1.0;
     e * f32::from_bits(((n as i32 + 127) << 23) as u32)
 }
 
@@ -117,19 +119,20 @@ fn forward_tile_dispatch(
 ) -> u64 {
     #[cfg(target_arch = "x86_64")]
     if simd && avx2_enabled() {
-        // SAFETY: the CPU has AVX2 and POPCNT (checked at run time).
+        // SAFETY: the CPU has AVX2, FMA and POPCNT (checked at run time).
         return unsafe { avx2::forward_tile_lanes(splats, tile, st) };
     }
     forward_tile_lanes(splats, tile, st)
 }
 
-/// Whether the AVX2 kernels run: the CPU has AVX2 and `METASPLAT_NO_AVX2` is not set (which
-/// lets the tests and benchmarks run the portable kernels on the same machine).
+/// Whether the AVX2 kernels run: the CPU has AVX2 and FMA and `METASPLAT_NO_AVX2` is not set
+/// (which lets the tests and benchmarks run the portable kernels on the same machine).
 #[cfg(target_arch = "x86_64")]
 pub fn avx2_enabled() -> bool {
     static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     *ON.get_or_init(|| {
         std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("fma")
             && std::arch::is_x86_feature_detected!("popcnt")
             && std::env::var_os("METASPLAT_NO_AVX2").is_none()
     })
@@ -170,7 +173,7 @@ fn forward_tile_lanes(
                     let i = row + l;
                     let lx = (bx + l) as i32;
                     let dx = dx0 - lane_x[l];
-                    let sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy;
+                    let sigma = 0.5f32.mul_add((ca * dx).mul_add(dx, cc * dy * dy), cb * dx * dy);
                     let alpha = MAX_ALPHA.min(o * exp_neg(sigma));
                     let live = st.done[i] == 0 && lx0 <= lx && lx <= lx1;
                     let ok = live && (0.0..=cut).contains(&sigma) && alpha >= ALPHA_THRESHOLD;
@@ -180,22 +183,22 @@ fn forward_tile_lanes(
                     let blend = ok && !stop;
                     let wgt = alpha * tr;
                     st.c[0][i] = if blend {
-                        st.c[0][i] + col.x * wgt
+                        col.x.mul_add(wgt, st.c[0][i])
                     } else {
                         st.c[0][i]
                     };
                     st.c[1][i] = if blend {
-                        st.c[1][i] + col.y * wgt
+                        col.y.mul_add(wgt, st.c[1][i])
                     } else {
                         st.c[1][i]
                     };
                     st.c[2][i] = if blend {
-                        st.c[2][i] + col.z * wgt
+                        col.z.mul_add(wgt, st.c[2][i])
                     } else {
                         st.c[2][i]
                     };
                     st.depth[i] = if blend {
-                        st.depth[i] + z * wgt
+                        z.mul_add(wgt, st.depth[i])
                     } else {
                         st.depth[i]
                     };
@@ -215,7 +218,8 @@ fn forward_tile_lanes(
 }
 
 /// The AVX2 build of [`forward_tile_lanes`]: the same operations in the same order on eight
-/// lanes at once (no fused multiply-add, so the bits equal the portable loop's).
+/// lanes at once (fused multiply-adds exactly where the portable loop calls `mul_add`, so the
+/// bits equal the portable loop's).
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use std::arch::x86_64::*;
@@ -226,7 +230,7 @@ mod avx2 {
 
     /// [`super::exp_neg`] on eight lanes.
     #[inline]
-    #[target_feature(enable = "avx2")]
+    #[target_feature(enable = "avx2,fma")]
     fn exp_neg(sigma: __m256) -> __m256 {
         let x = _mm256_sub_ps(
             _mm256_setzero_ps(),
@@ -237,17 +241,12 @@ mod avx2 {
         );
         let round = _mm256_set1_ps(12_582_912.0);
         let n = _mm256_sub_ps(
-            _mm256_add_ps(
-                _mm256_mul_ps(x, _mm256_set1_ps(std::f32::consts::LOG2_E)),
-                round,
-            ),
+            _mm256_fmadd_ps(x, _mm256_set1_ps(std::f32::consts::LOG2_E), round),
             round,
         );
-        let r = _mm256_sub_ps(
-            _mm256_sub_ps(x, _mm256_mul_ps(n, _mm256_set1_ps(0.693_359_4))),
-            _mm256_mul_ps(n, _mm256_set1_ps(-2.121_944_4e-4)),
-        );
-        let step = |p: __m256, c: f32| _mm256_add_ps(_mm256_mul_ps(p, r), _mm256_set1_ps(c));
+        let r = _mm256_fnmadd_ps(n, _mm256_set1_ps(0.693_359_4), x);
+        let r = _mm256_fnmadd_ps(n, _mm256_set1_ps(-2.121_944_4e-4), r);
+        let step = |p: __m256, c: f32| _mm256_fmadd_ps(p, r, _mm256_set1_ps(c));
         let p = _mm256_set1_ps(1.987_569_1e-4);
         let p = step(p, 1.398_199_9e-3);
         let p = step(p, 8.333_452e-3);
@@ -255,7 +254,7 @@ mod avx2 {
         let p = step(p, 1.666_666_5e-1);
         let p = step(p, 0.5);
         let e = _mm256_add_ps(
-            _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(p, r), r), r),
+            _mm256_fmadd_ps(_mm256_mul_ps(p, r), r, r),
             _mm256_set1_ps(1.0),
         );
         let bits = _mm256_slli_epi32::<23>(_mm256_add_epi32(
@@ -266,8 +265,8 @@ mod avx2 {
     }
 
     /// # Safety
-    /// The CPU must have AVX2 and POPCNT.
-    #[target_feature(enable = "avx2,popcnt")]
+    /// The CPU must have AVX2, FMA and POPCNT.
+    #[target_feature(enable = "avx2,fma,popcnt")]
     pub unsafe fn forward_tile_lanes(
         splats: &[Splat],
         (x0, y0, w, h): (u32, u32, u32, u32),
@@ -317,11 +316,9 @@ mod avx2 {
                     let i = ly * STRIDE + bx;
                     let dx0 = m.x - ((x0 as usize + bx) as f32 + 0.5);
                     let dx = _mm256_sub_ps(_mm256_set1_ps(dx0), lane_f);
-                    let sigma = _mm256_add_ps(
-                        _mm256_mul_ps(
-                            half,
-                            _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(ca, dx), dx), cdydy),
-                        ),
+                    let sigma = _mm256_fmadd_ps(
+                        half,
+                        _mm256_fmadd_ps(_mm256_mul_ps(ca, dx), dx, cdydy),
                         _mm256_mul_ps(_mm256_mul_ps(cb, dx), dy),
                     );
                     // Lanes inside the box (its columns lx0..=lx1) and not finished.
@@ -371,7 +368,7 @@ mod avx2 {
                         // SAFETY: as above, for every channel array.
                         unsafe {
                             let v = _mm256_loadu_ps(p);
-                            let nv = _mm256_add_ps(v, _mm256_mul_ps(c, wgt));
+                            let nv = _mm256_fmadd_ps(c, wgt, v);
                             _mm256_storeu_ps(p, _mm256_blendv_ps(v, nv, blend));
                         }
                     };
@@ -404,8 +401,8 @@ mod avx2 {
     /// [`super::backward_splat`] on eight lanes.
     ///
     /// # Safety
-    /// The CPU must have AVX2 and POPCNT.
-    #[target_feature(enable = "avx2,popcnt")]
+    /// The CPU must have AVX2, FMA and POPCNT.
+    #[target_feature(enable = "avx2,fma,popcnt")]
     pub unsafe fn backward_splat(
         s: &Splat,
         k: u32,
@@ -436,13 +433,12 @@ mod avx2 {
             while bx <= lx1 as usize {
                 let i = ly * STRIDE + bx;
                 let dx = _mm256_sub_ps(set(m.x - ((x0 as usize + bx) as f32 + 0.5)), lane_f);
-                let sigma = _mm256_add_ps(
-                    _mm256_mul_ps(
-                        half,
-                        _mm256_add_ps(
-                            _mm256_mul_ps(_mm256_mul_ps(ca, dx), dx),
-                            _mm256_mul_ps(_mm256_mul_ps(cc, dy), dy),
-                        ),
+                let sigma = _mm256_fmadd_ps(
+                    half,
+                    _mm256_fmadd_ps(
+                        _mm256_mul_ps(ca, dx),
+                        dx,
+                        _mm256_mul_ps(_mm256_mul_ps(cc, dy), dy),
                     ),
                     _mm256_mul_ps(_mm256_mul_ps(cb, dx), dy),
                 );
@@ -490,49 +486,43 @@ mod avx2 {
                     let b1v = _mm256_loadu_ps(p(&mut st.behind[1]));
                     let b2v = _mm256_loadu_ps(p(&mut st.behind[2]));
                     let bzv = _mm256_loadu_ps(p(&mut st.behind_z));
-                    let term = |c: __m256, b: __m256, v: __m256| {
-                        _mm256_mul_ps(_mm256_sub_ps(_mm256_mul_ps(c, t), _mm256_mul_ps(b, ra)), v)
-                    };
-                    let v_alpha = _mm256_add_ps(
-                        _mm256_add_ps(
-                            _mm256_add_ps(
-                                _mm256_add_ps(term(cx, b0v, vc0), term(cy, b1v, vc1)),
-                                term(cz, b2v, vc2),
-                            ),
-                            term(zz, bzv, vd),
-                        ),
-                        _mm256_mul_ps(ra, vf),
-                    );
+                    // (c·t − b·ra), the factor of each pixel gradient in ∂L/∂α.
+                    let term = |c: __m256, b: __m256| _mm256_fmsub_ps(c, t, _mm256_mul_ps(b, ra));
+                    let v_alpha = _mm256_mul_ps(term(cx, b0v), vc0);
+                    let v_alpha = _mm256_fmadd_ps(term(cy, b1v), vc1, v_alpha);
+                    let v_alpha = _mm256_fmadd_ps(term(cz, b2v), vc2, v_alpha);
+                    let v_alpha = _mm256_fmadd_ps(term(zz, bzv), vd, v_alpha);
+                    let v_alpha = _mm256_fmadd_ps(ra, vf, v_alpha);
                     let on = |a: __m256, add: __m256, m: __m256| {
                         _mm256_blendv_ps(a, _mm256_add_ps(a, add), m)
                     };
-                    acc[7] = on(acc[7], _mm256_mul_ps(vc0, fac), ok);
-                    acc[8] = on(acc[8], _mm256_mul_ps(vc1, fac), ok);
-                    acc[9] = on(acc[9], _mm256_mul_ps(vc2, fac), ok);
-                    acc[11] = on(acc[11], _mm256_mul_ps(vd, fac), ok);
-                    _mm256_storeu_ps(p(&mut st.behind[0]), on(b0v, _mm256_mul_ps(cx, fac), ok));
-                    _mm256_storeu_ps(p(&mut st.behind[1]), on(b1v, _mm256_mul_ps(cy, fac), ok));
-                    _mm256_storeu_ps(p(&mut st.behind[2]), on(b2v, _mm256_mul_ps(cz, fac), ok));
-                    _mm256_storeu_ps(p(&mut st.behind_z), on(bzv, _mm256_mul_ps(zz, fac), ok));
+                    // a + x·y, fused, on the lanes of m.
+                    let on_fma = |a: __m256, x: __m256, y: __m256, m: __m256| {
+                        _mm256_blendv_ps(a, _mm256_fmadd_ps(x, y, a), m)
+                    };
+                    acc[7] = on_fma(acc[7], vc0, fac, ok);
+                    acc[8] = on_fma(acc[8], vc1, fac, ok);
+                    acc[9] = on_fma(acc[9], vc2, fac, ok);
+                    acc[11] = on_fma(acc[11], vd, fac, ok);
+                    _mm256_storeu_ps(p(&mut st.behind[0]), on_fma(b0v, cx, fac, ok));
+                    _mm256_storeu_ps(p(&mut st.behind[1]), on_fma(b1v, cy, fac, ok));
+                    _mm256_storeu_ps(p(&mut st.behind[2]), on_fma(b2v, cz, fac, ok));
+                    _mm256_storeu_ps(p(&mut st.behind_z), on_fma(bzv, zz, fac, ok));
                     let grad = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(raw, max_alpha));
                     let v_sigma = _mm256_mul_ps(_mm256_xor_ps(raw, sign), v_alpha);
-                    let vmx = _mm256_mul_ps(
-                        v_sigma,
-                        _mm256_add_ps(_mm256_mul_ps(ca, dx), _mm256_mul_ps(cb, dy)),
-                    );
-                    let vmy = _mm256_mul_ps(
-                        v_sigma,
-                        _mm256_add_ps(_mm256_mul_ps(cb, dx), _mm256_mul_ps(cc, dy)),
-                    );
+                    let vmx =
+                        _mm256_mul_ps(v_sigma, _mm256_fmadd_ps(ca, dx, _mm256_mul_ps(cb, dy)));
+                    let vmy =
+                        _mm256_mul_ps(v_sigma, _mm256_fmadd_ps(cb, dx, _mm256_mul_ps(cc, dy)));
                     let hv = _mm256_mul_ps(half, v_sigma);
                     acc[0] = on(acc[0], vmx, grad);
                     acc[1] = on(acc[1], vmy, grad);
                     acc[2] = on(acc[2], _mm256_andnot_ps(sign, vmx), grad);
                     acc[3] = on(acc[3], _mm256_andnot_ps(sign, vmy), grad);
-                    acc[4] = on(acc[4], _mm256_mul_ps(_mm256_mul_ps(hv, dx), dx), grad);
-                    acc[5] = on(acc[5], _mm256_mul_ps(_mm256_mul_ps(v_sigma, dx), dy), grad);
-                    acc[6] = on(acc[6], _mm256_mul_ps(_mm256_mul_ps(hv, dy), dy), grad);
-                    acc[10] = on(acc[10], _mm256_mul_ps(vis, v_alpha), grad);
+                    acc[4] = on_fma(acc[4], _mm256_mul_ps(hv, dx), dx, grad);
+                    acc[5] = on_fma(acc[5], _mm256_mul_ps(v_sigma, dx), dy, grad);
+                    acc[6] = on_fma(acc[6], _mm256_mul_ps(hv, dy), dy, grad);
+                    acc[10] = on_fma(acc[10], vis, v_alpha, grad);
                 }
                 bx += LANES;
             }
@@ -650,7 +640,7 @@ fn backward_splat_with(
 ) -> [f32; SUMS] {
     #[cfg(target_arch = "x86_64")]
     if simd && avx2_enabled() {
-        // SAFETY: the CPU has AVX2 and POPCNT (checked at run time).
+        // SAFETY: the CPU has AVX2, FMA and POPCNT (checked at run time).
         return unsafe { avx2::backward_splat(s, k, tile, st) };
     }
     backward_splat(s, k, tile, st)
@@ -682,7 +672,7 @@ fn backward_splat(
                 let i = ly * STRIDE + bx + l;
                 let lx = (bx + l) as i32;
                 let dx = dx0 - l as f32;
-                let sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy;
+                let sigma = 0.5f32.mul_add((ca * dx).mul_add(dx, cc * dy * dy), cb * dx * dy);
                 let vis = exp_neg(sigma);
                 let raw = o * vis;
                 let alpha = MAX_ALPHA.min(raw);
@@ -695,32 +685,35 @@ fn backward_splat(
                 let t = if ok { st.tr[i] * ra } else { st.tr[i] };
                 st.tr[i] = t;
                 let fac = alpha * t;
-                let v_alpha = (col.x * t - st.behind[0][i] * ra) * st.v_c[0][i]
-                    + (col.y * t - st.behind[1][i] * ra) * st.v_c[1][i]
-                    + (col.z * t - st.behind[2][i] * ra) * st.v_c[2][i]
-                    + (z * t - st.behind_z[i] * ra) * st.v_dsum[i]
-                    + ra * st.v_final[i];
+                let term = |c: f32, b: f32| c.mul_add(t, -(b * ra));
+                let v_alpha = term(col.x, st.behind[0][i]) * st.v_c[0][i];
+                let v_alpha = term(col.y, st.behind[1][i]).mul_add(st.v_c[1][i], v_alpha);
+                let v_alpha = term(col.z, st.behind[2][i]).mul_add(st.v_c[2][i], v_alpha);
+                let v_alpha = term(z, st.behind_z[i]).mul_add(st.v_dsum[i], v_alpha);
+                let v_alpha = ra.mul_add(st.v_final[i], v_alpha);
                 let on = |a: f32, add: f32, on: bool| if on { a + add } else { a };
-                acc[7][l] = on(acc[7][l], st.v_c[0][i] * fac, ok);
-                acc[8][l] = on(acc[8][l], st.v_c[1][i] * fac, ok);
-                acc[9][l] = on(acc[9][l], st.v_c[2][i] * fac, ok);
-                acc[11][l] = on(acc[11][l], st.v_dsum[i] * fac, ok);
-                st.behind[0][i] = on(st.behind[0][i], col.x * fac, ok);
-                st.behind[1][i] = on(st.behind[1][i], col.y * fac, ok);
-                st.behind[2][i] = on(st.behind[2][i], col.z * fac, ok);
-                st.behind_z[i] = on(st.behind_z[i], z * fac, ok);
+                let on_fma =
+                    |a: f32, x: f32, y: f32, on: bool| if on { x.mul_add(y, a) } else { a };
+                acc[7][l] = on_fma(acc[7][l], st.v_c[0][i], fac, ok);
+                acc[8][l] = on_fma(acc[8][l], st.v_c[1][i], fac, ok);
+                acc[9][l] = on_fma(acc[9][l], st.v_c[2][i], fac, ok);
+                acc[11][l] = on_fma(acc[11][l], st.v_dsum[i], fac, ok);
+                st.behind[0][i] = on_fma(st.behind[0][i], col.x, fac, ok);
+                st.behind[1][i] = on_fma(st.behind[1][i], col.y, fac, ok);
+                st.behind[2][i] = on_fma(st.behind[2][i], col.z, fac, ok);
+                st.behind_z[i] = on_fma(st.behind_z[i], z, fac, ok);
                 let grad = ok && raw <= MAX_ALPHA;
                 let v_sigma = -raw * v_alpha;
-                let vmx = v_sigma * (ca * dx + cb * dy);
-                let vmy = v_sigma * (cb * dx + cc * dy);
+                let vmx = v_sigma * ca.mul_add(dx, cb * dy);
+                let vmy = v_sigma * cb.mul_add(dx, cc * dy);
                 acc[0][l] = on(acc[0][l], vmx, grad);
                 acc[1][l] = on(acc[1][l], vmy, grad);
                 acc[2][l] = on(acc[2][l], vmx.abs(), grad);
                 acc[3][l] = on(acc[3][l], vmy.abs(), grad);
-                acc[4][l] = on(acc[4][l], 0.5 * v_sigma * dx * dx, grad);
-                acc[5][l] = on(acc[5][l], v_sigma * dx * dy, grad);
-                acc[6][l] = on(acc[6][l], 0.5 * v_sigma * dy * dy, grad);
-                acc[10][l] = on(acc[10][l], vis * v_alpha, grad);
+                acc[4][l] = on_fma(acc[4][l], 0.5 * v_sigma * dx, dx, grad);
+                acc[5][l] = on_fma(acc[5][l], v_sigma * dx, dy, grad);
+                acc[6][l] = on_fma(acc[6][l], 0.5 * v_sigma * dy, dy, grad);
+                acc[10][l] = on_fma(acc[10][l], vis, v_alpha, grad);
             }
             bx += LANES;
         }
