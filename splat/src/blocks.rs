@@ -82,7 +82,7 @@ pub unsafe fn forward_tile(
         last: [0; TILE_PX],
         done: [0; TILE_PX],
     };
-    let blended = forward_tile_dispatch(splats, (x0, y0, w, h), &mut st, true);
+    let blended = forward_tile_dispatch(splats, (x0, y0, w, h), &mut st, Isa::chosen());
     // SAFETY: the caller's promise.
     unsafe {
         sink.write_tile((x0, y0, w, h), |lx, ly| {
@@ -110,32 +110,67 @@ struct TileState {
     done: [i32; TILE_PX],
 }
 
-/// The AVX2 kernel where the CPU has it, else the portable loop (the same bits).
+/// The builds of the kernels, all giving the same bits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Isa {
+    /// Lane loops in plain Rust, for every CPU.
+    Portable,
+    /// AVX2 and FMA intrinsics.
+    Avx2,
+    /// The same intrinsics compiled with AVX-512VL (32 vector registers).
+    Avx512,
+}
+
+impl Isa {
+    /// The builds this CPU can run, portable first.
+    pub fn available() -> Vec<Isa> {
+        let mut v = vec![Isa::Portable];
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::is_x86_feature_detected as has;
+            if has!("avx2") && has!("fma") && has!("popcnt") {
+                v.push(Isa::Avx2);
+                if has!("avx512f") && has!("avx512vl") {
+                    v.push(Isa::Avx512);
+                }
+            }
+        }
+        v
+    }
+
+    /// The build the renderer uses: the last available one, unless `METASPLAT_NO_AVX2` (the
+    /// portable loops) or `METASPLAT_NO_AVX512` (AVX2 at most) is set, which lets tests and
+    /// benchmarks run each build on the same machine.
+    pub fn chosen() -> Isa {
+        static ISA: std::sync::OnceLock<Isa> = std::sync::OnceLock::new();
+        *ISA.get_or_init(|| {
+            let off = |v| std::env::var_os(v).is_some();
+            Isa::available()
+                .into_iter()
+                .filter(|&i| !(off("METASPLAT_NO_AVX2") && i != Isa::Portable))
+                .filter(|&i| !(off("METASPLAT_NO_AVX512") && i == Isa::Avx512))
+                .last()
+                .unwrap_or(Isa::Portable)
+        })
+    }
+}
+
+/// Blends a tile with the kernels of `isa`, which must be [`Isa::available`].
 fn forward_tile_dispatch(
     splats: &[Splat],
     tile: (u32, u32, u32, u32),
     st: &mut TileState,
-    simd: bool,
+    isa: Isa,
 ) -> u64 {
-    #[cfg(target_arch = "x86_64")]
-    if simd && avx2_enabled() {
-        // SAFETY: the CPU has AVX2, FMA and POPCNT (checked at run time).
-        return unsafe { avx2::forward_tile_lanes(splats, tile, st) };
+    debug_assert!(Isa::available().contains(&isa));
+    match isa {
+        // SAFETY: the CPU has the build's instruction set (its caller's promise).
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 => unsafe { avx2::forward_tile_lanes(splats, tile, st) },
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 => unsafe { avx512::forward_tile_lanes(splats, tile, st) },
+        _ => forward_tile_lanes(splats, tile, st),
     }
-    forward_tile_lanes(splats, tile, st)
-}
-
-/// Whether the AVX2 kernels run: the CPU has AVX2 and FMA and `METASPLAT_NO_AVX2` is not set
-/// (which lets the tests and benchmarks run the portable kernels on the same machine).
-#[cfg(target_arch = "x86_64")]
-pub fn avx2_enabled() -> bool {
-    static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *ON.get_or_init(|| {
-        std::arch::is_x86_feature_detected!("avx2")
-            && std::arch::is_x86_feature_detected!("fma")
-            && std::arch::is_x86_feature_detected!("popcnt")
-            && std::env::var_os("METASPLAT_NO_AVX2").is_none()
-    })
 }
 
 /// The portable kernel: lane loops the AVX2 kernel mirrors operation for operation.
@@ -217,324 +252,343 @@ fn forward_tile_lanes(
     blended
 }
 
-/// The AVX2 build of [`forward_tile_lanes`]: the same operations in the same order on eight
-/// lanes at once (fused multiply-adds exactly where the portable loop calls `mul_add`, so the
-/// bits equal the portable loop's).
-#[cfg(target_arch = "x86_64")]
-mod avx2 {
-    use std::arch::x86_64::*;
+/// A build of the intrinsics kernels for one instruction set: [`forward_tile_lanes`] and
+/// [`backward_splat`] with the same operations in the same order on eight lanes at once (fused
+/// multiply-adds exactly where the portable loop calls `mul_add`, so the bits equal the
+/// portable loop's). The AVX-512 build is the same source: AVX-512VL gives the compiler 32
+/// vector registers instead of 16, so the backward's twelve lane sums stay out of memory.
+macro_rules! simd_kernels {
+    ($module:ident, $features:literal) => {
+        #[cfg(target_arch = "x86_64")]
+        mod $module {
+            use std::arch::x86_64::*;
 
-    use super::{BackState, LANES, STRIDE, SUMS, TILE_PX, TileState};
-    use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_MIN};
-    use crate::raster::{Splat, local_box};
+            use crate::blocks::{BackState, LANES, STRIDE, SUMS, TILE_PX, TileState};
+            use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_MIN};
+            use crate::raster::{Splat, local_box};
 
-    /// [`super::exp_neg`] on eight lanes.
-    #[inline]
-    #[target_feature(enable = "avx2,fma")]
-    fn exp_neg(sigma: __m256) -> __m256 {
-        let x = _mm256_sub_ps(
-            _mm256_setzero_ps(),
-            _mm256_min_ps(
-                _mm256_max_ps(sigma, _mm256_setzero_ps()),
-                _mm256_set1_ps(87.0),
-            ),
-        );
-        let round = _mm256_set1_ps(12_582_912.0);
-        let n = _mm256_sub_ps(
-            _mm256_fmadd_ps(x, _mm256_set1_ps(std::f32::consts::LOG2_E), round),
-            round,
-        );
-        let r = _mm256_fnmadd_ps(n, _mm256_set1_ps(0.693_359_4), x);
-        let r = _mm256_fnmadd_ps(n, _mm256_set1_ps(-2.121_944_4e-4), r);
-        let step = |p: __m256, c: f32| _mm256_fmadd_ps(p, r, _mm256_set1_ps(c));
-        let p = _mm256_set1_ps(1.987_569_1e-4);
-        let p = step(p, 1.398_199_9e-3);
-        let p = step(p, 8.333_452e-3);
-        let p = step(p, 4.166_579_6e-2);
-        let p = step(p, 1.666_666_5e-1);
-        let p = step(p, 0.5);
-        let e = _mm256_add_ps(
-            _mm256_fmadd_ps(_mm256_mul_ps(p, r), r, r),
-            _mm256_set1_ps(1.0),
-        );
-        let bits = _mm256_slli_epi32::<23>(_mm256_add_epi32(
-            _mm256_cvttps_epi32(n),
-            _mm256_set1_epi32(127),
-        ));
-        _mm256_mul_ps(e, _mm256_castsi256_ps(bits))
-    }
-
-    /// # Safety
-    /// The CPU must have AVX2, FMA and POPCNT.
-    #[target_feature(enable = "avx2,fma,popcnt")]
-    pub unsafe fn forward_tile_lanes(
-        splats: &[Splat],
-        (x0, y0, w, h): (u32, u32, u32, u32),
-        st: &mut TileState,
-    ) -> u64 {
-        let mut blended = 0u64;
-        let mut n_done = 0usize;
-        let n = (w * h) as usize;
-        let lane_f = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
-        let lane_i = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-        let (half, one) = (_mm256_set1_ps(0.5), _mm256_set1_ps(1.0));
-        let (max_alpha, thr, tmin) = (
-            _mm256_set1_ps(MAX_ALPHA),
-            _mm256_set1_ps(ALPHA_THRESHOLD),
-            _mm256_set1_ps(TRANSMITTANCE_MIN),
-        );
-        for (k, s) in splats.iter().enumerate() {
-            if n_done == n {
-                break;
+            /// [`crate::blocks::exp_neg`] on eight lanes.
+            #[inline]
+            #[target_feature(enable = $features)]
+            fn exp_neg(sigma: __m256) -> __m256 {
+                let x = _mm256_sub_ps(
+                    _mm256_setzero_ps(),
+                    _mm256_min_ps(
+                        _mm256_max_ps(sigma, _mm256_setzero_ps()),
+                        _mm256_set1_ps(87.0),
+                    ),
+                );
+                let round = _mm256_set1_ps(12_582_912.0);
+                let n = _mm256_sub_ps(
+                    _mm256_fmadd_ps(x, _mm256_set1_ps(std::f32::consts::LOG2_E), round),
+                    round,
+                );
+                let r = _mm256_fnmadd_ps(n, _mm256_set1_ps(0.693_359_4), x);
+                let r = _mm256_fnmadd_ps(n, _mm256_set1_ps(-2.121_944_4e-4), r);
+                let step = |p: __m256, c: f32| _mm256_fmadd_ps(p, r, _mm256_set1_ps(c));
+                let p = _mm256_set1_ps(1.987_569_1e-4);
+                let p = step(p, 1.398_199_9e-3);
+                let p = step(p, 8.333_452e-3);
+                let p = step(p, 4.166_579_6e-2);
+                let p = step(p, 1.666_666_5e-1);
+                let p = step(p, 0.5);
+                let e = _mm256_add_ps(
+                    _mm256_fmadd_ps(_mm256_mul_ps(p, r), r, r),
+                    _mm256_set1_ps(1.0),
+                );
+                let bits = _mm256_slli_epi32::<23>(_mm256_add_epi32(
+                    _mm256_cvttps_epi32(n),
+                    _mm256_set1_epi32(127),
+                ));
+                _mm256_mul_ps(e, _mm256_castsi256_ps(bits))
             }
-            let Some(bounds) = local_box(s, x0, y0, w, h) else {
-                continue;
-            };
-            let [lx0, lx1, ly0, ly1] = bounds.map(|v| v as i32);
-            let (m, [ca, cb, cc], o, cut) = (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
-            let (col, z) = (s.color(), s.depth());
-            let (ca, cb, cc, o) = (
-                _mm256_set1_ps(ca),
-                _mm256_set1_ps(cb),
-                _mm256_set1_ps(cc),
-                _mm256_set1_ps(o),
-            );
-            let cut = _mm256_set1_ps(cut);
-            let (cr, cg, cbl, zz) = (
-                _mm256_set1_ps(col.x),
-                _mm256_set1_ps(col.y),
-                _mm256_set1_ps(col.z),
-                _mm256_set1_ps(z),
-            );
-            let next_k = _mm256_set1_epi32(k as i32 + 1);
-            let b0 = lx0 as usize / LANES * LANES;
-            for ly in ly0 as usize..=ly1 as usize {
-                let dy = _mm256_set1_ps(m.y - ((y0 as usize + ly) as f32 + 0.5));
-                let cdydy = _mm256_mul_ps(_mm256_mul_ps(cc, dy), dy);
-                let mut bx = b0;
-                while bx <= lx1 as usize {
-                    let i = ly * STRIDE + bx;
-                    let dx0 = m.x - ((x0 as usize + bx) as f32 + 0.5);
-                    let dx = _mm256_sub_ps(_mm256_set1_ps(dx0), lane_f);
-                    let sigma = _mm256_fmadd_ps(
-                        half,
-                        _mm256_fmadd_ps(_mm256_mul_ps(ca, dx), dx, cdydy),
-                        _mm256_mul_ps(_mm256_mul_ps(cb, dx), dy),
+
+            /// # Safety
+            /// The CPU must have AVX2, FMA and POPCNT.
+            #[target_feature(enable = $features)]
+            pub unsafe fn forward_tile_lanes(
+                splats: &[Splat],
+                (x0, y0, w, h): (u32, u32, u32, u32),
+                st: &mut TileState,
+            ) -> u64 {
+                let mut blended = 0u64;
+                let mut n_done = 0usize;
+                let n = (w * h) as usize;
+                let lane_f = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
+                let lane_i = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+                let (half, one) = (_mm256_set1_ps(0.5), _mm256_set1_ps(1.0));
+                let (max_alpha, thr, tmin) = (
+                    _mm256_set1_ps(MAX_ALPHA),
+                    _mm256_set1_ps(ALPHA_THRESHOLD),
+                    _mm256_set1_ps(TRANSMITTANCE_MIN),
+                );
+                for (k, s) in splats.iter().enumerate() {
+                    if n_done == n {
+                        break;
+                    }
+                    let Some(bounds) = local_box(s, x0, y0, w, h) else {
+                        continue;
+                    };
+                    let [lx0, lx1, ly0, ly1] = bounds.map(|v| v as i32);
+                    let (m, [ca, cb, cc], o, cut) =
+                        (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
+                    let (col, z) = (s.color(), s.depth());
+                    let (ca, cb, cc, o) = (
+                        _mm256_set1_ps(ca),
+                        _mm256_set1_ps(cb),
+                        _mm256_set1_ps(cc),
+                        _mm256_set1_ps(o),
                     );
-                    // Lanes inside the box (its columns lx0..=lx1) and not finished.
-                    let lx = _mm256_add_epi32(_mm256_set1_epi32(bx as i32), lane_i);
-                    let inside = _mm256_andnot_si256(
-                        _mm256_or_si256(
+                    let cut = _mm256_set1_ps(cut);
+                    let (cr, cg, cbl, zz) = (
+                        _mm256_set1_ps(col.x),
+                        _mm256_set1_ps(col.y),
+                        _mm256_set1_ps(col.z),
+                        _mm256_set1_ps(z),
+                    );
+                    let next_k = _mm256_set1_epi32(k as i32 + 1);
+                    let b0 = lx0 as usize / LANES * LANES;
+                    for ly in ly0 as usize..=ly1 as usize {
+                        let dy = _mm256_set1_ps(m.y - ((y0 as usize + ly) as f32 + 0.5));
+                        let cdydy = _mm256_mul_ps(_mm256_mul_ps(cc, dy), dy);
+                        let mut bx = b0;
+                        while bx <= lx1 as usize {
+                            let i = ly * STRIDE + bx;
+                            let dx0 = m.x - ((x0 as usize + bx) as f32 + 0.5);
+                            let dx = _mm256_sub_ps(_mm256_set1_ps(dx0), lane_f);
+                            let sigma = _mm256_fmadd_ps(
+                                half,
+                                _mm256_fmadd_ps(_mm256_mul_ps(ca, dx), dx, cdydy),
+                                _mm256_mul_ps(_mm256_mul_ps(cb, dx), dy),
+                            );
+                            // Lanes inside the box (its columns lx0..=lx1) and not finished.
+                            let lx = _mm256_add_epi32(_mm256_set1_epi32(bx as i32), lane_i);
+                            let inside = _mm256_andnot_si256(
+                                _mm256_or_si256(
+                                    _mm256_cmpgt_epi32(_mm256_set1_epi32(lx0), lx),
+                                    _mm256_cmpgt_epi32(lx, _mm256_set1_epi32(lx1)),
+                                ),
+                                _mm256_set1_epi32(-1),
+                            );
+                            // SAFETY: `i + 8 <= TILE_PX`: a block starts at a multiple of 8 inside a
+                            // row of STRIDE (16) pixels.
+                            let (p_tr, p_done) = unsafe {
+                                (
+                                    st.tr.as_mut_ptr().add(i),
+                                    st.done.as_mut_ptr().add(i) as *mut __m256i,
+                                )
+                            };
+                            let done = unsafe { _mm256_loadu_si256(p_done) };
+                            let live = _mm256_castsi256_ps(_mm256_andnot_si256(done, inside));
+                            let near = _mm256_and_ps(
+                                _mm256_and_ps(
+                                    live,
+                                    _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, _mm256_setzero_ps()),
+                                ),
+                                _mm256_cmp_ps::<_CMP_LE_OQ>(sigma, cut),
+                            );
+                            // A block of the box's corners, outside the ellipse, skips the exponential.
+                            if _mm256_movemask_ps(near) == 0 {
+                                bx += LANES;
+                                continue;
+                            }
+                            let alpha = _mm256_min_ps(max_alpha, _mm256_mul_ps(o, exp_neg(sigma)));
+                            let ok = _mm256_and_ps(near, _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, thr));
+                            let okm = _mm256_movemask_ps(ok);
+                            if okm == 0 {
+                                bx += LANES;
+                                continue;
+                            }
+                            let tr = unsafe { _mm256_loadu_ps(p_tr) };
+                            let next_t = _mm256_mul_ps(tr, _mm256_sub_ps(one, alpha));
+                            let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, tmin));
+                            let blend = _mm256_andnot_ps(stop, ok);
+                            let wgt = _mm256_mul_ps(alpha, tr);
+                            let add = |p: *mut f32, c: __m256| {
+                                // SAFETY: as above, for every channel array.
+                                unsafe {
+                                    let v = _mm256_loadu_ps(p);
+                                    let nv = _mm256_fmadd_ps(c, wgt, v);
+                                    _mm256_storeu_ps(p, _mm256_blendv_ps(v, nv, blend));
+                                }
+                            };
+                            unsafe {
+                                add(st.c[0].as_mut_ptr().add(i), cr);
+                                add(st.c[1].as_mut_ptr().add(i), cg);
+                                add(st.c[2].as_mut_ptr().add(i), cbl);
+                                add(st.depth.as_mut_ptr().add(i), zz);
+                                _mm256_storeu_ps(p_tr, _mm256_blendv_ps(tr, next_t, blend));
+                                let p_last = st.last.as_mut_ptr().add(i) as *mut __m256i;
+                                let last = _mm256_loadu_si256(p_last);
+                                _mm256_storeu_si256(
+                                    p_last,
+                                    _mm256_blendv_epi8(last, next_k, _mm256_castps_si256(blend)),
+                                );
+                                _mm256_storeu_si256(
+                                    p_done,
+                                    _mm256_or_si256(done, _mm256_castps_si256(stop)),
+                                );
+                            }
+                            blended += _mm256_movemask_ps(blend).count_ones() as u64;
+                            n_done += _mm256_movemask_ps(stop).count_ones() as usize;
+                            bx += LANES;
+                        }
+                    }
+                }
+                blended
+            }
+
+            /// [`crate::blocks::backward_splat`] on eight lanes.
+            ///
+            /// # Safety
+            /// The CPU must have AVX2, FMA and POPCNT.
+            #[target_feature(enable = $features)]
+            pub unsafe fn backward_splat(
+                s: &Splat,
+                k: u32,
+                (x0, y0, w, h): (u32, u32, u32, u32),
+                st: &mut BackState,
+            ) -> [f32; SUMS] {
+                let Some(bounds) = local_box(s, x0, y0, w, h) else {
+                    return [0.0; SUMS];
+                };
+                let [lx0, lx1, ly0, ly1] = bounds.map(|v| v as i32);
+                let (m, [ca, cb, cc], o, cut) = (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
+                let (col, z) = (s.color(), s.depth());
+                let set = _mm256_set1_ps;
+                let (ca, cb, cc, o, cut) = (set(ca), set(cb), set(cc), set(o), set(cut));
+                let (cx, cy, cz, zz) = (set(col.x), set(col.y), set(col.z), set(z));
+                let (half, one, zero) = (set(0.5), set(1.0), _mm256_setzero_ps());
+                let (max_alpha, thr) = (set(MAX_ALPHA), set(ALPHA_THRESHOLD));
+                let sign = set(-0.0);
+                let lane_f = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
+                let lane_i = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+                // `k < last` as a signed compare: counts stay far below 2³¹.
+                let kv = _mm256_set1_epi32(k as i32);
+                let mut acc = [zero; SUMS];
+                let b0 = lx0 as usize / LANES * LANES;
+                for ly in ly0 as usize..=ly1 as usize {
+                    let dy = set(m.y - ((y0 as usize + ly) as f32 + 0.5));
+                    let mut bx = b0;
+                    while bx <= lx1 as usize {
+                        let i = ly * STRIDE + bx;
+                        let dx =
+                            _mm256_sub_ps(set(m.x - ((x0 as usize + bx) as f32 + 0.5)), lane_f);
+                        let sigma = _mm256_fmadd_ps(
+                            half,
+                            _mm256_fmadd_ps(
+                                _mm256_mul_ps(ca, dx),
+                                dx,
+                                _mm256_mul_ps(_mm256_mul_ps(cc, dy), dy),
+                            ),
+                            _mm256_mul_ps(_mm256_mul_ps(cb, dx), dy),
+                        );
+                        let lx = _mm256_add_epi32(_mm256_set1_epi32(bx as i32), lane_i);
+                        // SAFETY (every pointer below): `i + 8 <= TILE_PX`, as in the forward.
+                        let p = |a: &mut [f32; TILE_PX]| unsafe { a.as_mut_ptr().add(i) };
+                        let last = unsafe {
+                            _mm256_loadu_si256(st.last.as_ptr().add(i) as *const __m256i)
+                        };
+                        let in_list = _mm256_cmpgt_epi32(last, kv);
+                        let outside = _mm256_or_si256(
                             _mm256_cmpgt_epi32(_mm256_set1_epi32(lx0), lx),
                             _mm256_cmpgt_epi32(lx, _mm256_set1_epi32(lx1)),
-                        ),
-                        _mm256_set1_epi32(-1),
-                    );
-                    // SAFETY: `i + 8 <= TILE_PX`: a block starts at a multiple of 8 inside a
-                    // row of STRIDE (16) pixels.
-                    let (p_tr, p_done) = unsafe {
-                        (
-                            st.tr.as_mut_ptr().add(i),
-                            st.done.as_mut_ptr().add(i) as *mut __m256i,
-                        )
-                    };
-                    let done = unsafe { _mm256_loadu_si256(p_done) };
-                    let live = _mm256_castsi256_ps(_mm256_andnot_si256(done, inside));
-                    let near = _mm256_and_ps(
-                        _mm256_and_ps(
-                            live,
-                            _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, _mm256_setzero_ps()),
-                        ),
-                        _mm256_cmp_ps::<_CMP_LE_OQ>(sigma, cut),
-                    );
-                    // A block of the box's corners, outside the ellipse, skips the exponential.
-                    if _mm256_movemask_ps(near) == 0 {
-                        bx += LANES;
-                        continue;
-                    }
-                    let alpha = _mm256_min_ps(max_alpha, _mm256_mul_ps(o, exp_neg(sigma)));
-                    let ok = _mm256_and_ps(near, _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, thr));
-                    let okm = _mm256_movemask_ps(ok);
-                    if okm == 0 {
-                        bx += LANES;
-                        continue;
-                    }
-                    let tr = unsafe { _mm256_loadu_ps(p_tr) };
-                    let next_t = _mm256_mul_ps(tr, _mm256_sub_ps(one, alpha));
-                    let stop = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(next_t, tmin));
-                    let blend = _mm256_andnot_ps(stop, ok);
-                    let wgt = _mm256_mul_ps(alpha, tr);
-                    let add = |p: *mut f32, c: __m256| {
-                        // SAFETY: as above, for every channel array.
-                        unsafe {
-                            let v = _mm256_loadu_ps(p);
-                            let nv = _mm256_fmadd_ps(c, wgt, v);
-                            _mm256_storeu_ps(p, _mm256_blendv_ps(v, nv, blend));
+                        );
+                        let near = _mm256_and_ps(
+                            _mm256_castsi256_ps(_mm256_andnot_si256(outside, in_list)),
+                            _mm256_and_ps(
+                                _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero),
+                                _mm256_cmp_ps::<_CMP_LE_OQ>(sigma, cut),
+                            ),
+                        );
+                        // As in the forward: no exponential for a block no lane of which can blend.
+                        if _mm256_movemask_ps(near) == 0 {
+                            bx += LANES;
+                            continue;
                         }
-                    };
-                    unsafe {
-                        add(st.c[0].as_mut_ptr().add(i), cr);
-                        add(st.c[1].as_mut_ptr().add(i), cg);
-                        add(st.c[2].as_mut_ptr().add(i), cbl);
-                        add(st.depth.as_mut_ptr().add(i), zz);
-                        _mm256_storeu_ps(p_tr, _mm256_blendv_ps(tr, next_t, blend));
-                        let p_last = st.last.as_mut_ptr().add(i) as *mut __m256i;
-                        let last = _mm256_loadu_si256(p_last);
-                        _mm256_storeu_si256(
-                            p_last,
-                            _mm256_blendv_epi8(last, next_k, _mm256_castps_si256(blend)),
-                        );
-                        _mm256_storeu_si256(
-                            p_done,
-                            _mm256_or_si256(done, _mm256_castps_si256(stop)),
-                        );
+                        let vis = exp_neg(sigma);
+                        let raw = _mm256_mul_ps(o, vis);
+                        let alpha = _mm256_min_ps(max_alpha, raw);
+                        let ok = _mm256_and_ps(near, _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, thr));
+                        if _mm256_movemask_ps(ok) == 0 {
+                            bx += LANES;
+                            continue;
+                        }
+                        unsafe {
+                            let ra = _mm256_div_ps(one, _mm256_sub_ps(one, alpha));
+                            let tr0 = _mm256_loadu_ps(p(&mut st.tr));
+                            let t = _mm256_blendv_ps(tr0, _mm256_mul_ps(tr0, ra), ok);
+                            _mm256_storeu_ps(p(&mut st.tr), t);
+                            let fac = _mm256_mul_ps(alpha, t);
+                            let vc0 = _mm256_loadu_ps(p(&mut st.v_c[0]));
+                            let vc1 = _mm256_loadu_ps(p(&mut st.v_c[1]));
+                            let vc2 = _mm256_loadu_ps(p(&mut st.v_c[2]));
+                            let vd = _mm256_loadu_ps(p(&mut st.v_dsum));
+                            let vf = _mm256_loadu_ps(p(&mut st.v_final));
+                            let b0v = _mm256_loadu_ps(p(&mut st.behind[0]));
+                            let b1v = _mm256_loadu_ps(p(&mut st.behind[1]));
+                            let b2v = _mm256_loadu_ps(p(&mut st.behind[2]));
+                            let bzv = _mm256_loadu_ps(p(&mut st.behind_z));
+                            // (c·t − b·ra), the factor of each pixel gradient in ∂L/∂α.
+                            let term =
+                                |c: __m256, b: __m256| _mm256_fmsub_ps(c, t, _mm256_mul_ps(b, ra));
+                            let v_alpha = _mm256_mul_ps(term(cx, b0v), vc0);
+                            let v_alpha = _mm256_fmadd_ps(term(cy, b1v), vc1, v_alpha);
+                            let v_alpha = _mm256_fmadd_ps(term(cz, b2v), vc2, v_alpha);
+                            let v_alpha = _mm256_fmadd_ps(term(zz, bzv), vd, v_alpha);
+                            let v_alpha = _mm256_fmadd_ps(ra, vf, v_alpha);
+                            let on = |a: __m256, add: __m256, m: __m256| {
+                                _mm256_blendv_ps(a, _mm256_add_ps(a, add), m)
+                            };
+                            // a + x·y, fused, on the lanes of m.
+                            let on_fma = |a: __m256, x: __m256, y: __m256, m: __m256| {
+                                _mm256_blendv_ps(a, _mm256_fmadd_ps(x, y, a), m)
+                            };
+                            acc[7] = on_fma(acc[7], vc0, fac, ok);
+                            acc[8] = on_fma(acc[8], vc1, fac, ok);
+                            acc[9] = on_fma(acc[9], vc2, fac, ok);
+                            acc[11] = on_fma(acc[11], vd, fac, ok);
+                            _mm256_storeu_ps(p(&mut st.behind[0]), on_fma(b0v, cx, fac, ok));
+                            _mm256_storeu_ps(p(&mut st.behind[1]), on_fma(b1v, cy, fac, ok));
+                            _mm256_storeu_ps(p(&mut st.behind[2]), on_fma(b2v, cz, fac, ok));
+                            _mm256_storeu_ps(p(&mut st.behind_z), on_fma(bzv, zz, fac, ok));
+                            let grad =
+                                _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(raw, max_alpha));
+                            let v_sigma = _mm256_mul_ps(_mm256_xor_ps(raw, sign), v_alpha);
+                            let vmx = _mm256_mul_ps(
+                                v_sigma,
+                                _mm256_fmadd_ps(ca, dx, _mm256_mul_ps(cb, dy)),
+                            );
+                            let vmy = _mm256_mul_ps(
+                                v_sigma,
+                                _mm256_fmadd_ps(cb, dx, _mm256_mul_ps(cc, dy)),
+                            );
+                            let hv = _mm256_mul_ps(half, v_sigma);
+                            acc[0] = on(acc[0], vmx, grad);
+                            acc[1] = on(acc[1], vmy, grad);
+                            acc[2] = on(acc[2], _mm256_andnot_ps(sign, vmx), grad);
+                            acc[3] = on(acc[3], _mm256_andnot_ps(sign, vmy), grad);
+                            acc[4] = on_fma(acc[4], _mm256_mul_ps(hv, dx), dx, grad);
+                            acc[5] = on_fma(acc[5], _mm256_mul_ps(v_sigma, dx), dy, grad);
+                            acc[6] = on_fma(acc[6], _mm256_mul_ps(hv, dy), dy, grad);
+                            acc[10] = on_fma(acc[10], vis, v_alpha, grad);
+                        }
+                        bx += LANES;
                     }
-                    blended += _mm256_movemask_ps(blend).count_ones() as u64;
-                    n_done += _mm256_movemask_ps(stop).count_ones() as usize;
-                    bx += LANES;
                 }
+                let mut lanes = [[0.0f32; LANES]; SUMS];
+                for (q, a) in acc.iter().enumerate() {
+                    // SAFETY: an array of eight f32 is the size of a __m256.
+                    unsafe { _mm256_storeu_ps(lanes[q].as_mut_ptr(), *a) };
+                }
+                crate::blocks::reduce(&lanes)
             }
         }
-        blended
-    }
-
-    /// [`super::backward_splat`] on eight lanes.
-    ///
-    /// # Safety
-    /// The CPU must have AVX2, FMA and POPCNT.
-    #[target_feature(enable = "avx2,fma,popcnt")]
-    pub unsafe fn backward_splat(
-        s: &Splat,
-        k: u32,
-        (x0, y0, w, h): (u32, u32, u32, u32),
-        st: &mut BackState,
-    ) -> [f32; SUMS] {
-        let Some(bounds) = local_box(s, x0, y0, w, h) else {
-            return [0.0; SUMS];
-        };
-        let [lx0, lx1, ly0, ly1] = bounds.map(|v| v as i32);
-        let (m, [ca, cb, cc], o, cut) = (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
-        let (col, z) = (s.color(), s.depth());
-        let set = _mm256_set1_ps;
-        let (ca, cb, cc, o, cut) = (set(ca), set(cb), set(cc), set(o), set(cut));
-        let (cx, cy, cz, zz) = (set(col.x), set(col.y), set(col.z), set(z));
-        let (half, one, zero) = (set(0.5), set(1.0), _mm256_setzero_ps());
-        let (max_alpha, thr) = (set(MAX_ALPHA), set(ALPHA_THRESHOLD));
-        let sign = set(-0.0);
-        let lane_f = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
-        let lane_i = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-        // `k < last` as a signed compare: counts stay far below 2³¹.
-        let kv = _mm256_set1_epi32(k as i32);
-        let mut acc = [zero; SUMS];
-        let b0 = lx0 as usize / LANES * LANES;
-        for ly in ly0 as usize..=ly1 as usize {
-            let dy = set(m.y - ((y0 as usize + ly) as f32 + 0.5));
-            let mut bx = b0;
-            while bx <= lx1 as usize {
-                let i = ly * STRIDE + bx;
-                let dx = _mm256_sub_ps(set(m.x - ((x0 as usize + bx) as f32 + 0.5)), lane_f);
-                let sigma = _mm256_fmadd_ps(
-                    half,
-                    _mm256_fmadd_ps(
-                        _mm256_mul_ps(ca, dx),
-                        dx,
-                        _mm256_mul_ps(_mm256_mul_ps(cc, dy), dy),
-                    ),
-                    _mm256_mul_ps(_mm256_mul_ps(cb, dx), dy),
-                );
-                let lx = _mm256_add_epi32(_mm256_set1_epi32(bx as i32), lane_i);
-                // SAFETY (every pointer below): `i + 8 <= TILE_PX`, as in the forward.
-                let p = |a: &mut [f32; TILE_PX]| unsafe { a.as_mut_ptr().add(i) };
-                let last = unsafe { _mm256_loadu_si256(st.last.as_ptr().add(i) as *const __m256i) };
-                let in_list = _mm256_cmpgt_epi32(last, kv);
-                let outside = _mm256_or_si256(
-                    _mm256_cmpgt_epi32(_mm256_set1_epi32(lx0), lx),
-                    _mm256_cmpgt_epi32(lx, _mm256_set1_epi32(lx1)),
-                );
-                let near = _mm256_and_ps(
-                    _mm256_castsi256_ps(_mm256_andnot_si256(outside, in_list)),
-                    _mm256_and_ps(
-                        _mm256_cmp_ps::<_CMP_GE_OQ>(sigma, zero),
-                        _mm256_cmp_ps::<_CMP_LE_OQ>(sigma, cut),
-                    ),
-                );
-                // As in the forward: no exponential for a block no lane of which can blend.
-                if _mm256_movemask_ps(near) == 0 {
-                    bx += LANES;
-                    continue;
-                }
-                let vis = exp_neg(sigma);
-                let raw = _mm256_mul_ps(o, vis);
-                let alpha = _mm256_min_ps(max_alpha, raw);
-                let ok = _mm256_and_ps(near, _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, thr));
-                if _mm256_movemask_ps(ok) == 0 {
-                    bx += LANES;
-                    continue;
-                }
-                unsafe {
-                    let ra = _mm256_div_ps(one, _mm256_sub_ps(one, alpha));
-                    let tr0 = _mm256_loadu_ps(p(&mut st.tr));
-                    let t = _mm256_blendv_ps(tr0, _mm256_mul_ps(tr0, ra), ok);
-                    _mm256_storeu_ps(p(&mut st.tr), t);
-                    let fac = _mm256_mul_ps(alpha, t);
-                    let vc0 = _mm256_loadu_ps(p(&mut st.v_c[0]));
-                    let vc1 = _mm256_loadu_ps(p(&mut st.v_c[1]));
-                    let vc2 = _mm256_loadu_ps(p(&mut st.v_c[2]));
-                    let vd = _mm256_loadu_ps(p(&mut st.v_dsum));
-                    let vf = _mm256_loadu_ps(p(&mut st.v_final));
-                    let b0v = _mm256_loadu_ps(p(&mut st.behind[0]));
-                    let b1v = _mm256_loadu_ps(p(&mut st.behind[1]));
-                    let b2v = _mm256_loadu_ps(p(&mut st.behind[2]));
-                    let bzv = _mm256_loadu_ps(p(&mut st.behind_z));
-                    // (c·t − b·ra), the factor of each pixel gradient in ∂L/∂α.
-                    let term = |c: __m256, b: __m256| _mm256_fmsub_ps(c, t, _mm256_mul_ps(b, ra));
-                    let v_alpha = _mm256_mul_ps(term(cx, b0v), vc0);
-                    let v_alpha = _mm256_fmadd_ps(term(cy, b1v), vc1, v_alpha);
-                    let v_alpha = _mm256_fmadd_ps(term(cz, b2v), vc2, v_alpha);
-                    let v_alpha = _mm256_fmadd_ps(term(zz, bzv), vd, v_alpha);
-                    let v_alpha = _mm256_fmadd_ps(ra, vf, v_alpha);
-                    let on = |a: __m256, add: __m256, m: __m256| {
-                        _mm256_blendv_ps(a, _mm256_add_ps(a, add), m)
-                    };
-                    // a + x·y, fused, on the lanes of m.
-                    let on_fma = |a: __m256, x: __m256, y: __m256, m: __m256| {
-                        _mm256_blendv_ps(a, _mm256_fmadd_ps(x, y, a), m)
-                    };
-                    acc[7] = on_fma(acc[7], vc0, fac, ok);
-                    acc[8] = on_fma(acc[8], vc1, fac, ok);
-                    acc[9] = on_fma(acc[9], vc2, fac, ok);
-                    acc[11] = on_fma(acc[11], vd, fac, ok);
-                    _mm256_storeu_ps(p(&mut st.behind[0]), on_fma(b0v, cx, fac, ok));
-                    _mm256_storeu_ps(p(&mut st.behind[1]), on_fma(b1v, cy, fac, ok));
-                    _mm256_storeu_ps(p(&mut st.behind[2]), on_fma(b2v, cz, fac, ok));
-                    _mm256_storeu_ps(p(&mut st.behind_z), on_fma(bzv, zz, fac, ok));
-                    let grad = _mm256_and_ps(ok, _mm256_cmp_ps::<_CMP_LE_OQ>(raw, max_alpha));
-                    let v_sigma = _mm256_mul_ps(_mm256_xor_ps(raw, sign), v_alpha);
-                    let vmx =
-                        _mm256_mul_ps(v_sigma, _mm256_fmadd_ps(ca, dx, _mm256_mul_ps(cb, dy)));
-                    let vmy =
-                        _mm256_mul_ps(v_sigma, _mm256_fmadd_ps(cb, dx, _mm256_mul_ps(cc, dy)));
-                    let hv = _mm256_mul_ps(half, v_sigma);
-                    acc[0] = on(acc[0], vmx, grad);
-                    acc[1] = on(acc[1], vmy, grad);
-                    acc[2] = on(acc[2], _mm256_andnot_ps(sign, vmx), grad);
-                    acc[3] = on(acc[3], _mm256_andnot_ps(sign, vmy), grad);
-                    acc[4] = on_fma(acc[4], _mm256_mul_ps(hv, dx), dx, grad);
-                    acc[5] = on_fma(acc[5], _mm256_mul_ps(v_sigma, dx), dy, grad);
-                    acc[6] = on_fma(acc[6], _mm256_mul_ps(hv, dy), dy, grad);
-                    acc[10] = on_fma(acc[10], vis, v_alpha, grad);
-                }
-                bx += LANES;
-            }
-        }
-        let mut lanes = [[0.0f32; LANES]; SUMS];
-        for (q, a) in acc.iter().enumerate() {
-            // SAFETY: an array of eight f32 is the size of a __m256.
-            unsafe { _mm256_storeu_ps(lanes[q].as_mut_ptr(), *a) };
-        }
-        super::reduce(&lanes)
-    }
+    };
 }
+
+simd_kernels!(avx2, "avx2,fma,popcnt");
+simd_kernels!(avx512, "avx2,fma,popcnt,avx512f,avx512vl");
 
 /// Per-splat gradient sums, in lanes while a splat is visited and reduced once when it is
 /// done: mean2d (2), |mean2d| (2), conic (3), colour (3), opacity, depth.
@@ -594,6 +648,7 @@ pub fn backward_tile(
     let st = &mut *scratch.0;
     *st = BackState::zeroed();
     let mut kmax = 0;
+    let isa = Isa::chosen();
     for ly in 0..h as usize {
         for lx in 0..w as usize {
             let i = ly * STRIDE + lx;
@@ -609,7 +664,7 @@ pub fn backward_tile(
     // One write per slot, back to front: the caller relies on every slot being written.
     for (k, slot) in out.iter_mut().enumerate().rev() {
         let sums = if k < kmax {
-            backward_splat_with(&splats[k], k as u32, tile, st, true)
+            backward_splat_with(&splats[k], k as u32, tile, st, isa)
         } else {
             [0.0; SUMS]
         };
@@ -630,20 +685,23 @@ fn reduce(sums: &[Lanes; SUMS]) -> [f32; SUMS] {
     std::array::from_fn(|q| sums[q].iter().fold(0.0, |a, v| a + v))
 }
 
-/// [`backward_splat`], in AVX2 when `simd` and the CPU allow (the same bits either way).
+/// [`backward_splat`] with the kernels of `isa`, which must be [`Isa::available`] (the same
+/// bits with any).
 fn backward_splat_with(
     s: &Splat,
     k: u32,
     tile: (u32, u32, u32, u32),
     st: &mut BackState,
-    simd: bool,
+    isa: Isa,
 ) -> [f32; SUMS] {
-    #[cfg(target_arch = "x86_64")]
-    if simd && avx2_enabled() {
-        // SAFETY: the CPU has AVX2, FMA and POPCNT (checked at run time).
-        return unsafe { avx2::backward_splat(s, k, tile, st) };
+    match isa {
+        // SAFETY: the CPU has the build's instruction set (its caller's promise).
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 => unsafe { avx2::backward_splat(s, k, tile, st) },
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 => unsafe { avx512::backward_splat(s, k, tile, st) },
+        _ => backward_splat(s, k, tile, st),
     }
-    backward_splat(s, k, tile, st)
 }
 
 /// Splat `k` undone from the pixels of its box, back to front: the portable lanes the AVX2
@@ -725,14 +783,21 @@ fn backward_splat(
 mod tests {
     use super::*;
 
-    /// Every tile of a random scene through the AVX2 kernel and the portable loop.
-    #[test]
-    fn avx2_and_portable_kernels_give_the_same_bits() {
-        #[cfg(target_arch = "x86_64")]
-        if !avx2_enabled() {
-            eprintln!("SKIP: this CPU has no AVX2");
-            return;
+    /// The intrinsics builds this CPU runs, with a note of those it cannot.
+    fn simd_builds() -> Vec<Isa> {
+        let v: Vec<Isa> = Isa::available()
+            .into_iter()
+            .filter(|&i| i != Isa::Portable)
+            .collect();
+        if v.len() < 2 {
+            eprintln!("SKIP (in part): this CPU runs only {v:?} of the intrinsics builds");
         }
+        v
+    }
+
+    /// Every tile of a random scene through each intrinsics build and the portable loop.
+    #[test]
+    fn simd_and_portable_kernels_give_the_same_bits() {
         let g = crate::synthetic::random_box_scene(5, 20_000, 1);
         let cam = crate::synthetic::benchmark_camera().resized(252, 189);
         let pos = cam.position();
@@ -745,7 +810,7 @@ mod tests {
         for t in 0..bins.num_tiles() {
             let list = crate::raster::gather(&bins, &splats, t);
             let tile = crate::raster::tile_pixels(&bins, t, cam.width, cam.height);
-            let run = |simd| {
+            let run = |isa| {
                 let mut st = TileState {
                     tr: [1.0; TILE_PX],
                     c: [[0.0; TILE_PX]; 3],
@@ -753,7 +818,7 @@ mod tests {
                     last: [0; TILE_PX],
                     done: [0; TILE_PX],
                 };
-                let n = forward_tile_dispatch(&list, tile, &mut st, simd);
+                let n = forward_tile_dispatch(&list, tile, &mut st, isa);
                 let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                 (
                     n,
@@ -764,21 +829,19 @@ mod tests {
                     st.last,
                 )
             };
-            assert!(run(true) == run(false), "tile {t}");
+            let want = run(Isa::Portable);
+            for isa in simd_builds() {
+                assert!(run(isa) == want, "tile {t}, {isa:?}");
+            }
             checked += list.len();
         }
         assert!(checked > 10_000, "the scene barely touches the image");
     }
 
-    /// The backward of every tile of a random scene, with made-up pixel gradients, through the
-    /// AVX2 kernel and the portable loop.
+    /// The backward of every tile of a random scene, with made-up pixel gradients, through
+    /// each intrinsics build and the portable loop.
     #[test]
-    fn avx2_and_portable_backward_give_the_same_bits() {
-        #[cfg(target_arch = "x86_64")]
-        if !avx2_enabled() {
-            eprintln!("SKIP: this CPU has no AVX2");
-            return;
-        }
+    fn simd_and_portable_backward_give_the_same_bits() {
         let g = crate::synthetic::random_box_scene(6, 20_000, 1);
         let cam = crate::synthetic::benchmark_camera().resized(252, 189);
         let settings = crate::RenderSettings {
@@ -803,7 +866,7 @@ mod tests {
                 last: [0; TILE_PX],
                 done: [0; TILE_PX],
             };
-            forward_tile_dispatch(&list, tile, &mut fwd, false);
+            forward_tile_dispatch(&list, tile, &mut fwd, Isa::Portable);
             let start = BackState {
                 tr: fwd.tr,
                 last: fwd.last,
@@ -816,12 +879,12 @@ mod tests {
                 behind_z: [0.0; TILE_PX],
             };
             let kmax = fwd.last.iter().copied().max().unwrap_or(0);
-            let run = |simd| {
+            let run = |isa| {
                 let mut st = Box::new(start.clone());
                 let sums: Vec<[u32; SUMS]> = (0..kmax)
                     .rev()
                     .map(|k| {
-                        backward_splat_with(&list[k as usize], k, tile, &mut st, simd)
+                        backward_splat_with(&list[k as usize], k, tile, &mut st, isa)
                             .map(f32::to_bits)
                     })
                     .collect();
@@ -831,7 +894,10 @@ mod tests {
                     st.behind[1].map(f32::to_bits),
                 )
             };
-            assert!(run(true) == run(false), "tile {t}");
+            let want = run(Isa::Portable);
+            for isa in simd_builds() {
+                assert!(run(isa) == want, "tile {t}, {isa:?}");
+            }
             compared += kmax;
         }
         assert!(
