@@ -576,12 +576,24 @@ macro_rules! simd_kernels {
                         bx += LANES;
                     }
                 }
-                let mut lanes = [[0.0f32; LANES]; SUMS];
-                for (q, a) in acc.iter().enumerate() {
-                    // SAFETY: an array of eight f32 is the size of a __m256.
-                    unsafe { _mm256_storeu_ps(lanes[q].as_mut_ptr(), *a) };
+                reduce(&acc)
+            }
+
+            /// [`crate::blocks::reduce`] on the vectors: `_mm256_hadd_ps` adds neighbouring
+            /// lanes within each half, twice, which leaves the sums of lanes 0–3 and of lanes
+            /// 4–7 of four accumulators in one vector; its halves are added last.
+            #[inline]
+            #[target_feature(enable = $features)]
+            fn reduce(acc: &[__m256; SUMS]) -> [f32; SUMS] {
+                let h = |a, b| _mm256_hadd_ps(a, b);
+                let mut out = [0.0f32; SUMS];
+                for (q, four) in acc.chunks_exact(4).enumerate() {
+                    let v = h(h(four[0], four[1]), h(four[2], four[3]));
+                    let sum = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps::<1>(v));
+                    // SAFETY: four floats from 4q, and SUMS is a multiple of four.
+                    unsafe { _mm_storeu_ps(out.as_mut_ptr().add(4 * q), sum) };
                 }
-                crate::blocks::reduce(&lanes)
+                out
             }
         }
     };
@@ -593,6 +605,8 @@ simd_kernels!(avx512, "avx2,fma,popcnt,avx512f,avx512vl");
 /// Per-splat gradient sums, in lanes while a splat is visited and reduced once when it is
 /// done: mean2d (2), |mean2d| (2), conic (3), colour (3), opacity, depth.
 const SUMS: usize = 12;
+// The vector reduction takes the sums four at a time.
+const _: () = assert!(SUMS % 4 == 0);
 
 /// What the backward keeps per pixel of a tile, structure of arrays (see
 /// `raster::backward_tile` for what each is).
@@ -679,10 +693,14 @@ pub fn backward_tile(
     }
 }
 
-/// The lanes of `sums` added up, lane 0 first.
+/// The lanes of `sums` added up as a tree, `((l0 + l1) + (l2 + l3)) + ((l4 + l5) + (l6 + l7))`:
+/// the order in which horizontal vector adds sum them.
 #[inline(always)]
 fn reduce(sums: &[Lanes; SUMS]) -> [f32; SUMS] {
-    std::array::from_fn(|q| sums[q].iter().fold(0.0, |a, v| a + v))
+    std::array::from_fn(|q| {
+        let l = &sums[q];
+        ((l[0] + l[1]) + (l[2] + l[3])) + ((l[4] + l[5]) + (l[6] + l[7]))
+    })
 }
 
 /// [`backward_splat`] with the kernels of `isa`, which must be [`Isa::available`] (the same
