@@ -6,6 +6,11 @@
 
 use std::time::Instant;
 
+// The allocator of the `metasplat` binary, so the page faults of fresh buffers are what the
+// trainer sees.
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use splat::render::{Kernels, render_for_backward_with};
 use splat::synthetic::{benchmark_camera, random_box_scene};
 use splat::{RenderSettings, render_backward};
