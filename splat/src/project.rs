@@ -259,8 +259,10 @@ pub struct ParamGrad {
     pub sh_dc: Vec3,
 }
 
-/// Backward of [`project_one`] for a visible Gaussian. Writes SH rest gradients into `v_rest`
-/// (which must be zeroed, `rest_count` long).
+/// Backward of [`project_one`] for a visible Gaussian whose forward colour was `color` (after
+/// the clamp at zero; it tells which channels the clamp stopped, so the SH need not be
+/// evaluated again). Writes SH rest gradients into `v_rest` (which must be zeroed,
+/// `rest_count` long).
 #[allow(clippy::too_many_arguments)]
 pub fn project_backward_one(
     g: &Gaussians,
@@ -269,6 +271,7 @@ pub fn project_backward_one(
     sh_degree: u32,
     antialiased: bool,
     cam_pos: Vec3,
+    color: Vec3,
     v: &ScreenGrad,
     v_rest: &mut [Vec3],
 ) -> ParamGrad {
@@ -369,16 +372,12 @@ pub fn project_backward_one(
     }
     out.mean = cam.rotation.transpose() * v_pc;
 
-    // Colour: the clamp at zero passes gradient only where it did not clamp.
+    // Colour: the clamp at zero passes gradient only where it did not clamp, i.e. where the
+    // clamped colour `max(pre, 0)` is positive, which is where `pre` is.
     let raw = g.means[i] - cam_pos;
     let len = raw.length();
     let dir = if len > 0.0 { raw / len } else { Vec3::ZERO };
-    let pre = if sh_degree == 0 {
-        sh::sh_dc_to_rgb(g.sh_dc[i])
-    } else {
-        sh::eval(sh_degree, g.sh_dc[i], g.sh_rest_of(i), dir)
-    };
-    let v_color = Vec3::select(pre.cmpgt(Vec3::ZERO), v.color, Vec3::ZERO);
+    let v_color = Vec3::select(color.cmpgt(Vec3::ZERO), v.color, Vec3::ZERO);
     let v_dir = sh::eval_backward(
         sh_degree,
         g.sh_rest_of(i),

@@ -371,18 +371,21 @@ pub fn render_backward(
         })
         .collect();
     drop(isect);
-    let r = gradients_from_screen(g, cam, settings, &screen, |i| starts[i] != starts[i + 1]);
+    let r = gradients_from_screen(g, cam, settings, &screen, &st.splats, |i| {
+        starts[i] != starts[i + 1]
+    });
     Ok(r)
 }
 
 /// Parameter gradients from the per-Gaussian screen-space gradients (with the sums of
-/// `|∂L/∂mean2d|`) of a backward pass over the pixels; `touched(i)`: Gaussian `i` was in some
-/// tile's list. Shared by the CPU and GPU rasterizers: one projection backward for both.
+/// `|∂L/∂mean2d|`) of a backward pass over the pixels; `splats`: the forward's screen-space
+/// splats (their colours); `touched(i)`: Gaussian `i` was in some tile's list.
 pub(crate) fn gradients_from_screen(
     g: &Gaussians,
     cam: &Camera,
     settings: &RenderSettings,
     screen: &[(ScreenGrad, glam::Vec2)],
+    splats: &[raster::Splat],
     touched: impl Fn(usize) -> bool + Sync,
 ) -> Gradients {
     let n = g.len();
@@ -403,6 +406,7 @@ pub(crate) fn gradients_from_screen(
                 settings.sh_degree,
                 settings.antialiased,
                 cam_pos,
+                splats[i].color(),
                 sg,
                 v_rest,
             )
