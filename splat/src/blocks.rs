@@ -149,7 +149,7 @@ impl Isa {
                 .into_iter()
                 .filter(|&i| !(off("METASPLAT_NO_AVX2") && i != Isa::Portable))
                 .filter(|&i| !(off("METASPLAT_NO_AVX512") && i == Isa::Avx512))
-                .last()
+                .next_back()
                 .unwrap_or(Isa::Portable)
         })
     }
@@ -606,7 +606,7 @@ simd_kernels!(avx512, "avx2,fma,popcnt,avx512f,avx512vl");
 /// done: mean2d (2), |mean2d| (2), conic (3), colour (3), opacity, depth.
 const SUMS: usize = 12;
 // The vector reduction takes the sums four at a time.
-const _: () = assert!(SUMS % 4 == 0);
+const _: () = assert!(SUMS.is_multiple_of(4));
 
 /// What the backward keeps per pixel of a tile, structure of arrays (see
 /// `raster::backward_tile` for what each is).
