@@ -148,8 +148,7 @@ impl Isa {
             Isa::available()
                 .into_iter()
                 .filter(|&i| !(off("METASPLAT_NO_AVX2") && i != Isa::Portable))
-                .filter(|&i| !(off("METASPLAT_NO_AVX512") && i == Isa::Avx512))
-                .next_back()
+                .rfind(|&i| !(off("METASPLAT_NO_AVX512") && i == Isa::Avx512))
                 .unwrap_or(Isa::Portable)
         })
     }
