@@ -46,16 +46,21 @@ fn main() {
     let (mut fwd_wall, mut fwd_cpu, mut bwd_wall, mut bwd_cpu) = (0.0, 0.0, 0.0, 0.0);
     let mut checksum = 0.0;
     let mut out = None;
+    // Per call CPU milliseconds, for medians that one slow call on a shared machine (or the
+    // first call's page faults) does not move.
+    let (mut fwd_calls, mut bwd_calls) = (Vec::new(), Vec::new());
     for _ in 0..repeats {
         let (t, c) = (Instant::now(), cpu_ns());
         let (o, saved) = render_for_backward_with(&g, &cam, &s, kernels).expect("render");
         fwd_wall += t.elapsed().as_secs_f64();
         fwd_cpu += (cpu_ns() - c) as f64 * 1e-9;
+        fwd_calls.push((cpu_ns() - c) as f64 * 1e-6);
         if backward {
             let (t, c) = (Instant::now(), cpu_ns());
             let gr = render_backward(&g, &saved, &v, None, None).expect("backward");
             bwd_wall += t.elapsed().as_secs_f64();
             bwd_cpu += (cpu_ns() - c) as f64 * 1e-9;
+            bwd_calls.push((cpu_ns() - c) as f64 * 1e-6);
             checksum = gr.params.logit_opacities.iter().sum::<f32>();
         }
         out = Some(o);
@@ -77,4 +82,13 @@ fn main() {
             bwd_cpu / r
         );
     }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(0.0)
+    };
+    println!(
+        "median cpu per call: forward {:.1} ms, backward {:.1} ms",
+        median(&mut fwd_calls),
+        median(&mut bwd_calls)
+    );
 }
