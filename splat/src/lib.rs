@@ -14,6 +14,8 @@ pub mod files;
 pub mod glb;
 #[cfg(feature = "gpu")]
 pub mod gpu;
+#[doc(hidden)]
+pub mod lanes;
 pub mod loss;
 pub mod model;
 pub mod optim;
@@ -31,6 +33,8 @@ pub mod synthetic;
 pub mod blocks;
 #[doc(hidden)]
 pub mod project;
+#[doc(hidden)]
+pub mod project_lanes;
 #[doc(hidden)]
 pub mod raster;
 #[doc(hidden)]

@@ -12,8 +12,10 @@ use rayon::prelude::*;
 use crate::blocks;
 use crate::camera::Camera;
 use crate::error::SplatError;
+use crate::lanes;
 use crate::model::Gaussians;
 use crate::project::{self, Projected, ScreenGrad};
+use crate::project_lanes::project_lanes;
 use crate::raster::{self, IsectGrad, PixelGrads, Splat};
 use crate::tiles::{self, TileBins};
 
@@ -145,14 +147,28 @@ fn forward(
     kernels: Kernels,
 ) -> Result<(RenderOutput, Option<ForwardState>), SplatError> {
     check_inputs(g, cam, settings)?;
-    let cam_pos = cam.position();
-    let projected: Vec<Projected> = (0..g.len())
-        .into_par_iter()
-        .map(|i| {
-            project::project_one(g, i, cam, settings.sh_degree, settings.antialiased, cam_pos)
-                .unwrap_or_default()
-        })
-        .collect();
+    let n = g.len();
+    let mut projected: Vec<Projected> = Vec::with_capacity(n);
+    // Eight Gaussians at a time ([`project_lanes`]), each block written into its own slots.
+    projected.spare_capacity_mut()[..n]
+        .par_chunks_mut(lanes::N)
+        .enumerate()
+        .for_each(|(b, slots)| {
+            let first = b * lanes::N;
+            let block = project_lanes(
+                g,
+                first,
+                slots.len(),
+                cam,
+                settings.sh_degree,
+                settings.antialiased,
+            );
+            for (slot, p) in slots.iter_mut().zip(block) {
+                slot.write(p);
+            }
+        });
+    // SAFETY: the chunks cover `0 .. n` and every slot of each was written.
+    unsafe { projected.set_len(n) };
     let (w, h) = (cam.width, cam.height);
     let bins = tiles::bin(&projected, w, h);
     let splats: Vec<Splat> = projected.par_iter().map(Splat::new).collect();
