@@ -129,6 +129,11 @@ impl F8 {
     }
 
     #[inline(always)]
+    pub fn ne(self, o: F8) -> M8 {
+        self.test(o, |a, b| a != b)
+    }
+
+    #[inline(always)]
     pub fn is_finite(self) -> M8 {
         M8(std::array::from_fn(|l| self.0[l].is_finite()))
     }

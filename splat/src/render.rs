@@ -11,11 +11,12 @@ use rayon::prelude::*;
 
 use crate::blocks;
 use crate::camera::Camera;
+use crate::disjoint::Disjoint;
 use crate::error::SplatError;
 use crate::lanes;
 use crate::model::Gaussians;
 use crate::project::{self, Projected, ScreenGrad};
-use crate::project_lanes::project_lanes;
+use crate::project_lanes::{project_backward_lanes, project_lanes};
 use crate::raster::{self, IsectGrad, PixelGrads, Splat};
 use crate::tiles::{self, TileBins};
 
@@ -405,42 +406,48 @@ pub(crate) fn gradients_from_screen(
     touched: impl Fn(usize) -> bool + Sync,
 ) -> Gradients {
     let n = g.len();
-    let cam_pos = cam.position();
     let rc = g.rest_count();
     // Built in parallel, field by field: serial zero-filling and copying of these buffers
     // would be a large part of a step's serial time.
     let mut sh_rest: Vec<Vec3> = (0..n * rc).into_par_iter().map(|_| Vec3::ZERO).collect();
-    let per_gaussian = |i: usize, v_rest: &mut [Vec3]| {
-        let (sg, abs) = &screen[i];
-        let pg = if !touched(i) {
-            project::ParamGrad::default()
-        } else {
-            project::project_backward_one(
-                g,
-                i,
-                cam,
-                settings.sh_degree,
-                settings.antialiased,
-                cam_pos,
-                splats[i].color(),
-                sg,
-                v_rest,
-            )
-        };
-        (pg, [sg.mean2d.x, sg.mean2d.y], [abs.x, abs.y])
-    };
-    let results: Vec<_> = if rc == 0 {
-        (0..n)
-            .into_par_iter()
-            .map(|i| per_gaussian(i, &mut []))
-            .collect()
-    } else {
-        sh_rest
-            .par_chunks_mut(rc)
+    // Eight Gaussians at a time ([`project_backward_lanes`]), each block writing its own
+    // slots of the results and of the SH buffer.
+    let mut results: Vec<(project::ParamGrad, [f32; 2], [f32; 2])> = Vec::with_capacity(n);
+    {
+        let rest = Disjoint::new(&mut sh_rest);
+        results.spare_capacity_mut()[..n]
+            .par_chunks_mut(lanes::N)
             .enumerate()
-            .map(|(i, v_rest)| per_gaussian(i, v_rest))
-            .collect()
-    };
+            .for_each(|(b, slots)| {
+                let first = b * lanes::N;
+                let count = slots.len();
+                let part = &screen[first..first + count];
+                let last = count - 1;
+                let sg: [ScreenGrad; lanes::N] = std::array::from_fn(|l| part[l.min(last)].0);
+                let colors: [Vec3; lanes::N] =
+                    std::array::from_fn(|l| splats[first + l.min(last)].color());
+                let touched = std::array::from_fn(|l| l < count && touched(first + l));
+                // SAFETY: the SH part of Gaussians `first .. first + count` is this block's.
+                let v_rest = unsafe { rest.part(first * rc, count * rc) };
+                let grads = project_backward_lanes(
+                    g,
+                    first,
+                    cam,
+                    settings.sh_degree,
+                    settings.antialiased,
+                    &colors[..count],
+                    &sg[..count],
+                    touched,
+                    v_rest,
+                );
+                for (l, slot) in slots.iter_mut().enumerate() {
+                    let (s, abs) = &part[l];
+                    slot.write((grads[l], [s.mean2d.x, s.mean2d.y], [abs.x, abs.y]));
+                }
+            });
+    }
+    // SAFETY: the chunks cover `0 .. n` and every slot of each was written.
+    unsafe { results.set_len(n) };
     let grads = Gaussians {
         means: results.par_iter().map(|r| r.0.mean).collect(),
         log_scales: results.par_iter().map(|r| r.0.log_scale).collect(),
