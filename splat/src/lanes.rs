@@ -1,8 +1,8 @@
 //! Eight `f32` lanes as one value, for code that handles eight Gaussians at once
 //! ([`crate::project_lanes`]). Every operation is a loop over the lanes, which the compiler
 //! turns into vector instructions (AVX2 where the caller is compiled with it); no lane mixes
-//! with another, so each lane gets the bits a scalar evaluation of the same expression gets,
-//! except in [`F8::exp`], a polynomial.
+//! with another, so each lane gets the bits a scalar evaluation of the same expression gets
+//! ([`F8::exp`] included, but for rare arguments where it rounds the other way from `expf`).
 
 use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
