@@ -2,9 +2,9 @@
 //! Gaussians at once, as the CPU renderer runs them: the same steps and rules (cull, EWA
 //! covariance with the Jacobian clamp, low-pass, antialiasing, opacity-aware radius, SH colour,
 //! and their gradients) on [`F8`] lanes, which the compiler vectorises. They agree with the
-//! scalar functions within float32 rounding (the exponentials round as `expf` does but for
-//! 0.06 % of arguments, and some sums run in another order; tested), so a radius may differ by
-//! one pixel where its extent lands on an integer.
+//! scalar functions within float32 rounding (the exponentials round as `expf` does except for a
+//! few arguments in ten thousand, and some sums run in another order; tested), so a radius may
+//! differ by one pixel where its extent lands on an integer.
 
 use glam::{Vec2, Vec3};
 
