@@ -97,17 +97,27 @@ pub fn photometric_loss(
     height: u32,
     dssim_weight: f32,
 ) -> Result<PhotometricLoss, SplatError> {
-    let l = l1(rendered, target, width, height)?;
+    check(rendered, target, width, height)?;
+    let inv = 1.0 / (3 * rendered.len()) as f32;
+    let l1 = base::sum_pairs(rendered, target, |r, t| {
+        (*r - *t).abs().element_sum() as f64
+    });
+    let l1 = (l1 * inv as f64) as f32;
     let s = ssim(rendered, target, width, height)?;
-    let grad = l
-        .grad
-        .par_iter()
-        .zip(&s.grad)
-        .map(|(a, b)| *a * (1.0 - dssim_weight) - *b * dssim_weight)
-        .collect();
+    // The L1 gradient (as `l1` gives it) mixed into the SSIM gradient's own buffer: the same
+    // arithmetic as mixing two gradient images, without making them.
+    let mut grad = s.grad;
+    grad.par_iter_mut()
+        .zip(rendered)
+        .zip(target)
+        .for_each(|((g, r), t)| {
+            let d = *r - *t;
+            let a = Vec3::new(sign(d.x), sign(d.y), sign(d.z)) * inv;
+            *g = a * (1.0 - dssim_weight) - *g * dssim_weight;
+        });
     Ok(PhotometricLoss {
-        value: (1.0 - dssim_weight) * l.value + dssim_weight * (1.0 - s.value),
-        l1: l.value,
+        value: (1.0 - dssim_weight) * l1 + dssim_weight * (1.0 - s.value),
+        l1,
         ssim: s.value,
         grad,
     })

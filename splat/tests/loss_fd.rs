@@ -115,6 +115,16 @@ fn l1_and_photometric_gradients_match_finite_differences() {
     assert!((l.value as f64 - direct).abs() < 1e-6);
     let p = photometric_loss(&x, &y, w, h, 0.2).unwrap();
     assert!((p.value - (0.8 * p.l1 + 0.2 * (1.0 - p.ssim))).abs() < 1e-6);
+    // Its gradient is the two gradients mixed, to the bit.
+    let s = ssim(&x, &y, w, h).unwrap();
+    let mixed: Vec<Vec3> = l
+        .grad
+        .iter()
+        .zip(&s.grad)
+        .map(|(a, b)| *a * 0.8 - *b * 0.2)
+        .collect();
+    assert_eq!(p.grad, mixed);
+    assert_eq!(p.l1, l.value);
     let (xf, yf) = (flat(&x), flat(&y));
     let loss = |v: &[f64]| {
         let l1: f64 = v.iter().zip(&yf).map(|(a, b)| (a - b).abs()).sum::<f64>() / 189.0;

@@ -5,6 +5,7 @@
 
 use aberration::ImagingModel;
 use glam::Vec3;
+use rayon::prelude::*;
 use splat::loss::photometric_loss;
 
 use crate::error::{Result, TrainError};
@@ -46,8 +47,14 @@ pub struct Objective<'a> {
 
 impl Objective<'_> {
     fn term(&self, image: &[Vec3], target: &[Vec3]) -> Result<(f32, Vec<Vec3>, f64)> {
+        let (v, g) = self.term_without_psnr(image, target)?;
+        Ok((v, g, base::psnr_rgb(image, target)?))
+    }
+
+    /// The loss and its gradient, for a term whose PSNR nothing reports.
+    fn term_without_psnr(&self, image: &[Vec3], target: &[Vec3]) -> Result<(f32, Vec<Vec3>)> {
         let l = photometric_loss(image, target, self.width, self.height, self.dssim_weight)?;
-        Ok((l.value, l.grad, base::psnr_rgb(image, target)?))
+        Ok((l.value, l.grad))
     }
 
     fn blur(&self) -> Result<&ImagingModel> {
@@ -140,17 +147,16 @@ impl Objective<'_> {
                 done(Stage::Loss);
                 let g_abr = self.blur()?.plan().adjoint_pixels(&g_blurred)?;
                 done(Stage::Adjoint);
-                let (v_ac, g_ac, _) = if self.lambda != 0.0 {
-                    self.term(rendered, restored()?)?
+                let (v_ac, g_ac) = if self.lambda != 0.0 {
+                    self.term_without_psnr(rendered, restored()?)?
                 } else {
-                    (0.0, vec![Vec3::ZERO; rendered.len()], 0.0)
+                    (0.0, vec![Vec3::ZERO; rendered.len()])
                 };
                 done(Stage::Loss);
-                let grad = g_abr
-                    .iter()
+                let mut grad = g_abr;
+                grad.par_iter_mut()
                     .zip(&g_ac)
-                    .map(|(a, b)| *a + *b * self.lambda)
-                    .collect();
+                    .for_each(|(a, b)| *a += *b * self.lambda);
                 done(Stage::Adjoint);
                 let parts = LossParts {
                     total: v_abr + self.lambda * v_ac,
