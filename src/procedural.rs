@@ -91,12 +91,7 @@ pub fn ground_truth(seed: u64) -> Gaussians {
     ];
     for (center, radius, color) in balls {
         for _ in 0..1500 {
-            let d = Vec3::new(
-                rng.normal() as f32,
-                rng.normal() as f32,
-                rng.normal() as f32,
-            )
-            .normalize_or(Vec3::Z);
+            let d = rng.normal_vec3().normalize_or(Vec3::Z);
             let shade = 0.6 + 0.4 * (-d.y).max(0.0);
             g.push(
                 center + d * radius,
@@ -157,14 +152,7 @@ pub fn cameras(o: &ProceduralOptions) -> Vec<Camera> {
 pub fn ground_truth_around(seed: u64) -> Gaussians {
     let mut g = Gaussians::new(0);
     let mut rng = SplitMix64::new(seed ^ 0xA120);
-    let dir = |rng: &mut SplitMix64| {
-        Vec3::new(
-            rng.normal() as f32,
-            rng.normal() as f32,
-            rng.normal() as f32,
-        )
-        .normalize_or(Vec3::Z)
-    };
+    let dir = |rng: &mut SplitMix64| rng.normal_vec3().normalize_or(Vec3::Z);
     // A ball with bands around it: the texture changes with the view direction.
     let (center, radius) = (Vec3::new(-0.35, -0.2, 0.0), 0.6);
     for _ in 0..12_000 {

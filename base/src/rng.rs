@@ -50,6 +50,19 @@ impl SplitMix64 {
             .collect()
     }
 
+    /// Three standard normals, x then y then z (random directions, pixel gradients).
+    pub fn normal_vec3(&mut self) -> glam::Vec3 {
+        let x = self.normal() as f32;
+        let y = self.normal() as f32;
+        let z = self.normal() as f32;
+        glam::Vec3::new(x, y, z)
+    }
+
+    /// `n` values of [`Self::normal_vec3`] (random pixel gradients in tests).
+    pub fn normal_rgb(&mut self, n: usize) -> Vec<glam::Vec3> {
+        (0..n).map(|_| self.normal_vec3()).collect()
+    }
+
     /// Standard normal via Box-Muller (one value per call; the twin is dropped for simplicity).
     pub fn normal(&mut self) -> f64 {
         // 1 - u keeps the log argument in (0, 1].

@@ -60,11 +60,7 @@ pub fn split_gaussians(
         let (rot, _, _) = quat_to_rotmat(src.rotations[i]);
         let scale = src.log_scales[i].exp();
         for _ in 0..2 {
-            let n = Vec3::new(
-                rng.normal() as f32,
-                rng.normal() as f32,
-                rng.normal() as f32,
-            );
+            let n = rng.normal_vec3();
             g.push(
                 src.means[i] + rot * (scale * n),
                 src.log_scales[i] - Vec3::splat(shrink),

@@ -24,15 +24,7 @@ fn run(threads: usize) -> Vec<u32> {
         let scene = cpu.upload(&g).unwrap();
         let (out, saved) = cpu.render_for_backward(&scene, &cam, &s).unwrap();
         let mut rng = SplitMix64::new(1);
-        let v: Vec<Vec3> = (0..cam.num_pixels())
-            .map(|_| {
-                Vec3::new(
-                    rng.normal() as f32,
-                    rng.normal() as f32,
-                    rng.normal() as f32,
-                )
-            })
-            .collect();
+        let v: Vec<Vec3> = rng.normal_rgb(cam.num_pixels());
         let pixel = PixelGradients {
             color: &v,
             alpha: Some(&out.alpha),

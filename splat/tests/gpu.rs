@@ -323,15 +323,7 @@ fn a_resident_training_step_matches_the_cpu_step() {
     let lr = splat::optim::LearningRates::default();
     let np = cam.num_pixels();
     let mut rng = base::SplitMix64::new(5);
-    let v_color: Vec<Vec3> = (0..np)
-        .map(|_| {
-            Vec3::new(
-                rng.normal() as f32,
-                rng.normal() as f32,
-                rng.normal() as f32,
-            )
-        })
-        .collect();
+    let v_color: Vec<Vec3> = rng.normal_rgb(np);
     let pixel = PixelGradients::color(&v_color);
 
     let cpu = CpuRasterizer;

@@ -31,15 +31,7 @@ fn identity_camera(width: u32, height: u32) -> Camera {
 fn run_all(g: &Gaussians, cam: &Camera) -> (RenderOutput, Gradients) {
     let mut rng = SplitMix64::new(7);
     let npix = cam.num_pixels();
-    let v_color: Vec<Vec3> = (0..npix)
-        .map(|_| {
-            Vec3::new(
-                rng.normal() as f32,
-                rng.normal() as f32,
-                rng.normal() as f32,
-            )
-        })
-        .collect();
+    let v_color: Vec<Vec3> = rng.normal_rgb(npix);
     let v_alpha: Vec<f32> = (0..npix).map(|_| rng.normal() as f32).collect();
     let v_depth: Vec<f32> = (0..npix).map(|_| rng.normal() as f32).collect();
     let mut first = None;
