@@ -800,6 +800,7 @@ fn quat_backward(qn: [F8; 4], len: F8, v_r: &[[F8; 3]; 3]) -> [F8; 4] {
 mod tests {
     use super::*;
     use crate::project::project_one;
+    use crate::reference;
 
     /// Every Gaussian of random scenes (SH 0–3, with and without antialiasing, needles, huge
     /// and tiny scales, non-finite parameters, a last block shorter than eight) against the
@@ -828,6 +829,9 @@ mod tests {
                 let rc = g.rest_count();
                 g.sh_rest[14 * rc] = Vec3::splat(f32::INFINITY);
             }
+            let params = reference::flatten(&g);
+            let ppg = reference::params_per_gaussian(g.sh_degree);
+            let ref_cam = reference::RefCamera::from(&cam);
             for first in (0..g.len()).step_by(N) {
                 let count = N.min(g.len() - first);
                 let got = project_lanes(&g, first, count, &cam, deg, aa);
@@ -853,7 +857,15 @@ mod tests {
                     // singular covariance and amplifies its entries' rounding, differently in
                     // the two float32 paths; the lanes may not err more than the scalar path
                     // (with a little room) or 1e-5.
-                    let (truth, truth_opacity) = footprint_f64(&g, i, &cam, aa);
+                    let truth = reference::project_ref(
+                        &params[i * ppg..(i + 1) * ppg],
+                        g.sh_degree,
+                        &ref_cam,
+                        deg,
+                        aa,
+                    )
+                    .expect("float64 culls a Gaussian float32 keeps by depth");
+                    let (truth, truth_opacity) = (truth.conic, truth.opacity);
                     let alpha = |conic: [f64; 3], o: f64, dx: f64, dy: f64| {
                         let [a, b, c] = conic;
                         let sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy;
@@ -891,73 +903,6 @@ mod tests {
             compared > 8_000,
             "only {compared} visible Gaussians compared"
         );
-    }
-
-    /// The conic and opacity of Gaussian `i` in float64 (as [`crate::reference`] computes
-    /// them).
-    fn footprint_f64(g: &Gaussians, i: usize, cam: &Camera, aa: bool) -> ([f64; 3], f64) {
-        let d = |v: f32| v as f64;
-        let w = cam.rotation;
-        let wr = |a: usize, b: usize| d(w.col(b)[a]);
-        let mean = g.means[i].to_array().map(d);
-        let pc: [f64; 3] = std::array::from_fn(|a| {
-            (0..3).map(|b| wr(a, b) * mean[b]).sum::<f64>() + d(cam.translation[a])
-        });
-        let q = g.rotations[i].map(d);
-        let qn = (q.iter().map(|v| v * v).sum::<f64>()).sqrt();
-        let (qw, x, y, z) = (q[0] / qn, q[1] / qn, q[2] / qn, q[3] / qn);
-        let r = [
-            [
-                1.0 - 2.0 * (y * y + z * z),
-                2.0 * (x * y - qw * z),
-                2.0 * (x * z + qw * y),
-            ],
-            [
-                2.0 * (x * y + qw * z),
-                1.0 - 2.0 * (x * x + z * z),
-                2.0 * (y * z - qw * x),
-            ],
-            [
-                2.0 * (x * z - qw * y),
-                2.0 * (y * z + qw * x),
-                1.0 - 2.0 * (x * x + y * y),
-            ],
-        ];
-        let s = g.log_scales[i].to_array().map(|v| d(v).exp());
-        let m: [[f64; 3]; 3] = std::array::from_fn(|a| std::array::from_fn(|j| r[a][j] * s[j]));
-        let sig: [[f64; 3]; 3] = std::array::from_fn(|a| {
-            std::array::from_fn(|b| (0..3).map(|j| m[a][j] * m[b][j]).sum())
-        });
-        let c: [[f64; 3]; 3] = std::array::from_fn(|a| {
-            std::array::from_fn(|b| {
-                (0..3)
-                    .map(|k| (0..3).map(|l| wr(a, k) * sig[k][l] * wr(b, l)).sum::<f64>())
-                    .sum()
-            })
-        });
-        let lim = clamp_limits(cam).map(d);
-        let zc = pc[2];
-        let tx = zc * (pc[0] / zc).clamp(-lim[0], lim[1]);
-        let ty = zc * (pc[1] / zc).clamp(-lim[2], lim[3]);
-        let (fx, fy) = (d(cam.fx), d(cam.fy));
-        let j = [
-            [fx / zc, 0.0, -fx * tx / (zc * zc)],
-            [0.0, fy / zc, -fy * ty / (zc * zc)],
-        ];
-        let cov = |a: usize, b: usize| {
-            (0..3)
-                .map(|k| (0..3).map(|l| j[a][k] * c[k][l] * j[b][l]).sum::<f64>())
-                .sum::<f64>()
-        };
-        let blur = COV2D_BLUR as f64;
-        let (a, b, cc) = (cov(0, 0) + blur, cov(0, 1), cov(1, 1) + blur);
-        let det = a * cc - b * b;
-        let mut opacity = 1.0 / (1.0 + (-d(g.logit_opacities[i])).exp());
-        if aa {
-            let det0 = cov(0, 0) * cov(1, 1) - cov(0, 1) * cov(0, 1);
-            opacity *= (det0 / det).max(0.0).sqrt();
-        }
-        ([cc / det, -b / det, a / det], opacity)
     }
 
     /// The AVX2 build and the portable one give the same bits.

@@ -156,13 +156,132 @@ fn sh_color(deg: u32, coeffs: &[[f64; 3]], d: [f64; 3]) -> [f64; 3] {
     c
 }
 
-struct Splat2d {
-    mean: [f64; 2],
-    conic: [f64; 3],
-    opacity: f64,
-    color: [f64; 3],
-    depth: f64,
-    index: usize,
+/// A Gaussian projected to the screen in float64.
+pub struct RefSplat {
+    pub mean: [f64; 2],
+    pub conic: [f64; 3],
+    pub opacity: f64,
+    pub color: [f64; 3],
+    pub depth: f64,
+    /// Smallest relative distance of its decisions (near plane, frustum clamp, colour clamp)
+    /// from their thresholds.
+    pub margin: f64,
+}
+
+/// Projects one Gaussian (its parameters `p` in the layout of [`flatten`]); `None` outside the
+/// depth range.
+pub fn project_ref(
+    p: &[f64],
+    stored_deg: u32,
+    cam: &RefCamera,
+    deg: u32,
+    antialiased: bool,
+) -> Option<RefSplat> {
+    let mut margin = f64::INFINITY;
+    let rt = transpose(&cam.r);
+    let cam_pos = [
+        -(rt[0][0] * cam.t[0] + rt[0][1] * cam.t[1] + rt[0][2] * cam.t[2]),
+        -(rt[1][0] * cam.t[0] + rt[1][1] * cam.t[1] + rt[1][2] * cam.t[2]),
+        -(rt[2][0] * cam.t[0] + rt[2][1] * cam.t[1] + rt[2][2] * cam.t[2]),
+    ];
+    let mean = [p[0], p[1], p[2]];
+    let mut pc = cam.t;
+    for a in 0..3 {
+        for b in 0..3 {
+            pc[a] += cam.r[a][b] * mean[b];
+        }
+    }
+    let z = pc[2];
+    if z < cam.near || z > cam.far {
+        return None;
+    }
+    margin = margin.min((z - cam.near) / cam.near);
+    let qn = (p[6] * p[6] + p[7] * p[7] + p[8] * p[8] + p[9] * p[9]).sqrt();
+    let (w, x, y, zq) = (p[6] / qn, p[7] / qn, p[8] / qn, p[9] / qn);
+    let rot = [
+        [
+            1.0 - 2.0 * (y * y + zq * zq),
+            2.0 * (x * y - w * zq),
+            2.0 * (x * zq + w * y),
+        ],
+        [
+            2.0 * (x * y + w * zq),
+            1.0 - 2.0 * (x * x + zq * zq),
+            2.0 * (y * zq - w * x),
+        ],
+        [
+            2.0 * (x * zq - w * y),
+            2.0 * (y * zq + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
+    ];
+    let s = [p[3].exp(), p[4].exp(), p[5].exp()];
+    let mut m = rot;
+    for row in m.iter_mut() {
+        for j in 0..3 {
+            row[j] *= s[j];
+        }
+    }
+    let sigma = matmul(&m, &transpose(&m));
+    let sc = matmul(&matmul(&cam.r, &sigma), &rt);
+    let tan_x = 0.5 * cam.width as f64 / cam.fx;
+    let tan_y = 0.5 * cam.height as f64 / cam.fy;
+    let lims = [
+        cam.cx / cam.fx + 0.3 * tan_x,
+        (cam.width as f64 - cam.cx) / cam.fx + 0.3 * tan_x,
+        cam.cy / cam.fy + 0.3 * tan_y,
+        (cam.height as f64 - cam.cy) / cam.fy + 0.3 * tan_y,
+    ];
+    let (ux, uy) = (pc[0] / z, pc[1] / z);
+    for (u, lo, hi) in [(ux, lims[0], lims[1]), (uy, lims[2], lims[3])] {
+        margin = margin.min((u + lo).abs() / lo).min((u - hi).abs() / hi);
+    }
+    let tx = z * ux.clamp(-lims[0], lims[1]);
+    let ty = z * uy.clamp(-lims[2], lims[3]);
+    let j = [
+        [cam.fx / z, 0.0, -cam.fx * tx / (z * z)],
+        [0.0, cam.fy / z, -cam.fy * ty / (z * z)],
+    ];
+    let mut cov = [[0.0; 2]; 2];
+    for a in 0..2 {
+        for b in 0..2 {
+            for k in 0..3 {
+                for l in 0..3 {
+                    cov[a][b] += j[a][k] * sc[k][l] * j[b][l];
+                }
+            }
+        }
+    }
+    let det0 = cov[0][0] * cov[1][1] - cov[0][1] * cov[1][0];
+    let (a, b, c) = (cov[0][0] + 0.3, cov[0][1], cov[1][1] + 0.3);
+    let det = a * c - b * b;
+    let mut opacity = 1.0 / (1.0 + (-p[10]).exp());
+    if antialiased {
+        opacity *= (det0 / det).max(0.0).sqrt();
+    }
+    let dir_raw = [
+        mean[0] - cam_pos[0],
+        mean[1] - cam_pos[1],
+        mean[2] - cam_pos[2],
+    ];
+    let len = (dir_raw[0].powi(2) + dir_raw[1].powi(2) + dir_raw[2].powi(2)).sqrt();
+    let dir = dir_raw.map(|v| v / len);
+    let mut coeffs = vec![[p[11], p[12], p[13]]];
+    for k in 0..(sh_rest_count(stored_deg)) {
+        coeffs.push([p[14 + 3 * k], p[15 + 3 * k], p[16 + 3 * k]]);
+    }
+    let pre = sh_color(deg, &coeffs, dir);
+    for v in pre {
+        margin = margin.min(v.abs());
+    }
+    Some(RefSplat {
+        mean: [cam.fx * pc[0] / z + cam.cx, cam.fy * pc[1] / z + cam.cy],
+        conic: [c / det, -b / det, a / det],
+        opacity,
+        color: pre.map(|v| v.max(0.0)),
+        depth: z,
+        margin,
+    })
 }
 
 /// Renders flattened parameters (layout of [`flatten`]) with stored degree `stored_deg`.
@@ -177,115 +296,16 @@ pub fn render_ref(
     let ppg = params_per_gaussian(stored_deg);
     let n = params.len() / ppg;
     let mut margin = f64::INFINITY;
-    let rt = transpose(&cam.r);
-    let cam_pos = [
-        -(rt[0][0] * cam.t[0] + rt[0][1] * cam.t[1] + rt[0][2] * cam.t[2]),
-        -(rt[1][0] * cam.t[0] + rt[1][1] * cam.t[1] + rt[1][2] * cam.t[2]),
-        -(rt[2][0] * cam.t[0] + rt[2][1] * cam.t[1] + rt[2][2] * cam.t[2]),
-    ];
     let mut splats = Vec::new();
     for i in 0..n {
         let p = &params[i * ppg..(i + 1) * ppg];
-        let mean = [p[0], p[1], p[2]];
-        let mut pc = cam.t;
-        for a in 0..3 {
-            for b in 0..3 {
-                pc[a] += cam.r[a][b] * mean[b];
-            }
-        }
-        let z = pc[2];
-        if z < cam.near || z > cam.far {
+        let Some(r) = project_ref(p, stored_deg, cam, deg, antialiased) else {
             continue;
-        }
-        margin = margin.min((z - cam.near) / cam.near);
-        let qn = (p[6] * p[6] + p[7] * p[7] + p[8] * p[8] + p[9] * p[9]).sqrt();
-        let (w, x, y, zq) = (p[6] / qn, p[7] / qn, p[8] / qn, p[9] / qn);
-        let rot = [
-            [
-                1.0 - 2.0 * (y * y + zq * zq),
-                2.0 * (x * y - w * zq),
-                2.0 * (x * zq + w * y),
-            ],
-            [
-                2.0 * (x * y + w * zq),
-                1.0 - 2.0 * (x * x + zq * zq),
-                2.0 * (y * zq - w * x),
-            ],
-            [
-                2.0 * (x * zq - w * y),
-                2.0 * (y * zq + w * x),
-                1.0 - 2.0 * (x * x + y * y),
-            ],
-        ];
-        let s = [p[3].exp(), p[4].exp(), p[5].exp()];
-        let mut m = rot;
-        for row in m.iter_mut() {
-            for j in 0..3 {
-                row[j] *= s[j];
-            }
-        }
-        let sigma = matmul(&m, &transpose(&m));
-        let sc = matmul(&matmul(&cam.r, &sigma), &rt);
-        let tan_x = 0.5 * cam.width as f64 / cam.fx;
-        let tan_y = 0.5 * cam.height as f64 / cam.fy;
-        let lims = [
-            cam.cx / cam.fx + 0.3 * tan_x,
-            (cam.width as f64 - cam.cx) / cam.fx + 0.3 * tan_x,
-            cam.cy / cam.fy + 0.3 * tan_y,
-            (cam.height as f64 - cam.cy) / cam.fy + 0.3 * tan_y,
-        ];
-        let (ux, uy) = (pc[0] / z, pc[1] / z);
-        for (u, lo, hi) in [(ux, lims[0], lims[1]), (uy, lims[2], lims[3])] {
-            margin = margin.min((u + lo).abs() / lo).min((u - hi).abs() / hi);
-        }
-        let tx = z * ux.clamp(-lims[0], lims[1]);
-        let ty = z * uy.clamp(-lims[2], lims[3]);
-        let j = [
-            [cam.fx / z, 0.0, -cam.fx * tx / (z * z)],
-            [0.0, cam.fy / z, -cam.fy * ty / (z * z)],
-        ];
-        let mut cov = [[0.0; 2]; 2];
-        for a in 0..2 {
-            for b in 0..2 {
-                for k in 0..3 {
-                    for l in 0..3 {
-                        cov[a][b] += j[a][k] * sc[k][l] * j[b][l];
-                    }
-                }
-            }
-        }
-        let det0 = cov[0][0] * cov[1][1] - cov[0][1] * cov[1][0];
-        let (a, b, c) = (cov[0][0] + 0.3, cov[0][1], cov[1][1] + 0.3);
-        let det = a * c - b * b;
-        let mut opacity = 1.0 / (1.0 + (-p[10]).exp());
-        if antialiased {
-            opacity *= (det0 / det).max(0.0).sqrt();
-        }
-        let dir_raw = [
-            mean[0] - cam_pos[0],
-            mean[1] - cam_pos[1],
-            mean[2] - cam_pos[2],
-        ];
-        let len = (dir_raw[0].powi(2) + dir_raw[1].powi(2) + dir_raw[2].powi(2)).sqrt();
-        let dir = dir_raw.map(|v| v / len);
-        let mut coeffs = vec![[p[11], p[12], p[13]]];
-        for k in 0..(sh_rest_count(stored_deg)) {
-            coeffs.push([p[14 + 3 * k], p[15 + 3 * k], p[16 + 3 * k]]);
-        }
-        let pre = sh_color(deg, &coeffs, dir);
-        for v in pre {
-            margin = margin.min(v.abs());
-        }
-        splats.push(Splat2d {
-            mean: [cam.fx * pc[0] / z + cam.cx, cam.fy * pc[1] / z + cam.cy],
-            conic: [c / det, -b / det, a / det],
-            opacity,
-            color: pre.map(|v| v.max(0.0)),
-            depth: z,
-            index: i,
-        });
+        };
+        margin = margin.min(r.margin);
+        splats.push((i, r));
     }
-    splats.sort_by(|a, b| a.depth.total_cmp(&b.depth).then(a.index.cmp(&b.index)));
+    splats.sort_by(|(i, a), (j, b)| a.depth.total_cmp(&b.depth).then(i.cmp(j)));
 
     let npix = cam.width * cam.height;
     let mut img = RefImage {
@@ -301,7 +321,7 @@ pub fn render_ref(
             let mut t = 1.0;
             let mut col = [0.0; 3];
             let mut dep = 0.0;
-            for s in &splats {
+            for (_, s) in &splats {
                 let d = [s.mean[0] - q[0], s.mean[1] - q[1]];
                 let sig = 0.5 * (s.conic[0] * d[0] * d[0] + s.conic[2] * d[1] * d[1])
                     + s.conic[1] * d[0] * d[1];
