@@ -9,6 +9,38 @@ use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 /// Lanes per value.
 pub const N: usize = 8;
 
+/// What the formulas shared by the scalar and the lane code (SH basis, quaternion rotation and
+/// its backward) need of a number: `f32` for the scalar path, [`F8`] for eight Gaussians at
+/// once. Both evaluate the same expressions in the same order, so each lane gets the scalar
+/// bits.
+pub trait Lane:
+    Copy
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+    + Add<f32, Output = Self>
+    + Sub<f32, Output = Self>
+    + Mul<f32, Output = Self>
+{
+    fn splat(v: f32) -> Self;
+}
+
+impl Lane for f32 {
+    #[inline(always)]
+    fn splat(v: f32) -> f32 {
+        v
+    }
+}
+
+impl Lane for F8 {
+    #[inline(always)]
+    fn splat(v: f32) -> F8 {
+        F8([v; N])
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct F8(pub [f32; N]);
 

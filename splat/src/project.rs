@@ -17,9 +17,12 @@
 //!    opacity is below 1/255 or the box misses the image. A culled Gaussian has radius `[0, 0]`.
 //! 6. Colour from SH (see [`crate::sh`]).
 
+use std::ops::{Mul, Sub};
+
 use glam::{Mat3, Vec2, Vec3};
 
 use crate::camera::Camera;
+use crate::lanes::Lane;
 use crate::model::{Gaussians, sigmoid};
 use crate::sh;
 
@@ -50,25 +53,36 @@ pub fn quat_to_rotmat(q: [f32; 4]) -> (Mat3, [f32; 4], f32) {
     }
     let s = [q[0] / m, q[1] / m, q[2] / m, q[3] / m];
     let len_s = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2] + s[3] * s[3]).sqrt();
-    let [w, x, y, z] = [s[0] / len_s, s[1] / len_s, s[2] / len_s, s[3] / len_s];
-    let r = Mat3::from_cols(
-        Vec3::new(
+    let qn = [s[0] / len_s, s[1] / len_s, s[2] / len_s, s[3] / len_s];
+    let r = rotation_rows(qn);
+    let col = |j: usize| Vec3::new(r[0][j], r[1][j], r[2][j]);
+    (Mat3::from_cols(col(0), col(1), col(2)), qn, m * len_s)
+}
+
+/// The rotation matrix of a unit quaternion `(w, x, y, z)`, `[row][col]`: the formulas the
+/// scalar projection and the lane one ([`crate::project_lanes`]) share.
+#[inline(always)]
+pub(crate) fn rotation_rows<T: Lane>([w, x, y, z]: [T; 4]) -> [[T; 3]; 3]
+where
+    f32: Mul<T, Output = T> + Sub<T, Output = T>,
+{
+    [
+        [
             1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y + w * z),
-            2.0 * (x * z - w * y),
-        ),
-        Vec3::new(
             2.0 * (x * y - w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z + w * x),
-        ),
-        Vec3::new(
             2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
             2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
             1.0 - 2.0 * (x * x + y * y),
-        ),
-    );
-    (r, [w, x, y, z], m * len_s)
+        ],
+    ]
 }
 
 /// Gradient of `quat_to_rotmat` with respect to the raw quaternion, given `v_r` = dL/dR.
@@ -76,9 +90,20 @@ fn quat_to_rotmat_backward(qn: [f32; 4], len: f32, v_r: Mat3) -> [f32; 4] {
     if len.is_nan() || len <= 0.0 {
         return [0.0; 4];
     }
+    // dL/dR[row][col]; glam is column-major.
+    let rows: [[f32; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| v_r.col(j)[i]));
+    rotation_backward(qn, len, &rows)
+}
+
+/// The gradient of [`rotation_rows`] with respect to the raw quaternion of length `len > 0`
+/// whose normalised form is `qn`, given `v_r` = dL/dR `[row][col]` (shared with the lanes).
+#[inline(always)]
+pub(crate) fn rotation_backward<T: Lane>(qn: [T; 4], len: T, v_r: &[[T; 3]; 3]) -> [T; 4]
+where
+    f32: Mul<T, Output = T>,
+{
     let [w, x, y, z] = qn;
-    // g(i, j) = dL/dR[row i][col j]; glam is column-major.
-    let g = |i: usize, j: usize| v_r.col(j)[i];
+    let g = |i: usize, j: usize| v_r[i][j];
     let vw = 2.0 * (x * (g(2, 1) - g(1, 2)) + y * (g(0, 2) - g(2, 0)) + z * (g(1, 0) - g(0, 1)));
     let vx = 2.0 * (y * (g(0, 1) + g(1, 0)) + z * (g(0, 2) + g(2, 0)) + w * (g(2, 1) - g(1, 2)))
         - 4.0 * x * (g(1, 1) + g(2, 2));
@@ -87,13 +112,13 @@ fn quat_to_rotmat_backward(qn: [f32; 4], len: f32, v_r: Mat3) -> [f32; 4] {
     let vz = 2.0 * (w * (g(1, 0) - g(0, 1)) + x * (g(0, 2) + g(2, 0)) + y * (g(1, 2) + g(2, 1)))
         - 4.0 * z * (g(0, 0) + g(1, 1));
     // Through the normalisation: remove the radial part, divide by the length.
-    let v = [vw, vx, vy, vz];
-    let dot = v.iter().zip(qn.iter()).map(|(a, b)| a * b).sum::<f32>();
-    let mut out = [0.0; 4];
-    for k in 0..4 {
-        out[k] = (v[k] - qn[k] * dot) / len;
-    }
-    out
+    let dot = vw * w + vx * x + vy * y + vz * z;
+    [
+        (vw - w * dot) / len,
+        (vx - x * dot) / len,
+        (vy - y * dot) / len,
+        (vz - z * dot) / len,
+    ]
 }
 
 /// Frustum limits of `x/z` and `y/z` used by the Jacobian clamp: `(neg_x, pos_x, neg_y, pos_y)`.

@@ -12,11 +12,10 @@ use crate::camera::Camera;
 use crate::conventions::{ALPHA_THRESHOLD, COV2D_BLUR, MAX_EXTENT_SIGMAS, SH_COLOR_OFFSET};
 use crate::lanes::{F8, M8, N};
 use crate::model::Gaussians;
-use crate::project::{ParamGrad, Projected, ScreenGrad, clamp_limits};
-use crate::sh::{
-    SH_C0, SH_C1, SH_C2_XX, SH_C2_XY, SH_C2_ZZ, SH_C2_ZZ0, SH_C3_A, SH_C3_B, SH_C3_C, SH_C3_C0,
-    SH_C3_D, SH_C3_D0,
+use crate::project::{
+    ParamGrad, Projected, ScreenGrad, clamp_limits, rotation_backward, rotation_rows,
 };
+use crate::sh::{SH_C0, basis_grad_of, basis_of};
 
 /// Projects Gaussians `first .. first + count` (`count` from 1 to [`N`]); a culled Gaussian,
 /// and every lane from `count` on, gets `Projected::default()`.
@@ -129,24 +128,7 @@ fn geometry(g: &Gaussians, idx: &[usize; N], cam: &Camera) -> Geo {
     let qx = F8::select(q_ok, s[1] / len, zero);
     let qy = F8::select(q_ok, s[2] / len, zero);
     let qz = F8::select(q_ok, s[3] / len, zero);
-    // r[row][col].
-    let r = [
-        [
-            1.0 - 2.0 * (qy * qy + qz * qz),
-            2.0 * (qx * qy - qw * qz),
-            2.0 * (qx * qz + qw * qy),
-        ],
-        [
-            2.0 * (qx * qy + qw * qz),
-            1.0 - 2.0 * (qx * qx + qz * qz),
-            2.0 * (qy * qz - qw * qx),
-        ],
-        [
-            2.0 * (qx * qz - qw * qy),
-            2.0 * (qy * qz + qw * qx),
-            1.0 - 2.0 * (qx * qx + qy * qy),
-        ],
-    ];
+    let r = rotation_rows([qw, qx, qy, qz]);
     let scale = [
         lane(|g, i| g.log_scales[i].x).exp(),
         lane(|g, i| g.log_scales[i].y).exp(),
@@ -350,7 +332,7 @@ fn sh_color(g: &Gaussians, idx: &[usize; N], degree: u32, cam_pos: Vec3, mean: [
     let x = F8::select(ok, v[0] * rcp, zero);
     let y = F8::select(ok, v[1] * rcp, zero);
     let z = F8::select(ok, v[2] * rcp, zero);
-    let basis = sh_basis(degree, [x, y, z]);
+    let basis = basis_of(degree, [x, y, z]);
     let rc = g.rest_count();
     let nb = crate::sh::num_bases(degree);
     let mut color = [zero; 3];
@@ -363,88 +345,6 @@ fn sh_color(g: &Gaussians, idx: &[usize; N], degree: u32, cam_pos: Vec3, mean: [
         *out = (c + SH_COLOR_OFFSET).max(zero);
     }
     color
-}
-
-/// [`crate::sh::basis`] on lanes (entries past the degree's bases stay zero).
-#[inline(always)]
-fn sh_basis(degree: u32, [x, y, z]: [F8; 3]) -> [F8; 16] {
-    let zero = F8::splat(0.0);
-    let mut b = [zero; 16];
-    b[0] = F8::splat(SH_C0);
-    if degree < 1 {
-        return b;
-    }
-    b[1] = -SH_C1 * y;
-    b[2] = SH_C1 * z;
-    b[3] = -SH_C1 * x;
-    if degree < 2 {
-        return b;
-    }
-    let (xx, yy, zz) = (x * x, y * y, z * z);
-    b[4] = SH_C2_XY * x * y;
-    b[5] = -SH_C2_XY * y * z;
-    b[6] = SH_C2_ZZ * zz - SH_C2_ZZ0;
-    b[7] = -SH_C2_XY * x * z;
-    b[8] = SH_C2_XX * (xx - yy);
-    if degree < 3 {
-        return b;
-    }
-    let a = SH_C3_C * zz + SH_C3_C0;
-    b[9] = SH_C3_A * (3.0 * xx * y - yy * y);
-    b[10] = SH_C3_B * z * 2.0 * x * y;
-    b[11] = a * y;
-    b[12] = z * (SH_C3_D * zz - SH_C3_D0);
-    b[13] = a * x;
-    b[14] = SH_C3_B * z * (xx - yy);
-    b[15] = SH_C3_A * (xx * x - 3.0 * x * yy);
-    b
-}
-
-/// [`crate::sh::basis_grad`] on lanes: `[basis][component of d]`.
-#[inline(always)]
-fn sh_basis_grad(degree: u32, [x, y, z]: [F8; 3]) -> [[F8; 3]; 16] {
-    let zero = F8::splat(0.0);
-    let c = F8::splat;
-    let mut g = [[zero; 3]; 16];
-    if degree < 1 {
-        return g;
-    }
-    g[1] = [zero, c(-SH_C1), zero];
-    g[2] = [zero, zero, c(SH_C1)];
-    g[3] = [c(-SH_C1), zero, zero];
-    if degree < 2 {
-        return g;
-    }
-    g[4] = [SH_C2_XY * y, SH_C2_XY * x, zero];
-    g[5] = [zero, -SH_C2_XY * z, -SH_C2_XY * y];
-    g[6] = [zero, zero, 2.0 * SH_C2_ZZ * z];
-    g[7] = [-SH_C2_XY * z, zero, -SH_C2_XY * x];
-    g[8] = [2.0 * SH_C2_XX * x, -2.0 * SH_C2_XX * y, zero];
-    if degree < 3 {
-        return g;
-    }
-    let (xx, yy, zz) = (x * x, y * y, z * z);
-    let a = SH_C3_C * zz + SH_C3_C0;
-    g[9] = [SH_C3_A * 6.0 * x * y, SH_C3_A * (3.0 * xx - 3.0 * yy), zero];
-    g[10] = [
-        SH_C3_B * 2.0 * z * y,
-        SH_C3_B * 2.0 * z * x,
-        SH_C3_B * 2.0 * x * y,
-    ];
-    g[11] = [zero, a, 2.0 * SH_C3_C * z * y];
-    g[12] = [zero, zero, 3.0 * SH_C3_D * zz - SH_C3_D0];
-    g[13] = [a, zero, 2.0 * SH_C3_C * z * x];
-    g[14] = [
-        2.0 * SH_C3_B * z * x,
-        -2.0 * SH_C3_B * z * y,
-        SH_C3_B * (xx - yy),
-    ];
-    g[15] = [
-        SH_C3_A * (3.0 * xx - 3.0 * yy),
-        -SH_C3_A * 6.0 * x * y,
-        zero,
-    ];
-    g
 }
 
 /// [`crate::project::project_backward_one`] for Gaussians `first .. first + count`: lane `l`
@@ -661,7 +561,15 @@ fn backward_body(
     let vs = |j: usize| rot[0][j] * v_m[0][j] + rot[1][j] * v_m[1][j] + rot[2][j] * v_m[2][j];
     let v_scale = [vs(0), vs(1), vs(2)];
     let g_log_scale = [v_scale[0] * sc[0], v_scale[1] * sc[1], v_scale[2] * sc[2]];
-    let g_rot = quat_backward(geo.qn, geo.qlen, &v_rot);
+    // A quaternion without a length gets no gradient (as the scalar path returns early).
+    let q_has_len = geo.qlen.gt(zero);
+    let g_rot = rotation_backward(geo.qn, geo.qlen, &v_rot);
+    let g_rot = [
+        F8::select(q_has_len, g_rot[0], zero),
+        F8::select(q_has_len, g_rot[1], zero),
+        F8::select(q_has_len, g_rot[2], zero),
+        F8::select(q_has_len, g_rot[3], zero),
+    ];
 
     // Camera-space mean: through the mean projection and the Jacobian.
     let [px, py, pz] = geo.p_cam;
@@ -709,7 +617,7 @@ fn backward_body(
         F8::select(fwd(1).gt(zero), sl(|v| v.color.y), zero),
         F8::select(fwd(2).gt(zero), sl(|v| v.color.z), zero),
     ];
-    let basis = sh_basis(sh_degree, dir);
+    let basis = basis_of(sh_degree, dir);
     let g_dc = [
         zero + v_color[0] * basis[0],
         zero + v_color[1] * basis[0],
@@ -722,7 +630,7 @@ fn backward_body(
     let mut poison = zero;
     let mut g_rest = [[zero; 3]; 15];
     if sh_degree > 0 {
-        let grad = sh_basis_grad(sh_degree, dir);
+        let grad = basis_grad_of(sh_degree, dir);
         let mut v_d = [zero; 3];
         for k in 1..nb {
             let coef = |ch: usize| F8(std::array::from_fn(|l| g.sh_rest[idx[l] * rc + k - 1][ch]));
@@ -770,30 +678,6 @@ fn backward_body(
             );
         }
     }
-}
-
-/// Gradient of the rotation matrix of a quaternion with respect to the raw quaternion
-/// (`project::quat_to_rotmat_backward`), `v_r[row][col]`.
-#[inline(always)]
-fn quat_backward(qn: [F8; 4], len: F8, v_r: &[[F8; 3]; 3]) -> [F8; 4] {
-    let zero = F8::splat(0.0);
-    let [w, x, y, z] = qn;
-    let g = |i: usize, j: usize| v_r[i][j];
-    let vw = 2.0 * (x * (g(2, 1) - g(1, 2)) + y * (g(0, 2) - g(2, 0)) + z * (g(1, 0) - g(0, 1)));
-    let vx = 2.0 * (y * (g(0, 1) + g(1, 0)) + z * (g(0, 2) + g(2, 0)) + w * (g(2, 1) - g(1, 2)))
-        - 4.0 * x * (g(1, 1) + g(2, 2));
-    let vy = 2.0 * (x * (g(0, 1) + g(1, 0)) + w * (g(0, 2) - g(2, 0)) + z * (g(1, 2) + g(2, 1)))
-        - 4.0 * y * (g(0, 0) + g(2, 2));
-    let vz = 2.0 * (w * (g(1, 0) - g(0, 1)) + x * (g(0, 2) + g(2, 0)) + y * (g(1, 2) + g(2, 1)))
-        - 4.0 * z * (g(0, 0) + g(1, 1));
-    let dot = vw * w + vx * x + vy * y + vz * z;
-    let has = len.gt(zero);
-    [
-        F8::select(has, (vw - w * dot) / len, zero),
-        F8::select(has, (vx - x * dot) / len, zero),
-        F8::select(has, (vy - y * dot) / len, zero),
-        F8::select(has, (vz - z * dot) / len, zero),
-    ]
 }
 
 #[cfg(test)]

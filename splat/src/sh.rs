@@ -15,7 +15,11 @@
 //! with `C0 = 0.2820948`, `C1 = 0.4886025`. The view direction is
 //! `normalize(mean − camera_centre)` and the colour is `max(Σ c_k B_k + 0.5, 0)` per channel.
 
+use std::ops::Mul;
+
 use glam::Vec3;
+
+use crate::lanes::Lane;
 
 pub const SH_C0: f32 = 0.282_094_8;
 pub const SH_C1: f32 = 0.488_602_52;
@@ -46,20 +50,29 @@ pub const fn num_bases(degree: u32) -> usize {
     ((degree + 1) * (degree + 1)) as usize
 }
 
-/// Basis values for unit `d`; only the first `num_bases(degree)` entries are written, so bands
-/// above the active degree cost nothing.
+/// Basis values for unit `d`; entries past `num_bases(degree)` are zero, and bands above the
+/// active degree cost nothing.
 #[inline]
 pub fn basis(degree: u32, d: Vec3, out: &mut [f32; 16]) {
-    let (x, y, z) = (d.x, d.y, d.z);
-    out[0] = SH_C0;
+    *out = basis_of(degree, d.to_array());
+}
+
+/// [`basis`] on any [`Lane`] type (the scalar path and eight Gaussians at once share it).
+#[inline(always)]
+pub(crate) fn basis_of<T: Lane>(degree: u32, [x, y, z]: [T; 3]) -> [T; 16]
+where
+    f32: Mul<T, Output = T>,
+{
+    let mut out = [T::splat(0.0); 16];
+    out[0] = T::splat(SH_C0);
     if degree < 1 {
-        return;
+        return out;
     }
     out[1] = -SH_C1 * y;
     out[2] = SH_C1 * z;
     out[3] = -SH_C1 * x;
     if degree < 2 {
-        return;
+        return out;
     }
     let (xx, yy, zz) = (x * x, y * y, z * z);
     out[4] = SH_C2_XY * x * y;
@@ -68,7 +81,7 @@ pub fn basis(degree: u32, d: Vec3, out: &mut [f32; 16]) {
     out[7] = -SH_C2_XY * x * z;
     out[8] = SH_C2_XX * (xx - yy);
     if degree < 3 {
-        return;
+        return out;
     }
     let a = SH_C3_C * zz + SH_C3_C0;
     out[9] = SH_C3_A * (3.0 * xx * y - yy * y);
@@ -78,47 +91,74 @@ pub fn basis(degree: u32, d: Vec3, out: &mut [f32; 16]) {
     out[13] = a * x;
     out[14] = SH_C3_B * z * (xx - yy);
     out[15] = SH_C3_A * (xx * x - 3.0 * x * yy);
+    out
 }
 
 /// Gradients of each basis function with respect to the (treated as free) components of `d`.
 #[inline]
 pub fn basis_grad(degree: u32, d: Vec3, out: &mut [Vec3; 16]) {
-    let (x, y, z) = (d.x, d.y, d.z);
-    out[0] = Vec3::ZERO;
+    *out = basis_grad_of(degree, d.to_array()).map(Vec3::from_array);
+}
+
+/// A product of two constants, as the scalar formulas first form it (inside the generic
+/// functions `f32 * f32` would be read as `f32 * T`).
+#[inline(always)]
+fn k(a: f32, b: f32) -> f32 {
+    a * b
+}
+
+/// [`basis_grad`] on any [`Lane`] type: `[basis][component of d]`.
+#[inline(always)]
+pub(crate) fn basis_grad_of<T: Lane>(degree: u32, [x, y, z]: [T; 3]) -> [[T; 3]; 16]
+where
+    f32: Mul<T, Output = T>,
+{
+    let zero = T::splat(0.0);
+    let c = T::splat;
+    let mut out = [[zero; 3]; 16];
     if degree < 1 {
-        return;
+        return out;
     }
-    out[1] = Vec3::new(0.0, -SH_C1, 0.0);
-    out[2] = Vec3::new(0.0, 0.0, SH_C1);
-    out[3] = Vec3::new(-SH_C1, 0.0, 0.0);
+    out[1] = [zero, c(-SH_C1), zero];
+    out[2] = [zero, zero, c(SH_C1)];
+    out[3] = [c(-SH_C1), zero, zero];
     if degree < 2 {
-        return;
+        return out;
     }
-    out[4] = Vec3::new(SH_C2_XY * y, SH_C2_XY * x, 0.0);
-    out[5] = Vec3::new(0.0, -SH_C2_XY * z, -SH_C2_XY * y);
-    out[6] = Vec3::new(0.0, 0.0, 2.0 * SH_C2_ZZ * z);
-    out[7] = Vec3::new(-SH_C2_XY * z, 0.0, -SH_C2_XY * x);
-    out[8] = Vec3::new(2.0 * SH_C2_XX * x, -2.0 * SH_C2_XX * y, 0.0);
+    out[4] = [SH_C2_XY * y, SH_C2_XY * x, zero];
+    out[5] = [zero, -SH_C2_XY * z, -SH_C2_XY * y];
+    out[6] = [zero, zero, k(2.0, SH_C2_ZZ) * z];
+    out[7] = [-SH_C2_XY * z, zero, -SH_C2_XY * x];
+    out[8] = [k(2.0, SH_C2_XX) * x, k(-2.0, SH_C2_XX) * y, zero];
     if degree < 3 {
-        return;
+        return out;
     }
     let (xx, yy, zz) = (x * x, y * y, z * z);
     let a = SH_C3_C * zz + SH_C3_C0;
-    out[9] = Vec3::new(SH_C3_A * 6.0 * x * y, SH_C3_A * (3.0 * xx - 3.0 * yy), 0.0);
-    out[10] = Vec3::new(
-        SH_C3_B * 2.0 * z * y,
-        SH_C3_B * 2.0 * z * x,
-        SH_C3_B * 2.0 * x * y,
-    );
-    out[11] = Vec3::new(0.0, a, 2.0 * SH_C3_C * z * y);
-    out[12] = Vec3::new(0.0, 0.0, 3.0 * SH_C3_D * zz - SH_C3_D0);
-    out[13] = Vec3::new(a, 0.0, 2.0 * SH_C3_C * z * x);
-    out[14] = Vec3::new(
-        2.0 * SH_C3_B * z * x,
-        -2.0 * SH_C3_B * z * y,
+    out[9] = [
+        k(SH_C3_A, 6.0) * x * y,
+        SH_C3_A * (3.0 * xx - 3.0 * yy),
+        zero,
+    ];
+    out[10] = [
+        k(SH_C3_B, 2.0) * z * y,
+        k(SH_C3_B, 2.0) * z * x,
+        k(SH_C3_B, 2.0) * x * y,
+    ];
+    out[11] = [zero, a, k(2.0, SH_C3_C) * z * y];
+    out[12] = [zero, zero, k(3.0, SH_C3_D) * zz - SH_C3_D0];
+    out[13] = [a, zero, k(2.0, SH_C3_C) * z * x];
+    out[14] = [
+        k(2.0, SH_C3_B) * z * x,
+        k(-2.0, SH_C3_B) * z * y,
         SH_C3_B * (xx - yy),
-    );
-    out[15] = Vec3::new(SH_C3_A * (3.0 * xx - 3.0 * yy), -SH_C3_A * 6.0 * x * y, 0.0);
+    ];
+    out[15] = [
+        SH_C3_A * (3.0 * xx - 3.0 * yy),
+        k(-SH_C3_A, 6.0) * x * y,
+        zero,
+    ];
+    out
 }
 
 /// `Σ_k c_k B_k(d) + 0.5` before the clamp (callers clamp and remember which channels clamped).
