@@ -10,7 +10,7 @@
 //! Sizes that do not match are errors, never panics.
 
 use glam::Vec3;
-
+use multiversion::multiversion;
 use rayon::prelude::*;
 
 use crate::error::BaseError;
@@ -107,55 +107,26 @@ pub fn ssim_planar(a: &[f32], b: &[f32], width: u32, height: u32) -> Result<f64,
     check_len(3 * n, a.len())?;
     check_len(3 * n, b.len())?;
     let (w, h) = (width as usize, height as usize);
-    let mut total = 0.0f64;
-    with_scratch(n, |s| {
-        for ch in 0..3 {
-            let c = ch * n..(ch + 1) * n;
-            let inv = 1.0 / (3 * n) as f32;
-            ssim_channel(
-                &a[c.clone()],
-                &b[c],
-                w,
-                h,
-                inv,
-                &mut total,
-                None,
-                &mut s.work,
-            );
-        }
-    });
+    let fill = |ch: usize, row: usize, s: &mut [f32]| {
+        let px = ch * n + row * w..ch * n + (row + 1) * w;
+        stats_row(&a[px.clone()], &b[px], s);
+    };
+    let total = with_work(|work| ssim_channels(w, h, fill, None, work));
     Ok((total / (3 * n) as f64) as f32 as f64)
 }
 
-fn ssim_rgb(a: &[Vec3], b: &[Vec3], w: usize, h: usize, mut grad: Option<&mut [Vec3]>) -> f32 {
-    let n = w * h;
-    let inv_count = 1.0 / (3 * n) as f32;
-    let mut total = 0.0f64;
-    with_scratch(n, |s| {
-        for ch in 0..3 {
-            let (x, y, g) = (&mut s.x[..n], &mut s.y[..n], &mut s.grad[..n]);
-            x.par_iter_mut().zip(a).for_each(|(d, v)| *d = v[ch]);
-            y.par_iter_mut().zip(b).for_each(|(d, v)| *d = v[ch]);
-            let want = grad.is_some().then_some(&mut *g);
-            ssim_channel(x, y, w, h, inv_count, &mut total, want, &mut s.work);
-            if let Some(out) = grad.as_deref_mut() {
-                out.par_iter_mut().zip(&*g).for_each(|(o, v)| o[ch] = *v);
-            }
-        }
-    });
+fn ssim_rgb(a: &[Vec3], b: &[Vec3], w: usize, h: usize, grad: Option<&mut [Vec3]>) -> f32 {
+    let inv_count = 1.0 / (3 * w * h) as f32;
+    let fill = |ch: usize, row: usize, s: &mut [f32]| {
+        let px = row * w..(row + 1) * w;
+        stats_rgb_row(&a[px.clone()], &b[px], ch, s)
+    };
+    let total = with_work(|work| ssim_channels(w, h, fill, grad.map(|g| (g, a, b)), work));
     (total * inv_count as f64) as f32
 }
 
 /// Working memory of one SSIM call, kept per thread between calls: fresh multi-megabyte
 /// buffers cost page faults comparable to the arithmetic itself.
-#[derive(Default)]
-struct Scratch {
-    x: Vec<f32>,
-    y: Vec<f32>,
-    grad: Vec<f32>,
-    work: Work,
-}
-
 #[derive(Default)]
 struct Work {
     stats: Vec<f32>,
@@ -166,29 +137,15 @@ struct Work {
 }
 
 thread_local! {
-    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
+    static WORK: std::cell::RefCell<Work> = std::cell::RefCell::new(Work::default());
 }
 
-/// Runs `f` with this thread's scratch grown to `n` pixels; a call nested in another on the
-/// same thread (rayon may run one inside the other's parallel loop) gets fresh memory.
-fn with_scratch<R>(n: usize, f: impl FnOnce(&mut Scratch) -> R) -> R {
-    let grow = |s: &mut Scratch| {
-        for v in [&mut s.x, &mut s.y, &mut s.grad] {
-            if v.len() < n {
-                v.resize(n, 0.0);
-            }
-        }
-    };
-    SCRATCH.with(|cell| match cell.try_borrow_mut() {
-        Ok(mut s) => {
-            grow(&mut s);
-            f(&mut s)
-        }
-        Err(_) => {
-            let mut s = Scratch::default();
-            grow(&mut s);
-            f(&mut s)
-        }
+/// Runs `f` with this thread's working memory; a call nested in another on the same thread
+/// (rayon may run one inside the other's parallel loop) gets fresh memory.
+fn with_work<R>(f: impl FnOnce(&mut Work) -> R) -> R {
+    WORK.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut s) => f(&mut s),
+        Err(_) => f(&mut Work::default()),
     })
 }
 
@@ -237,8 +194,7 @@ const ROWS_PER_TASK: usize = 8;
 /// The zero-padded "same" blur of `P` planes stored row by row (`[row][plane][x]`) into
 /// `out`, as two 1-D passes through `tmp`. Each output adds its in-range terms in increasing
 /// tap order, exactly as the direct loops do, so the result is bit-identical to them; the
-/// loops run over contiguous memory (taps outside, pixels inside), so they vectorise, and
-/// rows run in parallel.
+/// pixel loops vectorise (each lane sums its own output) and rows run in parallel.
 fn blur_planes<const P: usize>(
     src: &[f32],
     w: usize,
@@ -247,137 +203,219 @@ fn blur_planes<const P: usize>(
     tmp: &mut Vec<f32>,
     out: &mut Vec<f32>,
 ) {
-    let r = SSIM_WINDOW / 2;
     let stride = P * w;
     let tmp = sized(tmp, h * stride);
     tmp.par_chunks_mut(stride)
         .with_min_len(ROWS_PER_TASK)
         .zip(src.par_chunks(stride))
-        .for_each(|(t, s)| {
-            t.fill(0.0);
+        .for_each_init(Vec::new, |pad, (t, s)| {
             for p in 0..P {
-                let (row, out) = (&s[p * w..(p + 1) * w], &mut t[p * w..(p + 1) * w]);
-                for (j, kj) in k.iter().enumerate() {
-                    // Output x reads input x + j − r where that lies in the row.
-                    let x0 = r.saturating_sub(j);
-                    let x1 = (w + r).saturating_sub(j).min(w);
-                    if x0 >= x1 {
-                        continue;
-                    }
-                    let src = &row[x0 + j - r..x1 + j - r];
-                    for (o, v) in out[x0..x1].iter_mut().zip(src) {
-                        *o += kj * v;
-                    }
-                }
+                blur_row(&s[p * w..(p + 1) * w], &mut t[p * w..(p + 1) * w], k, pad);
             }
         });
+    let zeros = vec![0.0f32; stride];
     let tmp = &*tmp;
     sized(out, h * stride)
         .par_chunks_mut(stride)
         .with_min_len(ROWS_PER_TASK)
         .enumerate()
-        .for_each(|(y, o)| {
-            o.fill(0.0);
-            for (j, kj) in k.iter().enumerate() {
-                let Some(yy) = (y + j).checked_sub(r).filter(|&yy| yy < h) else {
-                    continue;
-                };
-                for (o, v) in o.iter_mut().zip(&tmp[yy * stride..(yy + 1) * stride]) {
-                    *o += kj * v;
-                }
-            }
-        });
+        .for_each(|(y, o)| blur_column(tmp, y, h, o, k, &zeros));
 }
 
-/// One channel: adds its SSIM map to `total` (in pixel order) and, with `grad`, writes the
-/// gradient of `inv_count · Σ map` with respect to `x`.
-#[allow(clippy::too_many_arguments)]
-fn ssim_channel(
-    x: &[f32],
-    y: &[f32],
+/// One row of the horizontal pass: `out[x] = Σ_j k[j]·row[x + j − r]`, summed in increasing
+/// `j` from zero. Taps that fall outside the row read the zeros of a padded copy; adding
+/// `k[j]·0 = +0` leaves every sum as skipping the tap would (a sum started at `+0` is never
+/// `−0`), so the bits are those of the direct loops. Each output is summed in a register;
+/// compiled for several instruction sets and chosen at run time, with the same arithmetic
+/// (separate multiply and add, never fused) in each.
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
+fn blur_row(row: &[f32], out: &mut [f32], k: &[f32; SSIM_WINDOW], pad: &mut Vec<f32>) {
+    let (w, r) = (row.len(), SSIM_WINDOW / 2);
+    pad.clear();
+    pad.resize(r, 0.0);
+    pad.extend_from_slice(row);
+    pad.resize(w + 2 * r, 0.0);
+    for (x, o) in out.iter_mut().enumerate() {
+        let win = &pad[x..x + SSIM_WINDOW];
+        let mut acc = 0.0f32;
+        for j in 0..SSIM_WINDOW {
+            acc += k[j] * win[j];
+        }
+        *o = acc;
+    }
+}
+
+/// Output row `y` of the vertical pass over `tmp` (rows of `out.len()` values), as
+/// [`blur_row`] does along a row: rows outside the image read `zeros`.
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
+fn blur_column(
+    tmp: &[f32],
+    y: usize,
+    h: usize,
+    out: &mut [f32],
+    k: &[f32; SSIM_WINDOW],
+    zeros: &[f32],
+) {
+    let (stride, r) = (out.len(), SSIM_WINDOW / 2);
+    let rows: [&[f32]; SSIM_WINDOW] =
+        std::array::from_fn(|j| match (y + j).checked_sub(r).filter(|&yy| yy < h) {
+            Some(yy) => &tmp[yy * stride..(yy + 1) * stride],
+            None => &zeros[..stride],
+        });
+    for (x, o) in out.iter_mut().enumerate() {
+        let mut acc = 0.0f32;
+        for j in 0..SSIM_WINDOW {
+            acc += k[j] * rows[j][x];
+        }
+        *o = acc;
+    }
+}
+
+/// Planes per channel of the statistics: μx, μy, E[x²], E[y²], E[xy] before blurring.
+const STATS: usize = 5;
+/// Planes per channel of the map's derivatives: with respect to μx, E[x²], E[xy].
+const DERIVS: usize = 3;
+
+/// The three channels' SSIM maps summed (channel by channel, each in pixel order, as the
+/// direct loops do) and, with `grad`, the gradient of the mean map with respect to the first
+/// image, written into `grad.0` (`grad.1`, `grad.2`: the two images). `fill(ch, row, s)`
+/// writes channel `ch`'s statistics of a row, `[plane][x]`. One channel at a time: the
+/// working memory of all three at once outgrows the caches and is slower.
+fn ssim_channels(
     w: usize,
     h: usize,
-    inv_count: f32,
-    total: &mut f64,
-    grad: Option<&mut [f32]>,
+    fill: impl Fn(usize, usize, &mut [f32]) + Sync,
+    mut grad: Option<(&mut [Vec3], &[Vec3], &[Vec3])>,
     work: &mut Work,
-) {
+) -> f64 {
     let k = window();
-    // μx, μy, E[x²], E[y²], E[xy], blurred in one sweep.
-    sized(&mut work.stats, 5 * w * h)
-        .par_chunks_mut(5 * w)
-        .with_min_len(ROWS_PER_TASK)
-        .enumerate()
-        .for_each(|(row, s)| {
-            let (xr, yr) = (&x[row * w..(row + 1) * w], &y[row * w..(row + 1) * w]);
-            for i in 0..w {
-                s[i] = xr[i];
-                s[w + i] = yr[i];
-                s[2 * w + i] = xr[i] * xr[i];
-                s[3 * w + i] = yr[i] * yr[i];
-                s[4 * w + i] = xr[i] * yr[i];
-            }
-        });
-    blur_planes::<5>(
-        &work.stats[..5 * w * h],
-        w,
-        h,
-        &k,
-        &mut work.tmp,
-        &mut work.blurred,
-    );
-    // The SSIM map and its derivatives with respect to μx, E[x²], E[xy].
-    let map = sized(&mut work.map, w * h);
-    let d = sized(&mut work.d, 3 * w * h);
-    map.par_chunks_mut(w)
-        .with_min_len(ROWS_PER_TASK)
-        .zip(d.par_chunks_mut(3 * w))
-        .zip(work.blurred[..5 * w * h].par_chunks(5 * w))
-        .for_each(|((m, d), b)| {
-            for i in 0..w {
-                let (mx, my) = (b[i], b[w + i]);
-                let vx = b[2 * w + i] - mx * mx;
-                let vy = b[3 * w + i] - my * my;
-                let cxy = b[4 * w + i] - mx * my;
-                let a1 = 2.0 * mx * my + SSIM_C1;
-                let a2 = 2.0 * cxy + SSIM_C2;
-                let b1 = mx * mx + my * my + SSIM_C1;
-                let b2 = vx + vy + SSIM_C2;
-                let s = a1 * a2 / (b1 * b2);
-                m[i] = s;
-                let d_m2 = -s / b2;
-                let d_mxy = 2.0 * a1 / (b1 * b2);
-                let d_mx = 2.0 * my * (a2 - a1) / (b1 * b2) - 2.0 * mx * s / b1 + 2.0 * mx * s / b2;
-                d[i] = d_mx * inv_count;
-                d[w + i] = d_m2 * inv_count;
-                d[2 * w + i] = d_mxy * inv_count;
-            }
-        });
-    // Summed in pixel order, as the direct loops do.
-    for v in &work.map[..w * h] {
-        *total += *v as f64;
+    let inv_count = 1.0 / (3 * w * h) as f32;
+    let mut total = 0.0f64;
+    for ch in 0..3 {
+        sized(&mut work.stats, STATS * w * h)
+            .par_chunks_mut(STATS * w)
+            .with_min_len(ROWS_PER_TASK)
+            .enumerate()
+            .for_each(|(row, s)| fill(ch, row, s));
+        blur_planes::<STATS>(
+            &work.stats[..STATS * w * h],
+            w,
+            h,
+            &k,
+            &mut work.tmp,
+            &mut work.blurred,
+        );
+        // The SSIM map and its derivatives with respect to μx, E[x²], E[xy].
+        let map = sized(&mut work.map, w * h);
+        let d = sized(&mut work.d, DERIVS * w * h);
+        map.par_chunks_mut(w)
+            .with_min_len(ROWS_PER_TASK)
+            .zip(d.par_chunks_mut(DERIVS * w))
+            .zip(work.blurred[..STATS * w * h].par_chunks(STATS * w))
+            .for_each(|((m, d), b)| map_row(b, m, d, inv_count));
+        for v in &work.map[..w * h] {
+            total += *v as f64;
+        }
+        let Some((grad, x, y)) = grad.as_mut() else {
+            continue;
+        };
+        // The blur is symmetric, so it is its own adjoint (its output reuses the stats' memory).
+        blur_planes::<DERIVS>(
+            &work.d[..DERIVS * w * h],
+            w,
+            h,
+            &k,
+            &mut work.tmp,
+            &mut work.stats,
+        );
+        let g = &work.stats;
+        grad.par_chunks_mut(w)
+            .with_min_len(ROWS_PER_TASK)
+            .enumerate()
+            .for_each(|(row, out)| {
+                let px = row * w..(row + 1) * w;
+                let g = &g[row * DERIVS * w..(row + 1) * DERIVS * w];
+                grad_rgb_row(g, &x[px.clone()], &y[px], ch, out)
+            });
     }
-    let Some(grad) = grad else {
-        return;
-    };
-    // The blur is symmetric, so it is its own adjoint (its output reuses the stats' memory).
-    blur_planes::<3>(
-        &work.d[..3 * w * h],
-        w,
-        h,
-        &k,
-        &mut work.tmp,
-        &mut work.stats,
-    );
-    let g = &work.stats;
-    grad.par_chunks_mut(w)
-        .with_min_len(ROWS_PER_TASK)
-        .enumerate()
-        .for_each(|(row, out)| {
-            let g = &g[row * 3 * w..(row + 1) * 3 * w];
-            for i in 0..w {
-                let p = row * w + i;
-                out[i] = g[i] + 2.0 * x[p] * g[w + i] + y[p] * g[2 * w + i];
-            }
-        });
+    total
+}
+
+/// A row of channel `ch`'s five statistics' planes (as [`stats_row`]'s) from interleaved RGB.
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
+fn stats_rgb_row(x: &[Vec3], y: &[Vec3], ch: usize, s: &mut [f32]) {
+    let w = x.len();
+    let (sx, s) = s.split_at_mut(w);
+    let (sy, s) = s.split_at_mut(w);
+    let (sxx, s) = s.split_at_mut(w);
+    let (syy, sxy) = s.split_at_mut(w);
+    for i in 0..w {
+        let (xi, yi) = (x[i][ch], y[i][ch]);
+        sx[i] = xi;
+        sy[i] = yi;
+        sxx[i] = xi * xi;
+        syy[i] = yi * yi;
+        sxy[i] = xi * yi;
+    }
+}
+
+/// Channel `ch` of a row of the SSIM gradient, interleaved RGB, from the blurred derivatives
+/// `g` (planes as [`map_row`]'s `d`).
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
+fn grad_rgb_row(g: &[f32], x: &[Vec3], y: &[Vec3], ch: usize, out: &mut [Vec3]) {
+    let w = out.len();
+    let (g0, g) = g.split_at(w);
+    let (g1, g2) = g.split_at(w);
+    for i in 0..w {
+        out[i][ch] = g0[i] + 2.0 * x[i][ch] * g1[i] + y[i][ch] * g2[i];
+    }
+}
+
+/// A row of the five statistics' planes `[x, y, x², y², xy]` (each `x.len()` long).
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
+fn stats_row(x: &[f32], y: &[f32], s: &mut [f32]) {
+    let w = x.len();
+    let (sx, s) = s.split_at_mut(w);
+    let (sy, s) = s.split_at_mut(w);
+    let (sxx, s) = s.split_at_mut(w);
+    let (syy, sxy) = s.split_at_mut(w);
+    for i in 0..w {
+        let (xi, yi) = (x[i], y[i]);
+        sx[i] = xi;
+        sy[i] = yi;
+        sxx[i] = xi * xi;
+        syy[i] = yi * yi;
+        sxy[i] = xi * yi;
+    }
+}
+
+/// A row of the SSIM map `m` and its derivatives `d` (planes: μx, E[x²], E[xy]; scaled by
+/// `inv_count`) from the blurred statistics `b` (planes as [`stats_row`]'s).
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
+fn map_row(b: &[f32], m: &mut [f32], d: &mut [f32], inv_count: f32) {
+    let w = m.len();
+    let (bx, b) = b.split_at(w);
+    let (by, b) = b.split_at(w);
+    let (bxx, b) = b.split_at(w);
+    let (byy, bxy) = b.split_at(w);
+    let (d0, d) = d.split_at_mut(w);
+    let (d1, d2) = d.split_at_mut(w);
+    for i in 0..w {
+        let (mx, my) = (bx[i], by[i]);
+        let vx = bxx[i] - mx * mx;
+        let vy = byy[i] - my * my;
+        let cxy = bxy[i] - mx * my;
+        let a1 = 2.0 * mx * my + SSIM_C1;
+        let a2 = 2.0 * cxy + SSIM_C2;
+        let b1 = mx * mx + my * my + SSIM_C1;
+        let b2 = vx + vy + SSIM_C2;
+        let s = a1 * a2 / (b1 * b2);
+        m[i] = s;
+        let d_m2 = -s / b2;
+        let d_mxy = 2.0 * a1 / (b1 * b2);
+        let d_mx = 2.0 * my * (a2 - a1) / (b1 * b2) - 2.0 * mx * s / b1 + 2.0 * mx * s / b2;
+        d0[i] = d_mx * inv_count;
+        d1[i] = d_m2 * inv_count;
+        d2[i] = d_mxy * inv_count;
+    }
 }
