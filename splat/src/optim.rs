@@ -4,6 +4,7 @@
 //! them along with [`Adam::remap`] (new Gaussians start from zero moments, as in gsplat).
 
 use glam::Vec3;
+use multiversion::multiversion;
 use rayon::prelude::*;
 
 use crate::error::SplatError;
@@ -105,48 +106,55 @@ struct Step {
 }
 
 impl Step {
-    #[inline]
-    fn apply(&self, p: &mut f32, g: f32, m: &mut f32, v: &mut f32) {
-        // A non-finite gradient would poison the moments forever; skip that element instead.
-        if !g.is_finite() {
-            return;
-        }
-        *m = self.b1 * *m + (1.0 - self.b1) * g;
-        *v = self.b2 * *v + (1.0 - self.b2) * g * g;
-        let mh = *m / self.bc1;
-        let vh = *v / self.bc2;
-        *p -= self.lr * mh / (vh.sqrt() + self.eps);
-    }
-
-    fn vec3s(&self, p: &mut [Vec3], g: &[Vec3], m: &mut [Vec3], v: &mut [Vec3]) {
-        self.lanes(p, g, m, v, |s, p, g, m, v| {
-            for k in 0..3 {
-                s.apply(&mut p[k], g[k], &mut m[k], &mut v[k]);
-            }
-        });
-    }
-
-    /// `apply` over matching elements, in parallel chunks: every element is updated on its
-    /// own, so the result does not depend on the thread count.
-    fn lanes<T: Send + Sync>(
-        &self,
-        p: &mut [T],
-        g: &[T],
-        m: &mut [T],
-        v: &mut [T],
-        f: impl Fn(&Step, &mut T, &T, &mut T, &mut T) + Sync,
-    ) {
+    /// One group's update over matching elements, in parallel chunks: every element is
+    /// updated on its own, so the result does not depend on the thread count.
+    fn run(&self, p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32]) {
         const CHUNK: usize = 8192;
         p.par_chunks_mut(CHUNK)
             .zip(g.par_chunks(CHUNK))
             .zip(m.par_chunks_mut(CHUNK))
             .zip(v.par_chunks_mut(CHUNK))
-            .for_each(|(((p, g), m), v)| {
-                for (((p, g), m), v) in p.iter_mut().zip(g).zip(m.iter_mut()).zip(v.iter_mut()) {
-                    f(self, p, g, m, v);
-                }
-            });
+            .for_each(|(((p, g), m), v)| adam_chunk(self, p, g, m, v));
     }
+
+    fn vec3s(&self, p: &mut [Vec3], g: &[Vec3], m: &mut [Vec3], v: &mut [Vec3]) {
+        self.run(flat_mut(p), flat(g), flat_mut(m), flat_mut(v));
+    }
+}
+
+/// The Adam update of one chunk, without branches so that it vectorises: a non-finite
+/// gradient would poison the moments forever, so such an element keeps its parameter and
+/// moments (selected, not branched around). Compiled for several instruction sets and chosen
+/// at run time; separate multiplies and adds (never fused) and exact division and square
+/// root give the same bits in each.
+#[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
+fn adam_chunk(s: &Step, p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32]) {
+    let n = p.len().min(g.len()).min(m.len()).min(v.len());
+    let (p, g, m, v) = (&mut p[..n], &g[..n], &mut m[..n], &mut v[..n]);
+    for i in 0..n {
+        let gi = g[i];
+        let mi = s.b1 * m[i] + (1.0 - s.b1) * gi;
+        let vi = s.b2 * v[i] + (1.0 - s.b2) * gi * gi;
+        let mh = mi / s.bc1;
+        let vh = vi / s.bc2;
+        let pi = p[i] - s.lr * mh / (vh.sqrt() + s.eps);
+        let ok = gi.is_finite();
+        m[i] = if ok { mi } else { m[i] };
+        v[i] = if ok { vi } else { v[i] };
+        p[i] = if ok { pi } else { p[i] };
+    }
+}
+
+/// The floats of a slice of `Vec3`s (`#[repr(C)]`, three `f32`s, no padding).
+fn flat(v: &[Vec3]) -> &[f32] {
+    const _: () = assert!(std::mem::size_of::<Vec3>() == 12);
+    // SAFETY: Vec3 is three f32s in a row, aligned as f32.
+    unsafe { std::slice::from_raw_parts(v.as_ptr().cast(), 3 * v.len()) }
+}
+
+fn flat_mut(v: &mut [Vec3]) -> &mut [f32] {
+    // SAFETY: as in `flat`, and the borrow is exclusive.
+    unsafe { std::slice::from_raw_parts_mut(v.as_mut_ptr().cast(), 3 * v.len()) }
 }
 
 impl Adam {
@@ -211,23 +219,17 @@ impl Adam {
             &mut m.log_scales,
             &mut v.log_scales,
         );
-        mk(lr.rotations).lanes(
-            &mut params.rotations,
-            &grads.rotations,
-            &mut m.rotations,
-            &mut v.rotations,
-            |s, p, g, m, v| {
-                for k in 0..4 {
-                    s.apply(&mut p[k], g[k], &mut m[k], &mut v[k]);
-                }
-            },
+        mk(lr.rotations).run(
+            params.rotations.as_flattened_mut(),
+            grads.rotations.as_flattened(),
+            m.rotations.as_flattened_mut(),
+            v.rotations.as_flattened_mut(),
         );
-        mk(lr.opacities).lanes(
+        mk(lr.opacities).run(
             &mut params.logit_opacities,
             &grads.logit_opacities,
             &mut m.logit_opacities,
             &mut v.logit_opacities,
-            |s, p, g, m, v| s.apply(p, *g, m, v),
         );
         mk(lr.sh_dc).vec3s(&mut params.sh_dc, &grads.sh_dc, &mut m.sh_dc, &mut v.sh_dc);
         mk(lr.sh_rest).vec3s(

@@ -42,6 +42,81 @@ fn adam_first_step_moves_by_lr_against_the_gradient_sign() {
     assert_eq!(g.means[0], before.means[0]);
 }
 
+/// Every group's values as one list, with the group's learning rate.
+fn flat_groups(g: &Gaussians, lr: &LearningRates) -> Vec<(f32, f32)> {
+    fn v3(v: &[Vec3], r: f32) -> impl Iterator<Item = (f32, f32)> + '_ {
+        v.iter().flat_map(|x| x.to_array()).map(move |x| (x, r))
+    }
+    let mut out: Vec<(f32, f32)> = v3(&g.means, lr.means).collect();
+    out.extend(v3(&g.log_scales, lr.log_scales));
+    out.extend(g.rotations.iter().flatten().map(|&x| (x, lr.rotations)));
+    out.extend(g.logit_opacities.iter().map(|&x| (x, lr.opacities)));
+    out.extend(v3(&g.sh_dc, lr.sh_dc));
+    out.extend(v3(&g.sh_rest, lr.sh_rest));
+    out
+}
+
+/// Adam against its update written out element by element (the same float operations, so
+/// the same bits) over three steps; an element whose gradient is not finite keeps its value
+/// and its moments.
+#[test]
+fn adam_is_the_per_element_update_and_skips_non_finite_gradients() {
+    let mut g = random_scene(2, 300, 2, (0.1, 0.2), 1.0);
+    let mut grads = random_scene(3, 300, 2, (0.1, 0.2), 1.0);
+    grads.means[5].x = f32::NAN;
+    grads.rotations[9][2] = f32::NEG_INFINITY;
+    grads.logit_opacities[3] = f32::INFINITY;
+    grads.sh_rest[17].y = f32::NAN;
+    let lr = LearningRates {
+        means: 1e-3,
+        log_scales: 5e-3,
+        rotations: 1e-3,
+        opacities: 5e-2,
+        sh_dc: 2.5e-3,
+        sh_rest: 1.25e-4,
+    };
+    let before = flat_groups(&g, &lr);
+    let gs: Vec<f32> = flat_groups(&grads, &lr).iter().map(|x| x.0).collect();
+    let (mut p, mut m, mut v): (Vec<f32>, Vec<f32>, Vec<f32>) = (
+        before.iter().map(|x| x.0).collect(),
+        vec![0.0; gs.len()],
+        vec![0.0; gs.len()],
+    );
+    let mut adam = Adam::new(&g);
+    for t in 1..=3 {
+        adam.step(&mut g, &grads, &lr).unwrap();
+        let (b1, b2, eps) = (0.9f32, 0.999f32, 1e-15f32);
+        let (bc1, bc2) = (1.0 - b1.powi(t), 1.0 - b2.powi(t));
+        for i in 0..p.len() {
+            if !gs[i].is_finite() {
+                continue;
+            }
+            m[i] = b1 * m[i] + (1.0 - b1) * gs[i];
+            v[i] = b2 * v[i] + (1.0 - b2) * gs[i] * gs[i];
+            let (mh, vh) = (m[i] / bc1, v[i] / bc2);
+            p[i] -= before[i].1 * mh / (vh.sqrt() + eps);
+        }
+    }
+    let got = flat_groups(&g, &lr);
+    let (gm, gv) = adam.moments();
+    let (gm, gv) = (flat_groups(gm, &lr), flat_groups(gv, &lr));
+    let mut skipped = 0;
+    for i in 0..p.len() {
+        assert_eq!(got[i].0.to_bits(), p[i].to_bits(), "parameter {i}");
+        assert_eq!(gm[i].0.to_bits(), m[i].to_bits(), "first moment {i}");
+        assert_eq!(gv[i].0.to_bits(), v[i].to_bits(), "second moment {i}");
+        if !gs[i].is_finite() {
+            assert_eq!(
+                got[i].0, before[i].0,
+                "parameter {i} moved on a non-finite gradient"
+            );
+            assert_eq!((gm[i].0, gv[i].0), (0.0, 0.0));
+            skipped += 1;
+        }
+    }
+    assert_eq!(skipped, 4);
+}
+
 #[test]
 fn adam_minimises_a_quadratic_in_every_group() {
     let mut g = random_scene(2, 3, 3, (0.1, 0.2), 1.0);
