@@ -320,38 +320,10 @@ pub fn render_backward(
         final_t: &st.final_t,
         n_contrib: &st.n_contrib,
     };
-    // Not zero-filled: each tile's kernel writes every slot of its range.
-    let n_isect = bins.ids.len();
-    let mut isect: Vec<IsectGrad> = Vec::with_capacity(n_isect);
-    tiles::split_per_tile(bins, &mut isect.spare_capacity_mut()[..n_isect])
-        .into_par_iter()
-        .enumerate()
-        .for_each_init(
-            || (Vec::new(), blocks::BackScratch::default()),
-            |(list, scratch), (t, out)| match st.kernels {
-                Kernels::Blocks => {
-                    raster::gather_into(bins, &st.splats, t, list);
-                    blocks::backward_tile(
-                        list,
-                        raster::tile_pixels(bins, t, w, h),
-                        w,
-                        settings.background,
-                        &pix,
-                        out,
-                        scratch,
-                    )
-                }
-                Kernels::Scalar => {
-                    raster::backward_tile(bins, &st.splats, t, w, h, settings.background, &pix, out)
-                }
-            },
-        );
-    // SAFETY: the tile ranges cover `0 .. n_isect` and both kernels write every slot of their
-    // range (their documented contract).
-    unsafe { isect.set_len(n_isect) };
-
-    // Per-Gaussian list of its intersection slots, in tile order (a stable counting sort).
+    // Per-Gaussian ranges of the intersection records, each in tile order (a stable counting
+    // sort of the tile lists), and where each tile-list position's record goes.
     let n = g.len();
+    let n_isect = bins.ids.len();
     let mut starts = vec![0usize; n + 1];
     for &id in &bins.ids {
         starts[id as usize + 1] += 1;
@@ -360,21 +332,73 @@ pub fn render_backward(
         starts[i + 1] += starts[i];
     }
     let mut cursor = starts.clone();
-    let mut slots = vec![0usize; bins.ids.len()];
-    for (pos, &id) in bins.ids.iter().enumerate() {
-        slots[cursor[id as usize]] = pos;
-        cursor[id as usize] += 1;
-    }
+    let dest: Vec<usize> = bins
+        .ids
+        .iter()
+        .map(|&id| {
+            let d = cursor[id as usize];
+            cursor[id as usize] += 1;
+            d
+        })
+        .collect();
+    drop(cursor);
 
-    // Two passes: first the (cache-missing) gather of per-tile partials into one compact
-    // record per Gaussian, then the compute-heavy projection backward over contiguous data.
+    // Each tile's records go straight to their Gaussian's range (scattered writes, which do
+    // not stall as the scattered reads of gathering them per Gaussian afterwards did). Not
+    // zero-filled: each tile's kernel writes every slot of its list, and `dest` is a
+    // permutation of `0 .. n_isect`.
+    let mut isect: Vec<IsectGrad> = Vec::with_capacity(n_isect);
+    {
+        let by_gaussian = Disjoint::new(&mut isect.spare_capacity_mut()[..n_isect]);
+        (0..bins.num_tiles()).into_par_iter().for_each_init(
+            || (Vec::new(), Vec::new(), blocks::BackScratch::default()),
+            |(list, out, scratch), t| {
+                let range = bins.range(t);
+                out.clear();
+                out.resize(range.len(), std::mem::MaybeUninit::uninit());
+                match st.kernels {
+                    Kernels::Blocks => {
+                        raster::gather_into(bins, &st.splats, t, list);
+                        blocks::backward_tile(
+                            list,
+                            raster::tile_pixels(bins, t, w, h),
+                            w,
+                            settings.background,
+                            &pix,
+                            out,
+                            scratch,
+                        )
+                    }
+                    Kernels::Scalar => raster::backward_tile(
+                        bins,
+                        &st.splats,
+                        t,
+                        w,
+                        h,
+                        settings.background,
+                        &pix,
+                        out,
+                    ),
+                }
+                for (&d, rec) in dest[range].iter().zip(out.iter()) {
+                    // SAFETY: `dest` is a permutation, so no other task writes slot `d`.
+                    unsafe { by_gaussian.write(d, *rec) };
+                }
+            },
+        );
+    }
+    // SAFETY: `dest` covers `0 .. n_isect` and both kernels write every slot of their tile's
+    // list (their documented contract), each copied to its `dest`.
+    unsafe { isect.set_len(n_isect) };
+
+    // Two passes: first each Gaussian's records (contiguous, in tile order) summed into one
+    // compact record, then the compute-heavy projection backward over contiguous data.
     let screen: Vec<(ScreenGrad, glam::Vec2)> = (0..n)
         .into_par_iter()
         .map(|i| {
             let mut sg = ScreenGrad::default();
             let mut abs = glam::Vec2::ZERO;
-            for &pos in &slots[starts[i]..starts[i + 1]] {
-                let p = &isect[pos];
+            for p in &isect[starts[i]..starts[i + 1]] {
                 sg.mean2d += p.mean2d;
                 abs += p.mean2d_abs;
                 for k in 0..3 {
