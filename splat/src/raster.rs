@@ -11,6 +11,8 @@
 use std::mem::MaybeUninit;
 
 use glam::{Vec2, Vec3};
+use multiversion::multiversion;
+use rayon::prelude::*;
 
 use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TILE_SIZE, TRANSMITTANCE_MIN};
 use crate::disjoint::Disjoint;
@@ -59,6 +61,7 @@ impl Splat {
         self.depth
     }
 
+    #[inline]
     pub fn new(p: &Projected) -> Self {
         if p.radius == [0, 0] {
             return Self::default();
@@ -79,6 +82,28 @@ impl Splat {
                 to_i((p.mean2d.y + ry - 0.5).floor()),
             ],
         }
+    }
+}
+
+/// [`Splat::new`] of every projected Gaussian, in parallel chunks compiled for SSE4.1 and up
+/// where the CPU has them (rounding is then an instruction rather than a library call; the
+/// same values).
+pub fn splats_of(projected: &[Projected]) -> Vec<Splat> {
+    const CHUNK: usize = 4096;
+    let mut out = Vec::with_capacity(projected.len());
+    out.spare_capacity_mut()[..projected.len()]
+        .par_chunks_mut(CHUNK)
+        .zip(projected.par_chunks(CHUNK))
+        .for_each(|(o, p)| splat_chunk(p, o));
+    // SAFETY: the chunks cover `0 .. len` and `splat_chunk` writes every slot of each.
+    unsafe { out.set_len(projected.len()) };
+    out
+}
+
+#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+fn splat_chunk(p: &[Projected], out: &mut [MaybeUninit<Splat>]) {
+    for (o, p) in out.iter_mut().zip(p) {
+        o.write(Splat::new(p));
     }
 }
 

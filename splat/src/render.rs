@@ -172,7 +172,7 @@ fn forward(
     unsafe { projected.set_len(n) };
     let (w, h) = (cam.width, cam.height);
     let bins = tiles::bin(&projected, w, h);
-    let splats: Vec<Splat> = projected.par_iter().map(Splat::new).collect();
+    let splats: Vec<Splat> = raster::splats_of(&projected);
     let n_pix = cam.num_pixels();
     let mut color = vec![Vec3::ZERO; n_pix];
     let mut alpha = vec![0.0; n_pix];

@@ -6,6 +6,7 @@
 //! Within a tile Gaussians are ordered by the sort key `(depth, gaussian index)` ascending —
 //! the index breaks ties so the order, and hence the image, is fully deterministic.
 
+use multiversion::multiversion;
 use rayon::prelude::*;
 
 use crate::conventions::TILE_SIZE;
@@ -48,14 +49,24 @@ pub fn tile_rect(p: &Projected, tiles_x: u32, tiles_y: u32) -> [u32; 4] {
     ]
 }
 
+/// [`tile_rect`] of each of `projected`, compiled for SSE4.1 and up where the CPU has them
+/// (floor and ceil are then instructions rather than library calls; the same values).
+#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+fn tile_rects(projected: &[Projected], tiles_x: u32, tiles_y: u32, out: &mut [[u32; 4]]) {
+    for (o, p) in out.iter_mut().zip(projected) {
+        *o = tile_rect(p, tiles_x, tiles_y);
+    }
+}
+
 pub fn bin(projected: &[Projected], width: u32, height: u32) -> TileBins {
     let tiles_x = width.div_ceil(TILE_SIZE);
     let tiles_y = height.div_ceil(TILE_SIZE);
     let num_tiles = (tiles_x * tiles_y) as usize;
-    let rects: Vec<[u32; 4]> = projected
-        .par_iter()
-        .map(|p| tile_rect(p, tiles_x, tiles_y))
-        .collect();
+    let mut rects = vec![[0u32; 4]; projected.len()];
+    rects
+        .par_chunks_mut(4096)
+        .zip(projected.par_chunks(4096))
+        .for_each(|(r, p)| tile_rects(p, tiles_x, tiles_y, r));
 
     // Counting sort by tile, then a per-tile sort of the keys. The counting runs in chunks of
     // Gaussians in parallel: each chunk counts its entries per tile, a prefix sum over (tile,
