@@ -132,7 +132,7 @@ struct Work {
     stats: Vec<f32>,
     tmp: Vec<f32>,
     blurred: Vec<f32>,
-    map: Vec<f32>,
+    rows: Vec<f64>,
     d: Vec<f32>,
 }
 
@@ -153,6 +153,13 @@ fn with_work<R>(f: impl FnOnce(&mut Work) -> R) -> R {
 /// writes each value before reading it (a serial fill of these buffers was a large part of
 /// an SSIM call's serial time).
 fn sized(v: &mut Vec<f32>, len: usize) -> &mut [f32] {
+    if v.len() < len {
+        v.resize(len, 0.0);
+    }
+    &mut v[..len]
+}
+
+fn sized_f64(v: &mut Vec<f64>, len: usize) -> &mut [f64] {
     if v.len() < len {
         v.resize(len, 0.0);
     }
@@ -305,16 +312,17 @@ fn ssim_channels(
             &mut work.tmp,
             &mut work.blurred,
         );
-        // The SSIM map and its derivatives with respect to μx, E[x²], E[xy].
-        let map = sized(&mut work.map, w * h);
+        // The SSIM map, summed per row, and its derivatives with respect to μx, E[x²], E[xy];
+        // the rows' sums are added in row order.
+        let rows = sized_f64(&mut work.rows, h);
         let d = sized(&mut work.d, DERIVS * w * h);
-        map.par_chunks_mut(w)
+        rows.par_iter_mut()
             .with_min_len(ROWS_PER_TASK)
             .zip(d.par_chunks_mut(DERIVS * w))
             .zip(work.blurred[..STATS * w * h].par_chunks(STATS * w))
-            .for_each(|((m, d), b)| map_row(b, m, d, inv_count));
-        for v in &work.map[..w * h] {
-            total += *v as f64;
+            .for_each(|((r, d), b)| *r = map_row(b, d, inv_count));
+        for r in &work.rows[..h] {
+            total += *r;
         }
         let Some((grad, x, y)) = grad.as_mut() else {
             continue;
@@ -389,11 +397,13 @@ fn stats_row(x: &[f32], y: &[f32], s: &mut [f32]) {
     }
 }
 
-/// A row of the SSIM map `m` and its derivatives `d` (planes: μx, E[x²], E[xy]; scaled by
-/// `inv_count`) from the blurred statistics `b` (planes as [`stats_row`]'s).
+/// The sum of a row of the SSIM map (in pixel order, in float64) and the row's derivatives
+/// `d` (planes: μx, E[x²], E[xy]; scaled by `inv_count`) from the blurred statistics `b`
+/// (planes as [`stats_row`]'s).
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
-fn map_row(b: &[f32], m: &mut [f32], d: &mut [f32], inv_count: f32) {
-    let w = m.len();
+fn map_row(b: &[f32], d: &mut [f32], inv_count: f32) -> f64 {
+    let w = b.len() / STATS;
+    let mut sum = 0.0f64;
     let (bx, b) = b.split_at(w);
     let (by, b) = b.split_at(w);
     let (bxx, b) = b.split_at(w);
@@ -410,7 +420,7 @@ fn map_row(b: &[f32], m: &mut [f32], d: &mut [f32], inv_count: f32) {
         let b1 = mx * mx + my * my + SSIM_C1;
         let b2 = vx + vy + SSIM_C2;
         let s = a1 * a2 / (b1 * b2);
-        m[i] = s;
+        sum += s as f64;
         let d_m2 = -s / b2;
         let d_mxy = 2.0 * a1 / (b1 * b2);
         let d_mx = 2.0 * my * (a2 - a1) / (b1 * b2) - 2.0 * mx * s / b1 + 2.0 * mx * s / b2;
@@ -418,4 +428,5 @@ fn map_row(b: &[f32], m: &mut [f32], d: &mut [f32], inv_count: f32) {
         d1[i] = d_m2 * inv_count;
         d2[i] = d_mxy * inv_count;
     }
+    sum
 }

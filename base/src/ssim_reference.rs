@@ -79,6 +79,9 @@ fn ssim_channels(
         }
         // Per-pixel derivatives of the SSIM map w.r.t. the blurred statistics μx, E[x²], E[xy],
         // written back into `planes` and then pulled back through the (self-adjoint) blur.
+        // Summed row by row (each row in pixel order, then the rows in order), as the fast
+        // path sums its rows in parallel.
+        let mut row_total = 0.0f64;
         for i in 0..n {
             let (mx, my) = (bufs[0][i], bufs[1][i]);
             let vx = bufs[2][i] - mx * mx;
@@ -89,7 +92,11 @@ fn ssim_channels(
             let b1 = mx * mx + my * my + SSIM_C1;
             let b2 = vx + vy + SSIM_C2;
             let s = a1 * a2 / (b1 * b2);
-            total += s as f64;
+            row_total += s as f64;
+            if (i + 1) % w == 0 {
+                total += row_total;
+                row_total = 0.0;
+            }
             let d_m2 = -s / b2;
             let d_mxy = 2.0 * a1 / (b1 * b2);
             let d_mx = 2.0 * my * (a2 - a1) / (b1 * b2) - 2.0 * mx * s / b1 + 2.0 * mx * s / b2;
