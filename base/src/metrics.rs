@@ -320,7 +320,12 @@ fn ssim_channels(
             .with_min_len(ROWS_PER_TASK)
             .zip(d.par_chunks_mut(DERIVS * w))
             .zip(work.blurred[..STATS * w * h].par_chunks(STATS * w))
-            .for_each(|((r, d), b)| *r = map_row(b, d, inv_count));
+            .for_each_init(Vec::new, |m, ((r, d), b)| {
+                m.resize(w, 0.0);
+                map_row(b, m, d, inv_count);
+                // Apart from the map, whose loop would not vectorise with this sum in it.
+                *r = m.iter().map(|&v| v as f64).sum();
+            });
         for r in &work.rows[..h] {
             total += *r;
         }
@@ -397,13 +402,11 @@ fn stats_row(x: &[f32], y: &[f32], s: &mut [f32]) {
     }
 }
 
-/// The sum of a row of the SSIM map (in pixel order, in float64) and the row's derivatives
-/// `d` (planes: μx, E[x²], E[xy]; scaled by `inv_count`) from the blurred statistics `b`
-/// (planes as [`stats_row`]'s).
+/// A row of the SSIM map `m` and its derivatives `d` (planes: μx, E[x²], E[xy]; scaled by
+/// `inv_count`) from the blurred statistics `b` (planes as [`stats_row`]'s).
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
-fn map_row(b: &[f32], d: &mut [f32], inv_count: f32) -> f64 {
-    let w = b.len() / STATS;
-    let mut sum = 0.0f64;
+fn map_row(b: &[f32], m: &mut [f32], d: &mut [f32], inv_count: f32) {
+    let w = m.len();
     let (bx, b) = b.split_at(w);
     let (by, b) = b.split_at(w);
     let (bxx, b) = b.split_at(w);
@@ -420,7 +423,7 @@ fn map_row(b: &[f32], d: &mut [f32], inv_count: f32) -> f64 {
         let b1 = mx * mx + my * my + SSIM_C1;
         let b2 = vx + vy + SSIM_C2;
         let s = a1 * a2 / (b1 * b2);
-        sum += s as f64;
+        m[i] = s;
         let d_m2 = -s / b2;
         let d_mxy = 2.0 * a1 / (b1 * b2);
         let d_mx = 2.0 * my * (a2 - a1) / (b1 * b2) - 2.0 * mx * s / b1 + 2.0 * mx * s / b2;
@@ -428,5 +431,4 @@ fn map_row(b: &[f32], d: &mut [f32], inv_count: f32) -> f64 {
         d1[i] = d_m2 * inv_count;
         d2[i] = d_mxy * inv_count;
     }
-    sum
 }
