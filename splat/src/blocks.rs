@@ -65,7 +65,9 @@ const TILE_PX: usize = STRIDE * STRIDE;
 /// Blends one tile (already gathered: `splats` is its list, front to back) and writes its
 /// pixels into `sink`; returns the number of blended pairs. Splats are visited in order; each
 /// blends the blocks of the tile rows its box covers. Same outputs as
-/// [`crate::raster::forward_tile`] up to the exponential.
+/// [`crate::raster::forward_tile`] up to the exponential. `blended_blocks[k]` (one per splat
+/// of the list) gets the set of blocks in which splat `k` blended a pixel, bit
+/// `row · 2 + column` (see [`block_bit`]): the blocks its backward has to visit.
 ///
 /// # Safety
 /// No other call writes the same tile into `sink` at the same time ([`TileSink::write_tile`]).
@@ -74,6 +76,7 @@ pub unsafe fn forward_tile(
     (x0, y0, w, h): (u32, u32, u32, u32),
     background: Vec3,
     sink: &TileSink,
+    blended_blocks: &mut [u32],
 ) -> u64 {
     let mut st = TileState {
         tr: [1.0; TILE_PX],
@@ -82,7 +85,13 @@ pub unsafe fn forward_tile(
         last: [0; TILE_PX],
         done: [0; TILE_PX],
     };
-    let blended = forward_tile_dispatch(splats, (x0, y0, w, h), &mut st, Isa::chosen());
+    let blended = forward_tile_dispatch(
+        splats,
+        (x0, y0, w, h),
+        &mut st,
+        Isa::chosen(),
+        blended_blocks,
+    );
     // SAFETY: the caller's promise.
     unsafe {
         sink.write_tile((x0, y0, w, h), |lx, ly| {
@@ -160,16 +169,41 @@ fn forward_tile_dispatch(
     tile: (u32, u32, u32, u32),
     st: &mut TileState,
     isa: Isa,
+    blocks: &mut [u32],
 ) -> u64 {
     debug_assert!(Isa::available().contains(&isa));
+    assert_eq!(blocks.len(), splats.len(), "one block set per splat");
+    blocks.fill(0);
     match isa {
         // SAFETY: the CPU has the build's instruction set (its caller's promise).
         #[cfg(target_arch = "x86_64")]
-        Isa::Avx2 => unsafe { avx2::forward_tile_lanes(splats, tile, st) },
+        Isa::Avx2 => unsafe { avx2::forward_tile_lanes(splats, tile, st, blocks) },
         #[cfg(target_arch = "x86_64")]
-        Isa::Avx512 => unsafe { avx512::forward_tile_lanes(splats, tile, st) },
-        _ => forward_tile_lanes(splats, tile, st),
+        Isa::Avx512 => unsafe { avx512::forward_tile_lanes(splats, tile, st, blocks) },
+        _ => forward_tile_lanes(splats, tile, st, blocks),
     }
+}
+
+/// The bit of a tile's block set for the block of tile row `ly` starting at column `bx`.
+#[inline(always)]
+pub(crate) fn block_bit(ly: usize, bx: usize) -> u32 {
+    1 << (ly * BLOCKS_PER_ROW + bx / LANES)
+}
+
+/// Blocks per tile row (a block set has one bit per block of the tile).
+const BLOCKS_PER_ROW: usize = STRIDE / LANES;
+const _: () = assert!(STRIDE * STRIDE / LANES <= 32);
+
+/// The set of blocks covered by the box `[lx0, lx1] × [ly0, ly1]` (tile-local pixels).
+#[inline]
+fn box_blocks([lx0, lx1, ly0, ly1]: [usize; 4]) -> u32 {
+    // The box's columns of blocks within one row, repeated for each of its rows: rows are
+    // BLOCKS_PER_ROW bits apart, so the product of the row bits and the column bits has no
+    // carries.
+    let (c0, c1) = (lx0 / LANES, lx1 / LANES);
+    let cols = (1u32 << (c1 + 1)) - (1u32 << c0);
+    let rows: u32 = (ly0..=ly1).map(|ly| 1u32 << (ly * BLOCKS_PER_ROW)).sum();
+    rows * cols
 }
 
 /// The portable kernel: lane loops the AVX2 kernel mirrors operation for operation.
@@ -179,6 +213,7 @@ fn forward_tile_lanes(
     splats: &[Splat],
     (x0, y0, w, h): (u32, u32, u32, u32),
     st: &mut TileState,
+    blocks: &mut [u32],
 ) -> u64 {
     let mut blended = 0u64;
     let mut n_done = 0usize;
@@ -195,6 +230,7 @@ fn forward_tile_lanes(
         let (m, [ca, cb, cc], o, cut) = (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
         let (col, z) = (s.color(), s.depth());
         let b0 = lx0 as usize / LANES * LANES;
+        let mut set = 0u32;
         for ly in ly0 as usize..=ly1 as usize {
             let dy = m.y - ((y0 as usize + ly) as f32 + 0.5);
             let mut bx = b0;
@@ -243,10 +279,12 @@ fn forward_tile_lanes(
                     stops += stop as usize;
                 }
                 blended += count as u64;
+                set |= if count > 0 { block_bit(ly, bx) } else { 0 };
                 n_done += stops;
                 bx += LANES;
             }
         }
+        blocks[k] = set;
     }
     blended
 }
@@ -262,7 +300,10 @@ macro_rules! simd_kernels {
         mod $module {
             use std::arch::x86_64::*;
 
-            use crate::blocks::{BackState, LANES, STRIDE, SUMS, TILE_PX, TileState};
+            use crate::blocks::{
+                BLOCKS_PER_ROW, BackState, LANES, STRIDE, SUMS, TILE_PX, TileState, block_bit,
+                box_blocks,
+            };
             use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_MIN};
             use crate::raster::{Splat, local_box};
 
@@ -309,6 +350,7 @@ macro_rules! simd_kernels {
                 splats: &[Splat],
                 (x0, y0, w, h): (u32, u32, u32, u32),
                 st: &mut TileState,
+                blocks: &mut [u32],
             ) -> u64 {
                 let mut blended = 0u64;
                 let mut n_done = 0usize;
@@ -347,6 +389,7 @@ macro_rules! simd_kernels {
                     );
                     let next_k = _mm256_set1_epi32(k as i32 + 1);
                     let b0 = lx0 as usize / LANES * LANES;
+                    let mut set = 0u32;
                     for ly in ly0 as usize..=ly1 as usize {
                         let dy = _mm256_set1_ps(m.y - ((y0 as usize + ly) as f32 + 0.5));
                         let cdydy = _mm256_mul_ps(_mm256_mul_ps(cc, dy), dy);
@@ -428,11 +471,18 @@ macro_rules! simd_kernels {
                                     _mm256_or_si256(done, _mm256_castps_si256(stop)),
                                 );
                             }
-                            blended += _mm256_movemask_ps(blend).count_ones() as u64;
+                            let blend_bits = _mm256_movemask_ps(blend);
+                            blended += blend_bits.count_ones() as u64;
+                            set |= if blend_bits != 0 {
+                                block_bit(ly, bx)
+                            } else {
+                                0
+                            };
                             n_done += _mm256_movemask_ps(stop).count_ones() as usize;
                             bx += LANES;
                         }
                     }
+                    blocks[k] = set;
                 }
                 blended
             }
@@ -447,11 +497,12 @@ macro_rules! simd_kernels {
                 k: u32,
                 (x0, y0, w, h): (u32, u32, u32, u32),
                 st: &mut BackState,
+                blocks: u32,
             ) -> [f32; SUMS] {
                 let Some(bounds) = local_box(s, x0, y0, w, h) else {
                     return [0.0; SUMS];
                 };
-                let [lx0, lx1, ly0, ly1] = bounds.map(|v| v as i32);
+                let [lx0, lx1, _, _] = bounds.map(|v| v as i32);
                 let (m, [ca, cb, cc], o, cut) = (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
                 let (col, z) = (s.color(), s.depth());
                 let set = _mm256_set1_ps;
@@ -465,11 +516,14 @@ macro_rules! simd_kernels {
                 // `k < last` as a signed compare: counts stay far below 2³¹.
                 let kv = _mm256_set1_epi32(k as i32);
                 let mut acc = [zero; SUMS];
-                let b0 = lx0 as usize / LANES * LANES;
-                for ly in ly0 as usize..=ly1 as usize {
+                // The box's blocks in which the forward blended this splat, row by row.
+                let mut todo = blocks & box_blocks(bounds);
+                while todo != 0 {
+                    let b = todo.trailing_zeros() as usize;
+                    todo &= todo - 1;
+                    let (ly, bx) = (b / BLOCKS_PER_ROW, b % BLOCKS_PER_ROW * LANES);
                     let dy = set(m.y - ((y0 as usize + ly) as f32 + 0.5));
-                    let mut bx = b0;
-                    while bx <= lx1 as usize {
+                    {
                         let i = ly * STRIDE + bx;
                         let dx =
                             _mm256_sub_ps(set(m.x - ((x0 as usize + bx) as f32 + 0.5)), lane_f);
@@ -502,7 +556,6 @@ macro_rules! simd_kernels {
                         );
                         // As in the forward: no exponential for a block no lane of which can blend.
                         if _mm256_movemask_ps(near) == 0 {
-                            bx += LANES;
                             continue;
                         }
                         let vis = exp_neg(sigma);
@@ -510,7 +563,6 @@ macro_rules! simd_kernels {
                         let alpha = _mm256_min_ps(max_alpha, raw);
                         let ok = _mm256_and_ps(near, _mm256_cmp_ps::<_CMP_GE_OQ>(alpha, thr));
                         if _mm256_movemask_ps(ok) == 0 {
-                            bx += LANES;
                             continue;
                         }
                         unsafe {
@@ -572,7 +624,6 @@ macro_rules! simd_kernels {
                             acc[6] = on_fma(acc[6], _mm256_mul_ps(hv, dy), dy, grad);
                             acc[10] = on_fma(acc[10], vis, v_alpha, grad);
                         }
-                        bx += LANES;
                     }
                 }
                 reduce(&acc)
@@ -645,8 +696,11 @@ impl Default for BackScratch {
 
 /// Backward of [`forward_tile`] for one gathered tile: `out[k]` gets splat `k`'s gradient,
 /// its lanes summed in a fixed order, and every slot of `out` is written (zero for splats
-/// behind every pixel's last contributor). Same results as [`crate::raster::backward_tile`]
+/// behind every pixel's last contributor). With `blended_blocks` (the forward's, one set per
+/// splat) a splat visits only the blocks where it blended: in any other block every lane's
+/// contribution is masked off, so the results are the same to the bit. Same results as [`crate::raster::backward_tile`]
 /// up to the exponential and the order of the sums.
+#[allow(clippy::too_many_arguments)]
 pub fn backward_tile(
     splats: &[Splat],
     tile: (u32, u32, u32, u32),
@@ -654,6 +708,7 @@ pub fn backward_tile(
     background: Vec3,
     pix: &PixelGrads,
     out: &mut [MaybeUninit<IsectGrad>],
+    blended_blocks: Option<&[u32]>,
     scratch: &mut BackScratch,
 ) {
     let (x0, y0, w, h) = tile;
@@ -676,8 +731,10 @@ pub fn backward_tile(
     }
     // One write per slot, back to front: the caller relies on every slot being written.
     for (k, slot) in out.iter_mut().enumerate().rev() {
-        let sums = if k < kmax {
-            backward_splat_with(&splats[k], k as u32, tile, st, isa)
+        // Without the forward's block sets, every block of the box.
+        let blocks = blended_blocks.map_or(u32::MAX, |b| b[k]);
+        let sums = if k < kmax && blocks != 0 {
+            backward_splat_with(&splats[k], k as u32, tile, st, isa, blocks)
         } else {
             [0.0; SUMS]
         };
@@ -710,14 +767,15 @@ fn backward_splat_with(
     tile: (u32, u32, u32, u32),
     st: &mut BackState,
     isa: Isa,
+    blocks: u32,
 ) -> [f32; SUMS] {
     match isa {
         // SAFETY: the CPU has the build's instruction set (its caller's promise).
         #[cfg(target_arch = "x86_64")]
-        Isa::Avx2 => unsafe { avx2::backward_splat(s, k, tile, st) },
+        Isa::Avx2 => unsafe { avx2::backward_splat(s, k, tile, st, blocks) },
         #[cfg(target_arch = "x86_64")]
-        Isa::Avx512 => unsafe { avx512::backward_splat(s, k, tile, st) },
-        _ => backward_splat(s, k, tile, st),
+        Isa::Avx512 => unsafe { avx512::backward_splat(s, k, tile, st, blocks) },
+        _ => backward_splat(s, k, tile, st, blocks),
     }
 }
 
@@ -729,19 +787,22 @@ fn backward_splat(
     k: u32,
     (x0, y0, w, h): (u32, u32, u32, u32),
     st: &mut BackState,
+    blocks: u32,
 ) -> [f32; SUMS] {
     let mut acc = [[0.0f32; LANES]; SUMS];
     let Some(bounds) = local_box(s, x0, y0, w, h) else {
         return [0.0; SUMS];
     };
-    let [lx0, lx1, ly0, ly1] = bounds.map(|v| v as i32);
+    let [lx0, lx1, _, _] = bounds.map(|v| v as i32);
     let (m, [ca, cb, cc], o, cut) = (s.mean(), s.conic(), s.opacity(), s.sigma_cut());
     let (col, z) = (s.color(), s.depth());
-    let b0 = lx0 as usize / LANES * LANES;
-    for ly in ly0 as usize..=ly1 as usize {
+    let mut todo = blocks & box_blocks(bounds);
+    while todo != 0 {
+        let b = todo.trailing_zeros() as usize;
+        todo &= todo - 1;
+        let (ly, bx) = (b / BLOCKS_PER_ROW, b % BLOCKS_PER_ROW * LANES);
         let dy = m.y - ((y0 as usize + ly) as f32 + 0.5);
-        let mut bx = b0;
-        while bx <= lx1 as usize {
+        {
             let dx0 = m.x - ((x0 as usize + bx) as f32 + 0.5);
             for l in 0..LANES {
                 let i = ly * STRIDE + bx + l;
@@ -790,7 +851,6 @@ fn backward_splat(
                 acc[6][l] = on_fma(acc[6][l], 0.5 * v_sigma * dy, dy, grad);
                 acc[10][l] = on_fma(acc[10][l], vis, v_alpha, grad);
             }
-            bx += LANES;
         }
     }
     reduce(&acc)
@@ -835,7 +895,8 @@ mod tests {
                     last: [0; TILE_PX],
                     done: [0; TILE_PX],
                 };
-                let n = forward_tile_dispatch(&list, tile, &mut st, isa);
+                let mut blocks = vec![0; list.len()];
+                let n = forward_tile_dispatch(&list, tile, &mut st, isa, &mut blocks);
                 let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                 (
                     n,
@@ -844,6 +905,7 @@ mod tests {
                     bits(&st.c[2]),
                     bits(&st.depth),
                     st.last,
+                    blocks,
                 )
             };
             let want = run(Isa::Portable);
@@ -872,7 +934,7 @@ mod tests {
             .collect();
         let bins = crate::tiles::bin(&projected, cam.width, cam.height);
         let splats: Vec<Splat> = projected.iter().map(Splat::new).collect();
-        let mut compared = 0;
+        let (mut compared, mut skipped) = (0, 0);
         for t in 0..bins.num_tiles() {
             let list = crate::raster::gather(&bins, &splats, t);
             let tile = crate::raster::tile_pixels(&bins, t, cam.width, cam.height);
@@ -883,7 +945,8 @@ mod tests {
                 last: [0; TILE_PX],
                 done: [0; TILE_PX],
             };
-            forward_tile_dispatch(&list, tile, &mut fwd, Isa::Portable);
+            let mut blocks = vec![0; list.len()];
+            forward_tile_dispatch(&list, tile, &mut fwd, Isa::Portable, &mut blocks);
             let start = BackState {
                 tr: fwd.tr,
                 last: fwd.last,
@@ -896,12 +959,14 @@ mod tests {
                 behind_z: [0.0; TILE_PX],
             };
             let kmax = fwd.last.iter().copied().max().unwrap_or(0);
-            let run = |isa| {
+            // `all`: every block of each box, as without the forward's block sets.
+            let run = |isa, all: bool| {
                 let mut st = Box::new(start.clone());
                 let sums: Vec<[u32; SUMS]> = (0..kmax)
                     .rev()
                     .map(|k| {
-                        backward_splat_with(&list[k as usize], k, tile, &mut st, isa)
+                        let set = if all { u32::MAX } else { blocks[k as usize] };
+                        backward_splat_with(&list[k as usize], k, tile, &mut st, isa, set)
                             .map(f32::to_bits)
                     })
                     .collect();
@@ -911,16 +976,49 @@ mod tests {
                     st.behind[1].map(f32::to_bits),
                 )
             };
-            let want = run(Isa::Portable);
+            let want = run(Isa::Portable, true);
+            // Visiting only the blocks where the forward blended changes no bit.
+            assert!(run(Isa::Portable, false) == want, "tile {t}: block sets");
             for isa in simd_builds() {
-                assert!(run(isa) == want, "tile {t}, {isa:?}");
+                assert!(run(isa, false) == want, "tile {t}, {isa:?}");
+                assert!(run(isa, true) == want, "tile {t}, {isa:?}, every block");
             }
             compared += kmax;
+            skipped += blocks
+                .iter()
+                .zip(&list)
+                .filter_map(|(&b, sp)| {
+                    let full = box_blocks(local_box(sp, tile.0, tile.1, tile.2, tile.3)?);
+                    Some((full & !b).count_ones() as usize)
+                })
+                .sum::<usize>();
         }
         assert!(
             compared > 5_000 && out.num_blended > 0,
             "too little was compared"
         );
+        // The block sets do leave blocks out (this scene has box corners outside ellipses).
+        assert!(skipped > 1_000, "only {skipped} blocks left out");
+    }
+
+    /// The block set of every box in a tile against the blocks its rows and columns touch.
+    #[test]
+    fn box_blocks_are_the_blocks_a_box_touches() {
+        for ly0 in 0..STRIDE {
+            for ly1 in ly0..STRIDE {
+                for lx0 in 0..STRIDE {
+                    for lx1 in lx0..STRIDE {
+                        let mut want = 0u32;
+                        for ly in ly0..=ly1 {
+                            for lx in lx0..=lx1 {
+                                want |= block_bit(ly, lx / LANES * LANES);
+                            }
+                        }
+                        assert_eq!(box_blocks([lx0, lx1, ly0, ly1]), want);
+                    }
+                }
+            }
+        }
     }
 
     #[test]

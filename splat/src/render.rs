@@ -71,6 +71,9 @@ pub struct ForwardState {
     depth: Vec<f32>,
     final_t: Vec<f32>,
     n_contrib: Vec<u32>,
+    /// Per tile-list entry, the blocks in which the splat blended (`blocks::forward_tile`);
+    /// the scalar kernels keep none.
+    blended_blocks: Option<Vec<u32>>,
 }
 
 impl ForwardState {
@@ -182,7 +185,12 @@ fn forward(
     } else {
         (Vec::new(), Vec::new())
     };
+    // The blocks each tile-list entry blended in, for the backward (only the vectorised
+    // kernels record them).
+    let keep_blocks = keep && kernels == Kernels::Blocks;
+    let mut blended_blocks = vec![0u32; if keep_blocks { bins.ids.len() } else { 0 }];
     let num_blended = {
+        let blocks_out = Disjoint::new(&mut blended_blocks);
         let sink = raster::TileSink::new(
             w,
             &mut color,
@@ -192,35 +200,48 @@ fn forward(
         );
         (0..bins.num_tiles())
             .into_par_iter()
-            .map_init(Vec::new, |list, t| {
-                let tile = raster::tile_pixels(&bins, t, w, h);
-                match kernels {
-                    Kernels::Blocks => {
-                        raster::gather_into(&bins, &splats, t, list);
-                        // SAFETY: tile t is this task's alone.
-                        unsafe { blocks::forward_tile(list, tile, settings.background, &sink) }
+            .map_init(
+                || (Vec::new(), Vec::new()),
+                |(list, scratch), t| {
+                    let tile = raster::tile_pixels(&bins, t, w, h);
+                    match kernels {
+                        Kernels::Blocks => {
+                            raster::gather_into(&bins, &splats, t, list);
+                            let range = bins.range(t);
+                            let blocks = if keep_blocks {
+                                // SAFETY: tile t's range of the list entries is this task's alone.
+                                unsafe { blocks_out.part(range.start, range.len()) }
+                            } else {
+                                scratch.resize(range.len(), 0);
+                                &mut scratch[..]
+                            };
+                            // SAFETY: tile t is this task's alone.
+                            unsafe {
+                                blocks::forward_tile(list, tile, settings.background, &sink, blocks)
+                            }
+                        }
+                        Kernels::Scalar => {
+                            let out =
+                                raster::forward_tile(&bins, &splats, t, w, h, settings.background);
+                            let tw = tile.2 as usize;
+                            // SAFETY: tile t is this task's alone.
+                            unsafe {
+                                sink.write_tile(tile, |lx, ly| {
+                                    let i = ly * tw + lx;
+                                    raster::PixelOut {
+                                        color: out.color[i],
+                                        alpha: out.alpha[i],
+                                        depth: out.depth[i],
+                                        final_t: out.final_t[i],
+                                        n_contrib: out.n_contrib[i],
+                                    }
+                                })
+                            };
+                            out.blended
+                        }
                     }
-                    Kernels::Scalar => {
-                        let out =
-                            raster::forward_tile(&bins, &splats, t, w, h, settings.background);
-                        let tw = tile.2 as usize;
-                        // SAFETY: tile t is this task's alone.
-                        unsafe {
-                            sink.write_tile(tile, |lx, ly| {
-                                let i = ly * tw + lx;
-                                raster::PixelOut {
-                                    color: out.color[i],
-                                    alpha: out.alpha[i],
-                                    depth: out.depth[i],
-                                    final_t: out.final_t[i],
-                                    n_contrib: out.n_contrib[i],
-                                }
-                            })
-                        };
-                        out.blended
-                    }
-                }
-            })
+                },
+            )
             .sum::<u64>()
     };
     let radii = projected.par_iter().map(|p| p.radius).collect();
@@ -239,6 +260,7 @@ fn forward(
         depth: depth.clone(),
         final_t,
         n_contrib,
+        blended_blocks: keep_blocks.then_some(blended_blocks),
     });
     let out = RenderOutput {
         width: w,
@@ -366,6 +388,7 @@ pub fn render_backward(
                             settings.background,
                             &pix,
                             out,
+                            st.blended_blocks.as_ref().map(|b| &b[range.clone()]),
                             scratch,
                         )
                     }
