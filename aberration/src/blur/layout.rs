@@ -7,6 +7,8 @@
 
 use std::ops::Range;
 
+use rayon::prelude::*;
+
 #[derive(Clone, Copy, Debug)]
 pub struct AxisLayout {
     pub n: usize,
@@ -129,18 +131,26 @@ impl Padded {
 
     /// The adjoint of [`Padded::new`]: every padded value is added back to the pixel it
     /// was copied from.
+    ///
+    /// Output rows are folded in parallel; each gathers the padded rows copied from it in
+    /// increasing order and adds their values left to right, the order of a serial sweep over
+    /// the padded image, so the sums are the same to the bit.
     pub fn fold(&self) -> Vec<f32> {
         let (w, h, pad) = (self.width, self.height, self.pad as isize);
         let pw = self.stride();
         let cols: Vec<usize> = (0..pw).map(|x| reflect(x as isize - pad, w)).collect();
-        let mut out = vec![0.0f32; w * h];
+        let mut sources: Vec<Vec<usize>> = vec![Vec::new(); h];
         for y in 0..h + 2 * self.pad {
-            let sy = reflect(y as isize - pad, h);
-            let dst = &mut out[sy * w..(sy + 1) * w];
-            for (v, &sx) in self.data[y * pw..(y + 1) * pw].iter().zip(&cols) {
-                dst[sx] += *v;
-            }
+            sources[reflect(y as isize - pad, h)].push(y);
         }
+        let mut out = vec![0.0f32; w * h];
+        out.par_chunks_mut(w).zip(&sources).for_each(|(dst, rows)| {
+            for &y in rows {
+                for (v, &sx) in self.data[y * pw..(y + 1) * pw].iter().zip(&cols) {
+                    dst[sx] += *v;
+                }
+            }
+        });
         out
     }
 }

@@ -226,11 +226,9 @@ impl BlurPlan {
     pub fn apply(&self, x: &Image) -> Result<Image> {
         self.check(x)?;
         let n = x.plane_len();
+        let planes = self.apply_with(|ch, i| x.data[ch * n + i]);
         let mut y = Image::new(self.width, self.height);
-        self.apply_with(
-            |ch, i| x.data[ch * n + i],
-            |ch, i, v| y.data[ch * n + i] += v,
-        );
+        y.data = planes.concat();
         Ok(y)
     }
 
@@ -238,26 +236,18 @@ impl BlurPlan {
     /// written in place of the copies the FFTs make anyway, so no layout conversion is paid.
     pub fn apply_pixels(&self, x: &[Vec3]) -> Result<Vec<Vec3>> {
         self.check_pixels(x)?;
-        let mut y = vec![Vec3::ZERO; x.len()];
-        self.apply_with(|ch, i| x[i][ch], |ch, i, v| y[i][ch] += v);
-        Ok(y)
+        Ok(interleave(&self.apply_with(|ch, i| x[i][ch])))
     }
 
     /// `x = Aᵀ y` on row-major RGB pixels, the exact adjoint of [`BlurPlan::apply_pixels`].
     pub fn adjoint_pixels(&self, y: &[Vec3]) -> Result<Vec<Vec3>> {
         self.check_pixels(y)?;
-        let mut x = vec![Vec3::ZERO; y.len()];
-        self.adjoint_with(|ch, i| y[i][ch], |ch, i, v| x[i][ch] = v);
-        Ok(x)
+        Ok(interleave(&self.adjoint_with(|ch, i| y[i][ch])))
     }
 
     /// The forward pass over any layout: `value(ch, i)` reads pixel `i` (row-major) of channel
-    /// `ch`, `add(ch, i, v)` accumulates into the output.
-    fn apply_with(
-        &self,
-        value: impl Fn(usize, usize) -> f32 + Sync,
-        mut add: impl FnMut(usize, usize, f32),
-    ) {
+    /// `ch`; returns the three output planes.
+    fn apply_with(&self, value: impl Fn(usize, usize) -> f32 + Sync) -> [Vec<f32>; 3] {
         let (w, h) = (self.width, self.height);
         let c = (self.ksize / 2) as isize;
         let padded: Vec<Padded> = (0..3)
@@ -280,32 +270,22 @@ impl BlurPlan {
                 (ch, rows.start, band)
             })
             .collect();
-        for (ch, y0, band) in bands {
-            for (k, s) in band.iter().enumerate() {
-                add(ch, y0 * w + k, *s);
-            }
-        }
+        std::array::from_fn(|ch| merge_bands(&bands, ch, w, h))
     }
 
     /// `x = Aᵀ y`, the exact adjoint of [`BlurPlan::apply`].
     pub fn adjoint(&self, y: &Image) -> Result<Image> {
         self.check(y)?;
         let n = y.plane_len();
+        let planes = self.adjoint_with(|ch, i| y.data[ch * n + i]);
         let mut x = Image::new(self.width, self.height);
-        self.adjoint_with(
-            |ch, i| y.data[ch * n + i],
-            |ch, i, v| x.data[ch * n + i] = v,
-        );
+        x.data = planes.concat();
         Ok(x)
     }
 
-    /// The adjoint over any layout: `value(ch, i)` reads the input, `set(ch, i, v)` writes
-    /// the output.
-    fn adjoint_with(
-        &self,
-        value: impl Fn(usize, usize) -> f32 + Sync,
-        mut set: impl FnMut(usize, usize, f32),
-    ) {
+    /// The adjoint over any layout: `value(ch, i)` reads the input; returns the three output
+    /// planes.
+    fn adjoint_with(&self, value: impl Fn(usize, usize) -> f32 + Sync) -> [Vec<f32>; 3] {
         let (w, h) = (self.width, self.height);
         let c = (self.ksize / 2) as isize;
         let pad = self.pad();
@@ -338,17 +318,50 @@ impl BlurPlan {
                 (ch, rows.start, band)
             })
             .collect();
-        let mut grads: Vec<Padded> = (0..3).map(|_| Padded::zeros(w, h, pad)).collect();
-        for (ch, y0, band) in bands {
-            let dst = &mut grads[ch].data[y0 * pw..y0 * pw + band.len()];
-            dst.iter_mut().zip(&band).for_each(|(d, s)| *d += s);
-        }
-        for (ch, g) in grads.iter().enumerate() {
-            for (i, v) in g.fold().into_iter().enumerate() {
-                set(ch, i, v);
+        std::array::from_fn(|ch| {
+            let grads = Padded {
+                width: w,
+                height: h,
+                pad,
+                data: merge_bands(&bands, ch, pw, h + 2 * pad),
+            };
+            grads.fold()
+        })
+    }
+}
+
+/// Channel `ch`'s plane of `rows` rows of `width` values from the jobs' bands (channel, first
+/// row, values): rows in parallel, each adding the bands that cover it in job order from zero,
+/// as a serial sweep over the bands would, so the sums are the same for any thread count.
+fn merge_bands(
+    bands: &[(usize, usize, Vec<f32>)],
+    ch: usize,
+    width: usize,
+    rows: usize,
+) -> Vec<f32> {
+    let mine: Vec<(usize, &[f32])> = bands
+        .iter()
+        .filter(|b| b.0 == ch)
+        .map(|(_, y0, band)| (*y0, &band[..]))
+        .collect();
+    let mut out = vec![0.0f32; width * rows];
+    out.par_chunks_mut(width).enumerate().for_each(|(y, dst)| {
+        for &(y0, band) in &mine {
+            if y >= y0 && (y - y0 + 1) * width <= band.len() {
+                let src = &band[(y - y0) * width..(y - y0 + 1) * width];
+                dst.iter_mut().zip(src).for_each(|(d, s)| *d += s);
             }
         }
-    }
+    });
+    out
+}
+
+/// Three planes as row-major RGB pixels.
+fn interleave(planes: &[Vec<f32>; 3]) -> Vec<Vec3> {
+    (0..planes[0].len())
+        .into_par_iter()
+        .map(|i| Vec3::new(planes[0][i], planes[1][i], planes[2][i]))
+        .collect()
 }
 
 fn out_rows(t: &Term, c: isize) -> Range<usize> {
