@@ -300,11 +300,14 @@ macro_rules! simd_kernels {
         mod $module {
             use std::arch::x86_64::*;
 
+            use std::mem::MaybeUninit;
+
             use crate::blocks::{
-                BLOCKS_PER_ROW, BackState, LANES, STRIDE, SUMS, TILE_PX, TileState, block_bit,
-                box_blocks,
+                BLOCKS_PER_ROW, BackList, BackState, LANES, STRIDE, SUMS, TILE_PX, TileState,
+                block_bit, box_blocks,
             };
             use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_MIN};
+            use crate::raster::IsectGrad;
             use crate::raster::{Splat, local_box};
 
             /// [`crate::blocks::exp_neg`] on eight lanes.
@@ -487,11 +490,30 @@ macro_rules! simd_kernels {
                 blended
             }
 
+            /// [`crate::blocks::backward_list`] around this build's kernel, so that the
+            /// kernel is inlined into the walk over the list.
+            ///
+            /// # Safety
+            /// The CPU must have AVX2, FMA and POPCNT.
+            #[target_feature(enable = $features)]
+            pub unsafe fn backward_list(
+                list: &BackList,
+                tile: (u32, u32, u32, u32),
+                st: &mut BackState,
+                out: &mut [MaybeUninit<IsectGrad>],
+            ) {
+                crate::blocks::backward_list(list, tile, st, out, |s, k, t, st, b| {
+                    // SAFETY: the caller's promise.
+                    unsafe { backward_splat(s, k, t, st, b) }
+                })
+            }
+
             /// [`crate::blocks::backward_splat`] on eight lanes.
             ///
             /// # Safety
             /// The CPU must have AVX2, FMA and POPCNT.
             #[target_feature(enable = $features)]
+            #[inline]
             pub unsafe fn backward_splat(
                 s: &Splat,
                 k: u32,
@@ -729,12 +751,44 @@ pub fn backward_tile(
             (st.v_dsum[i], st.v_final[i]) = pix.depth_and_final(idx, background);
         }
     }
-    // One write per slot, back to front: the caller relies on every slot being written.
+    let list = BackList {
+        splats,
+        blocks: blended_blocks,
+        kmax,
+    };
+    match isa {
+        // SAFETY: the CPU has the build's instruction set (`Isa::chosen` is available).
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 => unsafe { avx2::backward_list(&list, tile, st, out) },
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 => unsafe { avx512::backward_list(&list, tile, st, out) },
+        _ => backward_list(&list, tile, st, out, backward_splat),
+    }
+}
+
+/// A tile's list as the backward walks it: the splats, the forward's block sets (without
+/// them every block of each box) and the end of the pixels' lists.
+struct BackList<'a> {
+    splats: &'a [Splat],
+    blocks: Option<&'a [u32]>,
+    kmax: usize,
+}
+
+/// The backward of a tile's list, back to front, one write per slot (the caller relies on
+/// every slot being written), with `splat` as the per-splat kernel. Generic so that each
+/// build compiles it around its own kernel, inlined.
+#[inline(always)]
+fn backward_list(
+    list: &BackList,
+    tile: (u32, u32, u32, u32),
+    st: &mut BackState,
+    out: &mut [MaybeUninit<IsectGrad>],
+    mut splat: impl FnMut(&Splat, u32, (u32, u32, u32, u32), &mut BackState, u32) -> [f32; SUMS],
+) {
     for (k, slot) in out.iter_mut().enumerate().rev() {
-        // Without the forward's block sets, every block of the box.
-        let blocks = blended_blocks.map_or(u32::MAX, |b| b[k]);
-        let sums = if k < kmax && blocks != 0 {
-            backward_splat_with(&splats[k], k as u32, tile, st, isa, blocks)
+        let blocks = list.blocks.map_or(u32::MAX, |b| b[k]);
+        let sums = if k < list.kmax && blocks != 0 {
+            splat(&list.splats[k], k as u32, tile, st, blocks)
         } else {
             [0.0; SUMS]
         };
@@ -760,7 +814,8 @@ fn reduce(sums: &[Lanes; SUMS]) -> [f32; SUMS] {
 }
 
 /// [`backward_splat`] with the kernels of `isa`, which must be [`Isa::available`] (the same
-/// bits with any).
+/// bits with any): the tests' way to run one build's kernel.
+#[cfg(test)]
 fn backward_splat_with(
     s: &Splat,
     k: u32,
