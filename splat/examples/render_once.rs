@@ -2,7 +2,9 @@
 //! and work counts. Used for peak-memory measurement (`/usr/bin/time -v`) next to the
 //! criterion benchmarks, and for load-insensitive CPU-time comparisons on a shared machine:
 //! `cargo run --release -p splat --example render_once -- 100000 backward [repeats] [scalar]`
-//! (`scalar`: the per-splat reference kernels instead of the vectorised pixel blocks).
+//! (`scalar`: the per-splat reference kernels instead of the vectorised pixel blocks), or
+//! `-- scene.ply backward [repeats] [blocks|scalar] [focal]` for a PLY file seen from the same
+//! camera pose.
 
 use std::time::Instant;
 
@@ -28,6 +30,9 @@ fn cpu_ns() -> u64 {
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
+    // The scene: a count of synthetic splats, or a PLY file (rendered from the same camera
+    // pose, with the focal length of the fifth argument if given).
+    let ply = args.get(1).filter(|s| s.ends_with(".ply"));
     let n: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(100_000);
     let backward = args.get(2).is_some_and(|s| s == "backward");
     let repeats: u32 = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(1).max(1);
@@ -36,10 +41,19 @@ fn main() {
     } else {
         Kernels::Blocks
     };
-    let g = random_box_scene(0, n, 3);
-    let cam = benchmark_camera();
+    let (g, cam) = match ply {
+        Some(path) => {
+            let g = splat::ply::read_ply(path).expect("PLY");
+            let mut cam = benchmark_camera();
+            if let Some(f) = args.get(5).and_then(|s| s.parse::<f32>().ok()) {
+                (cam.fx, cam.fy) = (f, f);
+            }
+            (g, cam)
+        }
+        None => (random_box_scene(0, n, 3), benchmark_camera()),
+    };
     let s = RenderSettings {
-        sh_degree: 3,
+        sh_degree: g.sh_degree,
         ..Default::default()
     };
     let v = vec![glam::Vec3::splat(1e-3); cam.num_pixels()];
