@@ -357,19 +357,8 @@ fn ssim_channels(
 /// A row of channel `ch`'s five statistics' planes (as [`stats_row`]'s) from interleaved RGB.
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
 fn stats_rgb_row(x: &[Vec3], y: &[Vec3], ch: usize, s: &mut [f32]) {
-    let w = x.len();
-    let (sx, s) = s.split_at_mut(w);
-    let (sy, s) = s.split_at_mut(w);
-    let (sxx, s) = s.split_at_mut(w);
-    let (syy, sxy) = s.split_at_mut(w);
-    for i in 0..w {
-        let (xi, yi) = (x[i][ch], y[i][ch]);
-        sx[i] = xi;
-        sy[i] = yi;
-        sxx[i] = xi * xi;
-        syy[i] = yi * yi;
-        sxy[i] = xi * yi;
-    }
+    let y = &y[..x.len()];
+    fill_stats(s, x.len(), |i| (x[i][ch], y[i][ch]));
 }
 
 /// Channel `ch` of a row of the SSIM gradient, interleaved RGB, from the blurred derivatives
@@ -387,13 +376,20 @@ fn grad_rgb_row(g: &[f32], x: &[Vec3], y: &[Vec3], ch: usize, out: &mut [Vec3]) 
 /// A row of the five statistics' planes `[x, y, x², y², xy]` (each `x.len()` long).
 #[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
 fn stats_row(x: &[f32], y: &[f32], s: &mut [f32]) {
-    let w = x.len();
+    let y = &y[..x.len()];
+    fill_stats(s, x.len(), |i| (x[i], y[i]));
+}
+
+/// The five statistics' planes of `w` pixels whose values `pixel(i)` gives; inlined into each
+/// instruction-set build of its callers.
+#[inline(always)]
+fn fill_stats(s: &mut [f32], w: usize, pixel: impl Fn(usize) -> (f32, f32)) {
     let (sx, s) = s.split_at_mut(w);
     let (sy, s) = s.split_at_mut(w);
     let (sxx, s) = s.split_at_mut(w);
     let (syy, sxy) = s.split_at_mut(w);
     for i in 0..w {
-        let (xi, yi) = (x[i], y[i]);
+        let (xi, yi) = pixel(i);
         sx[i] = xi;
         sy[i] = yi;
         sxx[i] = xi * xi;
