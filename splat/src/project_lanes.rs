@@ -825,6 +825,10 @@ mod tests {
     #[test]
     fn backward_lanes_match_the_scalar_backward() {
         use crate::project::project_backward_one;
+        let avx2 = crate::blocks::Isa::available().contains(&crate::blocks::Isa::Avx2);
+        if !avx2 {
+            eprintln!("SKIP (in part): this CPU has no AVX2 to compare with the portable build");
+        }
         let cam = crate::synthetic::benchmark_camera().resized(200, 150);
         let pos = cam.position();
         let mut rng = base::SplitMix64::new(7);
@@ -887,6 +891,14 @@ mod tests {
                 };
                 want_p.push(p);
             }
+            let flat = |p: &ParamGrad| {
+                let mut v = p.mean.to_array().to_vec();
+                v.extend(p.log_scale.to_array());
+                v.extend(p.rotation);
+                v.push(p.logit_opacity);
+                v.extend(p.sh_dc.to_array());
+                v
+            };
             for first in (0..n).step_by(N) {
                 let count = N.min(n - first);
                 let t = std::array::from_fn(|l| l < count && touched(first + l));
@@ -902,15 +914,44 @@ mod tests {
                     &mut got_r[first * rc..(first + count) * rc],
                 );
                 got_p.extend_from_slice(&out[..count]);
+                // The AVX2 build gives the portable build's bits.
+                #[cfg(target_arch = "x86_64")]
+                if avx2 {
+                    let (cols, scr) =
+                        (&colors[first..first + count], &screen[first..first + count]);
+                    let (mut o_port, mut r_port) =
+                        ([ParamGrad::default(); N], vec![Vec3::ZERO; count * rc]);
+                    let (mut o_avx, mut r_avx) =
+                        ([ParamGrad::default(); N], vec![Vec3::ZERO; count * rc]);
+                    backward_body(
+                        &g,
+                        first,
+                        &cam,
+                        deg,
+                        aa,
+                        cols,
+                        scr,
+                        t,
+                        &mut r_port,
+                        &mut o_port,
+                    );
+                    // SAFETY: `avx2` says the CPU has AVX2 and FMA.
+                    unsafe {
+                        backward_avx2(
+                            &g, first, &cam, deg, aa, cols, scr, t, &mut r_avx, &mut o_avx,
+                        )
+                    };
+                    let bits = |o: &[ParamGrad; N], r: &[Vec3]| {
+                        let mut v: Vec<f32> = o[..count].iter().flat_map(flat).collect();
+                        v.extend(r.iter().flat_map(|x| x.to_array()));
+                        v.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+                    };
+                    assert!(
+                        bits(&o_avx, &r_avx) == bits(&o_port, &r_port),
+                        "seed {seed}: AVX2 and portable backward differ at Gaussians {first}.."
+                    );
+                }
             }
-            let flat = |p: &ParamGrad| {
-                let mut v = p.mean.to_array().to_vec();
-                v.extend(p.log_scale.to_array());
-                v.extend(p.rotation);
-                v.push(p.logit_opacity);
-                v.extend(p.sh_dc.to_array());
-                v
-            };
             let mut zeros = 0;
             for i in 0..n {
                 let (w, gg) = (flat(&want_p[i]), flat(&got_p[i]));
