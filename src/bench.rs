@@ -1,101 +1,108 @@
-//! Where a CPU training step goes: the phases of the step the training loop takes (render,
-//! blur, loss with SSIM, the blur's adjoint, render backward, Adam), timed one by one on a
-//! capture's training views, at each thread count asked for. The loss phases are the training
-//! objective's own stages ([`Objective::evaluate_timed`]). A measurement, not a test.
+//! Where a training step goes: the real training loop ([`crate::train::train`]) run for a few
+//! steps with a `tracing` layer that adds up the time inside each of the step's spans (render
+//! forward, PSF blur, loss, blur adjoint, render backward, Adam, densification statistics; on
+//! a GPU the backward and Adam are one span), at each thread count asked for. The spans sit
+//! in the step's own code, so nothing here can drift from what training does. A measurement,
+//! not a test.
 
-use std::time::Instant;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
-use splat::optim::Adam;
-use splat::{Gaussians, RenderSettings, render_backward, render_for_backward};
+use tracing::span::{Attributes, Id};
+use tracing_subscriber::layer::{Context, Layer, SubscriberExt};
+use tracing_subscriber::registry::LookupSpan;
 
+use crate::device::Device;
 use crate::error::{Result, TrainError};
-use crate::train::config::Mode;
+use crate::train::config::TrainConfig;
 use crate::train::data::Dataset;
-use crate::train::objective::{Objective, Stage};
 
-/// The phases of a step, in the order they run.
-pub const PHASES: [&str; 6] = [
-    "render forward",
-    "PSF blur",
-    "loss (L1 + SSIM, value and gradient)",
-    "blur adjoint",
-    "render backward",
-    "Adam",
-];
-
-/// Mean milliseconds per step of each phase (wall clock), for one thread count.
+/// Milliseconds per step of each span, in the order the spans first ran, for one thread
+/// count; `step` is the whole step as the loop counts it (hooks and bookkeeping included).
 #[derive(Clone, Debug)]
 pub struct StepTimes {
     pub threads: usize,
-    pub steps: usize,
-    pub phases: [f64; 6],
+    pub steps: u64,
+    pub phases: Vec<(&'static str, f64)>,
+    pub step: f64,
 }
 
 impl StepTimes {
-    pub fn total(&self) -> f64 {
-        self.phases.iter().sum()
+    /// The whole step less its named phases: hooks, bookkeeping, and what no span covers.
+    pub fn other(&self) -> f64 {
+        (self.step - self.phases.iter().map(|p| p.1).sum::<f64>()).max(0.0)
+    }
+
+    /// Milliseconds per step of the phase `name` (0 when it did not run).
+    pub fn phase(&self, name: &str) -> f64 {
+        self.phases
+            .iter()
+            .find(|p| p.0 == name)
+            .map_or(0.0, |p| p.1)
     }
 }
 
-/// Times `steps` training steps of `mode` on `model` (cycling through the training views) with
-/// `threads` worker threads. The model is updated by Adam as in training, from the same start
-/// at every thread count.
+/// Time spent inside spans, by span name, in the order names were first seen.
+#[derive(Clone, Default)]
+struct SpanTimes(Arc<Mutex<Vec<(&'static str, Duration)>>>);
+
+struct Entered(Instant);
+
+impl<S: tracing::Subscriber + for<'a> LookupSpan<'a>> Layer<S> for SpanTimes {
+    fn on_new_span(&self, _: &Attributes<'_>, _: &Id, _: Context<'_, S>) {}
+
+    fn on_enter(&self, id: &Id, ctx: Context<'_, S>) {
+        if let Some(span) = ctx.span(id) {
+            span.extensions_mut().replace(Entered(Instant::now()));
+        }
+    }
+
+    fn on_exit(&self, id: &Id, ctx: Context<'_, S>) {
+        let Some(span) = ctx.span(id) else { return };
+        let Some(Entered(at)) = span.extensions_mut().remove::<Entered>() else {
+            return;
+        };
+        let name = span.metadata().name();
+        let mut times = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        match times.iter_mut().find(|t| t.0 == name) {
+            Some(t) => t.1 += at.elapsed(),
+            None => times.push((name, at.elapsed())),
+        }
+    }
+}
+
+/// Trains `config` (a short run: its `iters` steps) on `data` with `threads` worker threads on
+/// `device`, timing the step's spans. Every thread count starts from the same model.
 pub fn time_steps(
     data: &Dataset,
-    mode: Mode,
-    lambda: f32,
-    model: &Gaussians,
-    steps: usize,
+    config: &TrainConfig,
+    device: &Device,
     threads: usize,
 ) -> Result<StepTimes> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
         .map_err(|e| TrainError::Invalid(format!("cannot start {threads} threads: {e}")))?;
-    pool.install(|| {
-        let mut g = model.clone();
-        let mut adam = Adam::new(&g);
-        let recipe = crate::train::config::Recipe::for_iters(7000, false);
-        let settings = RenderSettings {
-            sh_degree: g.sh_degree,
-            ..Default::default()
-        };
-        let objective = Objective {
-            mode,
-            lambda,
-            dssim_weight: recipe.dssim_weight,
-            imaging: data.imaging.as_ref(),
-            width: data.width,
-            height: data.height,
-        };
-        let mut t = [0.0f64; 6];
-        let mut lap = |i: usize, start: &mut Instant| {
-            t[i] += start.elapsed().as_secs_f64() * 1e3;
-            *start = Instant::now();
-        };
-        for k in 0..steps {
-            let view = &data.train[k % data.train.len()];
-            let mut clock = Instant::now();
-            let (out, state) = render_for_backward(&g, &view.camera, &settings)?;
-            lap(0, &mut clock);
-            let (_, v) = objective.evaluate_timed(&out.color, view, &mut |stage| {
-                let phase = match stage {
-                    Stage::Blur => 1,
-                    Stage::Loss => 2,
-                    Stage::Adjoint => 3,
-                };
-                lap(phase, &mut clock);
-            })?;
-            let grads = render_backward(&g, &state, &v, None, None)?;
-            lap(4, &mut clock);
-            adam.step(&mut g, &grads.params, &recipe.lrs)?;
-            lap(5, &mut clock);
-        }
-        let n = steps.max(1) as f64;
-        Ok(StepTimes {
-            threads,
-            steps,
-            phases: t.map(|v| v / n),
+    let spans = SpanTimes::default();
+    let subscriber = tracing_subscriber::registry().with(spans.clone());
+    // The loop runs on the pool's thread, so the layer is that thread's default there.
+    let outcome = pool.install(|| {
+        tracing::subscriber::with_default(subscriber, || {
+            crate::train::train(config, data, device, None, false, &mut |_| {})
         })
+    })?;
+    let per_step = |d: Duration| d.as_secs_f64() * 1e3 / config.iters.max(1) as f64;
+    let phases = spans
+        .0
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .iter()
+        .map(|&(name, d)| (name, per_step(d)))
+        .collect();
+    Ok(StepTimes {
+        threads,
+        steps: config.iters,
+        phases,
+        step: outcome.train_seconds * 1e3 / config.iters.max(1) as f64,
     })
 }

@@ -3,12 +3,9 @@
 
 use std::sync::Arc;
 
-use glam::Vec3;
 use rayon::prelude::*;
 use splat::gpu::{GpuContext, GpuRasterizer};
-use splat::{
-    Camera, Gaussians, Gradients, PixelGradients, Rasterizer, RenderOutput, RenderSettings,
-};
+use splat::{Camera, Gaussians, Rasterizer, RenderOutput, RenderSettings};
 
 use crate::error::{Result, TrainError};
 
@@ -98,21 +95,4 @@ impl Device {
         let mut v = self.render_views(g, std::slice::from_ref(camera), settings)?;
         Ok(v.pop().expect("one camera, one image"))
     }
-}
-
-/// Renders with `r`, scores the image with `loss` (which returns the loss and
-/// `∂loss/∂colour`) and backpropagates: one training step's gradients. (A GPU run trains on
-/// [`splat::gpu::GpuTraining`] instead, which keeps the model resident.)
-pub fn forward_backward<R: Rasterizer, T>(
-    r: &R,
-    g: &Gaussians,
-    camera: &Camera,
-    settings: &RenderSettings,
-    loss: impl FnOnce(&RenderOutput) -> Result<(T, Vec<Vec3>)>,
-) -> Result<(RenderOutput, T, Gradients)> {
-    let scene = r.upload(g)?;
-    let (out, saved) = r.render_for_backward(&scene, camera, settings)?;
-    let (value, v_color) = loss(&out)?;
-    let grads = r.backward(&scene, &saved, PixelGradients::color(&v_color))?;
-    Ok((out, value, grads))
 }

@@ -1,14 +1,13 @@
 //! metasplat: clean Gaussian-splat scenes from metalens-aberrated photos.
 //!
 //! The library behind the `metasplat` binary: the aberration-aware training loop
-//! ([`train`]), one run assembled from a request ([`run`]), held-out evaluation ([`eval`]), the initial splats ([`init`]), and the
+//! ([`train`]), one run assembled from a request ([`run`]), the initial splats ([`init`]), and the
 //! conversions between the member crates' types ([`convert`]).
 
 pub mod bench;
 pub mod convert;
 pub mod device;
 pub mod error;
-pub mod eval;
 pub mod flags;
 pub mod guard;
 pub mod init;
@@ -16,6 +15,7 @@ pub mod outputs;
 pub mod plot;
 pub mod procedural;
 pub mod run;
+pub mod settings;
 pub mod spiral;
 pub mod train;
 pub mod view;

@@ -11,9 +11,9 @@ use serde::Serialize;
 use crate::convert::{pixels_to_image, save_pixels, splat_camera};
 use crate::device::Device;
 use crate::error::{Result, TrainError};
-use crate::eval::{self, Metrics};
 use crate::train::config::TrainConfig;
 use crate::train::data::Dataset;
+use crate::train::eval::{self, Metrics};
 use crate::train::{LogRow, Outcome};
 
 pub const PLY_FILE: &str = "point_cloud.ply";

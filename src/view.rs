@@ -10,7 +10,8 @@ use viewer::{CompareSource, LiveSource, Panel};
 
 use crate::error::Result;
 use crate::outputs::{CHECKPOINT_FILE, PLY_FILE};
-use crate::train::data::{CaptureModel, DataOptions, View};
+use crate::settings::DataOptions;
+use crate::train::data::{CaptureModel, View};
 
 /// A capture's side of the comparison: for a view, the metalens photo, the render blurred
 /// through the capture's PSF model (what aware training compares with the photo), `I_ac`
@@ -149,7 +150,7 @@ impl RunWatch {
                 .map(|s| {
                     let what = format!(
                         "Showing step {} of the run ({} splats) from {}.",
-                        s.step,
+                        s.progress.step,
                         s.model.len(),
                         path.display()
                     );

@@ -162,13 +162,13 @@ fn valid() -> &'static Valid {
             seed: 1,
         };
         let scene = metasplat::procedural::write_capture(&d.join("scene"), &o).unwrap();
-        let options = metasplat::train::data::DataOptions {
+        let options = metasplat::settings::DataOptions {
             downsample: 1,
             ..Default::default()
         };
         let mode = metasplat::train::config::Mode::Plain;
         let data = metasplat::train::data::load(&scene, mode, &options).unwrap();
-        let settings = metasplat::run::TrainSettings {
+        let settings = metasplat::settings::TrainSettings {
             mode,
             iters: 4,
             eval_every: Some(0),

@@ -135,7 +135,7 @@ fn run_and_kill(
 fn checkpoint_step(run: &Path) -> Option<u64> {
     metasplat::train::checkpoint::load(&run.join("checkpoint.bin"))
         .ok()
-        .map(|s| s.step)
+        .map(|s| s.progress.step)
 }
 
 /// The files of a finished run that must not depend on interruptions (metrics and the log

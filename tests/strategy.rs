@@ -3,8 +3,8 @@
 
 use glam::Vec3;
 use metasplat::train::config::Recipe;
-use metasplat::train::densify::Densifier;
-use metasplat::train::sh::{ShBands, ShEvent};
+use metasplat::train::densify::DensifyStrategy;
+use metasplat::train::sh::{ShEvent, ShSchedule, ShState};
 use splat::model::logit;
 use splat::optim::Adam;
 use splat::{Gaussians, RenderSettings, render};
@@ -39,14 +39,18 @@ fn growth_stops_at_the_budget_and_takes_the_largest_gradients() {
     let mut model = row_of_splats(n, 0);
     let mut adam = Adam::new(&model);
     let budget = n + 4;
-    let mut d = Densifier::new(recipe(), budget, 10.0, n);
+    let strategy = DensifyStrategy::new(recipe(), budget, 10.0);
+    let mut d = strategy.initialize_state(n);
     // Every splat is a candidate (mean gradient above 2e-4); splat i has gradient i + 1.
     for i in 0..n {
         d.stats.grad_norm_sum[i] = 1e-3 * (i + 1) as f32;
         d.stats.count[i] = 1;
     }
     d.seen = vec![true; n];
-    let edit = d.after_step(10, &mut model, &mut adam, 7).unwrap().unwrap();
+    let edit = strategy
+        .after_step(&mut d, 10, &mut model, &mut adam, 7)
+        .unwrap()
+        .unwrap();
     assert_eq!(model.len(), budget);
     assert_eq!(edit.cloned + edit.split, 4);
     assert_eq!(edit.over_budget, n - 4);
@@ -71,7 +75,10 @@ fn growth_stops_at_the_budget_and_takes_the_largest_gradients() {
         d.stats.grad_norm_sum[i] = 1.0;
         d.stats.count[i] = 1;
     }
-    let edit = d.after_step(20, &mut model, &mut adam, 7).unwrap().unwrap();
+    let edit = strategy
+        .after_step(&mut d, 20, &mut model, &mut adam, 7)
+        .unwrap()
+        .unwrap();
     assert_eq!((edit.cloned, edit.split, edit.over_budget), (0, 0, budget));
     assert_eq!(model.len(), budget);
 }
@@ -81,9 +88,12 @@ fn unseen_and_invisible_splats_are_pruned_without_changing_renders() {
     let n = 10;
     let mut model = row_of_splats(n, 0);
     let mut adam = Adam::new(&model);
-    let mut d = Densifier::new(recipe(), 100, 10.0, n);
+    let strategy = DensifyStrategy::new(recipe(), 100, 10.0);
+    let mut d = strategy.initialize_state(n);
     d.seen = (0..n).map(|i| i % 3 != 0).collect();
-    let pruned = d.end_of_epoch(&mut model, &mut adam).unwrap();
+    let pruned = strategy
+        .end_of_epoch(&mut d, &mut model, &mut adam)
+        .unwrap();
     assert_eq!(pruned, 4);
     assert_eq!(model.len(), 6);
     assert!(d.seen.iter().all(|s| !s), "a new epoch starts unseen");
@@ -102,7 +112,7 @@ fn unseen_and_invisible_splats_are_pruned_without_changing_renders() {
     );
     let settings = RenderSettings::default();
     let before = render(&model, &cam, &settings).unwrap().color;
-    assert_eq!(d.finish(&mut model, &mut adam).unwrap(), 2);
+    assert_eq!(strategy.finish(&mut d, &mut model, &mut adam).unwrap(), 2);
     assert_eq!(model.len(), 4);
     assert_eq!(render(&model, &cam, &settings).unwrap().color, before);
 }
@@ -112,7 +122,8 @@ fn sh_bands_stay_only_while_they_lower_the_loss() {
     let mut model = row_of_splats(5, 0);
     let mut adam = Adam::new(&model);
     let min_gain = Recipe::for_iters(1000, false).sh_min_gain;
-    let mut bands = ShBands::new(3, 100, min_gain);
+    let bands = ShSchedule::new(3, 100, min_gain);
+    let mut state = ShState::default();
     // A scene whose loss improves with band 1 but not with band 2.
     let mut loss_at = |_: &Gaussians, degree: u32| -> metasplat::Result<f64> {
         Ok(match degree {
@@ -123,37 +134,39 @@ fn sh_bands_stay_only_while_they_lower_the_loss() {
     };
     assert!(
         bands
-            .after_step(50, &mut model, &mut adam, &mut loss_at)
+            .after_step(&mut state, 50, &mut model, &mut adam, &mut loss_at)
             .unwrap()
             .is_empty()
     );
     let e = bands
-        .after_step(100, &mut model, &mut adam, &mut loss_at)
+        .after_step(&mut state, 100, &mut model, &mut adam, &mut loss_at)
         .unwrap();
     assert_eq!(e, vec![ShEvent::Raised { degree: 1 }]);
     assert_eq!((model.sh_degree, model.sh_rest.len()), (1, 5 * 3));
     let e = bands
-        .after_step(200, &mut model, &mut adam, &mut loss_at)
+        .after_step(&mut state, 200, &mut model, &mut adam, &mut loss_at)
         .unwrap();
     assert!(matches!(e[0], ShEvent::Kept { degree: 1, .. }));
     assert_eq!(e[1], ShEvent::Raised { degree: 2 });
     let e = bands
-        .after_step(300, &mut model, &mut adam, &mut loss_at)
+        .after_step(&mut state, 300, &mut model, &mut adam, &mut loss_at)
         .unwrap();
     assert!(
         matches!(e[..], [ShEvent::Dropped { degree: 1, .. }]),
         "{e:?}"
     );
-    assert!(bands.frozen);
+    assert!(state.frozen);
     assert_eq!((model.sh_degree, model.sh_rest.len()), (1, 5 * 3));
     // Frozen: no more bands; at the end band 1 is tested once more and kept.
     assert!(
         bands
-            .after_step(400, &mut model, &mut adam, &mut loss_at)
+            .after_step(&mut state, 400, &mut model, &mut adam, &mut loss_at)
             .unwrap()
             .is_empty()
     );
-    let e = bands.finish(&mut model, &mut adam, &mut loss_at).unwrap();
+    let e = bands
+        .finish(&mut state, &mut model, &mut adam, &mut loss_at)
+        .unwrap();
     assert!(matches!(e[..], [ShEvent::Kept { degree: 1, .. }]), "{e:?}");
     // Adam follows the model's shape through all of this.
     let grads = Gaussians::zeros(5, 1);

@@ -9,8 +9,9 @@ use std::sync::OnceLock;
 use aberration::optics::{SimConfig, simulate_grid};
 use metasplat::device::Device;
 use metasplat::procedural::ProceduralOptions;
+use metasplat::settings::DataOptions;
 use metasplat::train::config::{Mode, TrainConfig};
-use metasplat::train::data::{self, DataOptions, Dataset};
+use metasplat::train::data::{self, Dataset};
 use metasplat::train::objective::Objective;
 use metasplat::train::{self, Event};
 use splat::{RenderSettings, render, render_backward, render_for_backward};
@@ -54,7 +55,7 @@ fn options() -> DataOptions {
 }
 
 fn config(mode: Mode, iters: u64, data: &Dataset) -> TrainConfig {
-    let settings = metasplat::run::TrainSettings {
+    let settings = metasplat::settings::TrainSettings {
         mode,
         iters,
         eval_every: Some(0),
@@ -74,7 +75,7 @@ fn mean_psnr_on(device: &Device, mode: Mode, iters: u64, lambda: f32) -> f64 {
     cfg.lambda = lambda;
     let out = train::train(&cfg, &data, device, None, false, &mut |_| {}).unwrap();
     assert!(out.model.means.iter().all(|m| m.is_finite()));
-    let m = metasplat::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu)
+    let m = metasplat::train::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu)
         .unwrap()
         .expect("the aberrated capture has clean images");
     m.mean_psnr
@@ -168,7 +169,7 @@ fn a_gpu_run_resumes_exactly_and_carries_on_on_the_cpu() {
     assert_eq!(full.model, resumed.model, "the resumed GPU run diverged");
     let on_cpu = train::train(&cfg, &data, &Device::Cpu, Some(&kept), true, &mut |_| {}).unwrap();
     let psnr = |m: &splat::Gaussians, s: &RenderSettings| {
-        metasplat::eval::evaluate(m, &data.test, s, &Device::Cpu)
+        metasplat::train::eval::evaluate(m, &data.test, s, &Device::Cpu)
             .unwrap()
             .unwrap()
             .mean_psnr
@@ -388,7 +389,7 @@ fn bad_input_is_reported_clearly() {
     let cfg = config(Mode::Aware, 20, &data);
     let out = train::train(&cfg, &data, &Device::Cpu, None, false, &mut |_| {}).unwrap();
     assert!(
-        metasplat::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu)
+        metasplat::train::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu)
             .unwrap()
             .is_none()
     );
@@ -492,7 +493,7 @@ fn the_stand_in_restorer_fades_lambda_out() {
     let data = data::load(&fixture().aberrated, Mode::Aware, &options()).unwrap();
     assert!(matches!(
         data.restorer,
-        Some(metasplat::train::data::Restorer::Wiener)
+        Some(metasplat::train::iac::IacSource::Wiener)
     ));
     // A run of the default length: held for the first thousand steps, zero by the end of
     // densification.
@@ -515,7 +516,7 @@ fn the_stand_in_restorer_fades_lambda_out() {
     let cfg = config(Mode::Plain, 1000, &plain);
     assert_eq!(cfg.lambda_fade_until, None);
     // A λ given explicitly is used as given.
-    let settings = metasplat::run::TrainSettings {
+    let settings = metasplat::settings::TrainSettings {
         mode: Mode::Aware,
         iters: 1000,
         lambda: Some(0.25),
@@ -525,13 +526,13 @@ fn the_stand_in_restorer_fades_lambda_out() {
     assert_eq!(cfg.lambda_fade_until, None);
     assert_eq!(cfg.lambda_at(900), 0.25);
     // --lambda-fade overrides the rule, in either direction.
-    use metasplat::run::LambdaFade;
+    use metasplat::settings::LambdaFade;
     for (fade, want) in [
         (LambdaFade::Never, None),
         (LambdaFade::End, Some(1000)),
         (LambdaFade::Step(300), Some(300)),
     ] {
-        let settings = metasplat::run::TrainSettings {
+        let settings = metasplat::settings::TrainSettings {
             mode: Mode::Aware,
             iters: 1000,
             lambda_fade: fade,
@@ -541,7 +542,7 @@ fn the_stand_in_restorer_fades_lambda_out() {
         assert_eq!(cfg.lambda_fade_until, want, "{fade}");
     }
     // Held, then falling: FROM:TO.
-    let settings = metasplat::run::TrainSettings {
+    let settings = metasplat::settings::TrainSettings {
         mode: Mode::Aware,
         iters: 1000,
         lambda: Some(0.4),
@@ -560,4 +561,96 @@ fn the_stand_in_restorer_fades_lambda_out() {
     assert_eq!("end".parse::<LambdaFade>(), Ok(LambdaFade::End));
     assert_eq!("250".parse::<LambdaFade>(), Ok(LambdaFade::Step(250)));
     assert!("soon".parse::<LambdaFade>().unwrap_err().contains("soon"));
+}
+
+/// SH bands are judged on the loss the step minimises: once λ has faded to zero the probes
+/// must leave `L(render, I_ac)` out. The band's gain is recomputed here from the final model
+/// with the objective at the last step; with the configured λ it would be another number.
+#[test]
+fn sh_bands_are_judged_on_the_loss_training_minimises() {
+    use metasplat::train::sh::ShEvent;
+    let data = data::load(&fixture().aberrated, Mode::Aware, &options()).unwrap();
+    assert!(data.train.iter().all(|v| v.restored.is_some()));
+    // Band 1 comes at step 100 and trains until the end judges it.
+    let mut cfg = config(Mode::Aware, 200, &data);
+    cfg.max_sh_degree = 1;
+    cfg.lambda = 1.0;
+    cfg.lambda_hold_until = 0;
+    cfg.lambda_fade_until = Some(50);
+    cfg.recipe.sh_every = 100;
+    // Every band tested is kept, so the final model still holds the band the end judged.
+    cfg.recipe.sh_min_gain = -1e9;
+    let out = train::train(&cfg, &data, &Device::Cpu, None, false, &mut |_| {}).unwrap();
+    let Some(&ShEvent::Kept { degree: 1, gain }) = out.sh_events.last() else {
+        panic!("band 1 was not judged at the end: {:?}", out.sh_events);
+    };
+    assert_eq!(out.model.sh_degree, 1);
+    let gain_with = |lambda: f32| {
+        let objective = Objective {
+            mode: Mode::Aware,
+            lambda,
+            dssim_weight: cfg.recipe.dssim_weight,
+            imaging: data.imaging.as_ref(),
+            width: data.width,
+            height: data.height,
+        };
+        let (n, m) = (data.train.len(), data.train.len().min(8));
+        let loss = |degree: u32| {
+            let s = RenderSettings {
+                sh_degree: degree,
+                ..out.settings
+            };
+            (0..m)
+                .map(|k| {
+                    let v = &data.train[k * n / m];
+                    let image = render(&out.model, &v.camera, &s).unwrap().color;
+                    objective.value(&image, v).unwrap() as f64
+                })
+                .sum::<f64>()
+                / m as f64
+        };
+        let (with, without) = (loss(1), loss(0));
+        (without - with) / with.abs().max(1e-12)
+    };
+    let (right, configured) = (gain_with(cfg.lambda_at(200)), gain_with(cfg.lambda));
+    eprintln!(
+        "band 1: gain {gain:e}; at the step's λ {right:e}, at the configured λ {configured:e}"
+    );
+    assert_eq!(cfg.lambda_at(200), 0.0);
+    assert!(
+        (right - configured).abs() > 1e-6,
+        "the two losses judge the band alike: the test cannot tell them apart"
+    );
+    assert!(
+        (gain - right).abs() <= 1e-9 * right.abs().max(1e-9),
+        "{gain:e} vs {right:e}"
+    );
+}
+
+/// `bench step` times the training loop's own step: its spans are all there and add up to
+/// no more than the step the loop counted.
+#[test]
+fn the_step_benchmark_times_the_training_step() {
+    let data = data::load(&fixture().aberrated, Mode::Aware, &options()).unwrap();
+    let cfg = config(Mode::Aware, 3, &data);
+    let t = metasplat::bench::time_steps(&data, &cfg, &Device::Cpu, 1).unwrap();
+    let names: Vec<&str> = t.phases.iter().map(|p| p.0).collect();
+    for want in [
+        "render forward",
+        "PSF blur",
+        "loss",
+        "blur adjoint",
+        "render backward",
+        "Adam",
+        "densification statistics",
+    ] {
+        assert!(names.contains(&want), "no span '{want}' in {names:?}");
+    }
+    let named: f64 = t.phases.iter().map(|p| p.1).sum();
+    assert!(t.phases.iter().all(|p| p.1 > 0.0), "{:?}", t.phases);
+    assert!(
+        named <= t.step * 1.001,
+        "{named} ms of spans in a {} ms step",
+        t.step
+    );
 }

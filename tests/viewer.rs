@@ -12,8 +12,9 @@ use std::process::{Child, Command, Output};
 use std::sync::OnceLock;
 
 use metasplat::procedural::{ProceduralOptions, ground_truth};
+use metasplat::settings::{self, DataOptions};
 use metasplat::train::config::Mode;
-use metasplat::train::data::{self, DataOptions};
+use metasplat::train::data;
 use metasplat::train::objective::Objective;
 use metasplat::view::{CLEAN, CaptureComparison, PHOTO, REBLURRED, RENDER, RESTORED};
 
@@ -51,7 +52,7 @@ fn fixture() -> &'static Fixture {
 fn options() -> DataOptions {
     DataOptions {
         downsample: 1,
-        restorer: data::RestorerChoice::Wiener,
+        restorer: settings::RestorerChoice::Wiener,
         ..DataOptions::default()
     }
 }

@@ -27,6 +27,7 @@ pub mod render;
 pub mod sh;
 pub mod spz;
 pub mod synthetic;
+pub mod trainer;
 
 // The CPU kernels: documented for whoever ports them, but not API.
 #[doc(hidden)]
@@ -48,3 +49,4 @@ pub use render::{
     ForwardState, Gradients, RenderOutput, RenderSettings, render, render_backward,
     render_for_backward,
 };
+pub use trainer::{CpuTrainer, SplatTrainer, StepReport};

@@ -289,12 +289,12 @@ fn gpu_adam_matches_the_cpu_optimiser() {
         let report = resident.apply_gradients(&grads, &lr, reg).unwrap();
         assert_eq!(report.nonfinite_gradient, step == 2);
         assert!(!report.nonfinite_parameter);
-        // The CPU: the penalty's gradient added by hand, as the trainer does.
-        let k = reg / model.len() as f32;
-        for (g, &x) in grads.logit_opacities.iter_mut().zip(&model.logit_opacities) {
-            let o = splat::model::sigmoid(x);
-            *g += k * o * (1.0 - o);
-        }
+        // The CPU: the penalty's gradient added as the CPU trainer adds it.
+        splat::trainer::add_opacity_penalty(
+            &mut grads.logit_opacities,
+            &model.logit_opacities,
+            reg,
+        );
         adam.step(&mut model, &grads, &lr).unwrap();
     }
     let (got, got_adam) = resident.download().unwrap();
@@ -439,4 +439,114 @@ fn a_scene_bound_in_pieces_matches_one_bound_whole() {
     let (a, b) = (train(&split), train(&whole));
     assert_ne!(a.0, model, "training did not move the model");
     assert!(a == b, "split training differs");
+}
+
+/// The two trainers behind one interface: the same steps (render, a loss gradient from the
+/// host, backward, the opacity penalty, Adam) with an edit of the host model between them (a
+/// prune and a new SH band, as the hooks make) give the same model on the GPU as on the CPU:
+/// the edit reaches the GPU before its next render, and the host copy a hook reads is the one
+/// the GPU stepped. The GPU trainer refuses a step without its own render.
+#[test]
+fn the_gpu_trainer_follows_the_cpu_trainer_through_steps_and_edits() {
+    use splat::SplatTrainer;
+    let Some(gpu) = gpu() else { return };
+    let cam = test_camera(57, 41, 50.0);
+    let model = random_scene(43, 300, 1, (0.02, 0.3), 1.2);
+    let adam = splat::optim::Adam::new(&model);
+    let lr = splat::optim::LearningRates {
+        means: 1e-3,
+        ..Default::default()
+    };
+    let mut cpu = splat::CpuTrainer::new(model.clone(), adam.clone()).unwrap();
+    let mut on_gpu = splat::gpu::GpuTrainer::new(&gpu, model, adam).unwrap();
+    let target: Vec<Vec3> = base::SplitMix64::new(3).normal_rgb(cam.num_pixels());
+    fn settings<T: SplatTrainer>(t: &T) -> RenderSettings {
+        RenderSettings {
+            sh_degree: t.sh_degree(),
+            ..Default::default()
+        }
+    }
+    fn steps<T: SplatTrainer>(
+        t: &mut T,
+        cam: &Camera,
+        target: &[Vec3],
+        lr: &splat::optim::LearningRates,
+    ) {
+        for _ in 0..3 {
+            let (out, saved) = t.render(cam, &settings(t)).unwrap();
+            // The gradient of ½‖render − target‖².
+            let v: Vec<Vec3> = out.color.iter().zip(target).map(|(a, b)| *a - *b).collect();
+            let report = t.step(saved, PixelGradients::color(&v), lr, 0.3).unwrap();
+            assert!(!report.nonfinite_gradient && !report.nonfinite_parameter);
+            assert_eq!(report.means2d.len(), t.len());
+        }
+    }
+    fn edit<T: SplatTrainer>(t: &mut T) {
+        let (model, adam) = t.host_mut().unwrap();
+        let mask: Vec<bool> = (0..model.len()).map(|i| i % 7 == 3).collect();
+        let sources = splat::densify::prune_gaussians(model, &mask).unwrap();
+        adam.remap(&sources).unwrap();
+        model.set_sh_degree(2);
+        adam.set_sh_degree(2);
+    }
+    // Adam's normalised steps magnify float rounding where gradients are tiny, so parameters
+    // are compared relative to a floor of 1e-2; a missed edit or a stale host copy differs by
+    // whole steps (and in shape or step count).
+    let compare = |cpu: &mut splat::CpuTrainer, on_gpu: &mut splat::gpu::GpuTrainer| {
+        let (want, want_adam) = cpu.host().unwrap();
+        let (want, steps) = (want.packed(), want_adam.steps_taken());
+        let (got, got_adam) = on_gpu.host().unwrap();
+        assert_eq!(
+            got_adam.steps_taken(),
+            steps,
+            "the host copy is not the GPU's"
+        );
+        assert_eq!(got.packed().len(), want.len());
+        max_rel(&got.packed(), &want, 1e-2)
+    };
+    steps(&mut cpu, &cam, &target, &lr);
+    steps(&mut on_gpu, &cam, &target, &lr);
+    let before = compare(&mut cpu, &mut on_gpu);
+    edit(&mut cpu);
+    edit(&mut on_gpu);
+    assert_eq!((on_gpu.len(), on_gpu.sh_degree()), (cpu.len(), 2));
+    // The edited model is the one the GPU renders next.
+    let (want, _) = cpu.render(&cam, &settings(&cpu)).unwrap();
+    let (got, _) = on_gpu.render(&cam, &settings(&on_gpu)).unwrap();
+    let image = max_rel(
+        &want
+            .color
+            .iter()
+            .flat_map(|c| c.to_array())
+            .collect::<Vec<_>>(),
+        &got.color
+            .iter()
+            .flat_map(|c| c.to_array())
+            .collect::<Vec<_>>(),
+        1.0,
+    );
+    steps(&mut cpu, &cam, &target, &lr);
+    steps(&mut on_gpu, &cam, &target, &lr);
+    let after = compare(&mut cpu, &mut on_gpu);
+    eprintln!(
+        "GPU trainer against the CPU one: {before:e} before the edit, render after it {image:e}, {after:e} three steps later"
+    );
+    assert!(image <= 1e-4, "{image:e}");
+    assert!(before <= 1e-4 && after <= 1e-3, "{before:e} {after:e}");
+    // A render of another trainer is no render of this one's.
+    let (model, adam) = on_gpu.into_host().unwrap();
+    let (_, saved) = on_gpu_again(&gpu, &model, &adam)
+        .render(&cam, &RenderSettings::default())
+        .unwrap();
+    let v = vec![Vec3::ZERO; cam.num_pixels()];
+    let err = on_gpu_again(&gpu, &model, &adam).step(saved, PixelGradients::color(&v), &lr, 0.0);
+    assert!(err.is_err(), "a step before the trainer's own render");
+}
+
+fn on_gpu_again(
+    gpu: &GpuRasterizer,
+    model: &Gaussians,
+    adam: &splat::optim::Adam,
+) -> splat::gpu::GpuTrainer {
+    splat::gpu::GpuTrainer::new(gpu, model.clone(), adam.clone()).unwrap()
 }

@@ -1,16 +1,20 @@
-//! `metasplat bench step`: the time of each phase of a training step on a capture, at one or
-//! more thread counts (CPU rasterizer).
+//! `metasplat bench step`: the time of each phase of the training loop's own step on a
+//! capture, at one or more thread counts, on the device training would use.
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
-use metasplat::bench::{PHASES, time_steps};
-use metasplat::train::config::Mode;
-use metasplat::train::data::{self, DataOptions};
+use metasplat::bench::{StepTimes, time_steps};
+use metasplat::device::{Device, DeviceChoice};
+use metasplat::settings::DataOptions;
+use metasplat::settings::TrainSettings;
+use metasplat::train::config::{Mode, TrainConfig};
+use metasplat::train::data;
 use std::path::PathBuf;
 
 #[derive(Subcommand)]
 pub enum BenchCommand {
-    /// Time the phases of a training step (render, blur, loss, adjoint, backward, Adam).
+    /// Time the phases of the training loop's step (render, blur, loss, adjoint, backward,
+    /// Adam, densification statistics) for a few steps from the start of a run.
     Step(StepArgs),
 }
 
@@ -21,7 +25,7 @@ pub struct StepArgs {
     pub scene: PathBuf,
     #[arg(long, value_enum, default_value_t = Mode::Aware)]
     pub mode: Mode,
-    /// A splat scene to step (e.g. a trained run's PLY); default: the capture's points.
+    /// A splat scene to start from (e.g. a trained run's PLY); default: the capture's points.
     #[arg(long)]
     pub ply: Option<PathBuf>,
     #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=100_000))]
@@ -29,6 +33,9 @@ pub struct StepArgs {
     /// Thread counts to time, in order.
     #[arg(long, value_delimiter = ',', default_values_t = [1usize, 2], value_parser = clap::value_parser!(usize))]
     pub threads: Vec<usize>,
+    /// Where to train: as `train --device` (`auto`, `cpu`, `gpu`).
+    #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
+    pub device: DeviceChoice,
     #[command(flatten)]
     pub data: DataOptions,
 }
@@ -38,32 +45,60 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
     if a.threads.iter().any(|&t| t == 0 || t > 1024) {
         bail!("--threads: thread counts are 1 to 1024");
     }
-    let data = data::load(&a.scene, a.mode, &a.data)
+    let initial = a
+        .ply
+        .as_ref()
+        .map(|p| {
+            splat::files::read_splats(p)
+                .with_context(|| format!("--ply {}", p.display()))
+                .and_then(|g| {
+                    if g.is_empty() {
+                        bail!("--ply {}: the scene has no splats", p.display())
+                    }
+                    Ok(g)
+                })
+        })
+        .transpose()?;
+    let (device, device_note) = Device::choose(a.device)?;
+    let mut data = data::load(&a.scene, a.mode, &a.data)
         .with_context(|| format!("cannot load the scene {}", a.scene.display()))?;
-    let model = match &a.ply {
-        Some(p) => splat::files::read_splats(p)?,
-        None => metasplat::init::from_points(&data.points, 0),
+    data.initial = initial;
+    let settings = TrainSettings {
+        mode: a.mode,
+        iters: a.steps,
+        eval_every: Some(0),
+        checkpoint_every: Some(0),
+        ..TrainSettings::default()
     };
-    if model.is_empty() {
-        bail!("the model to step has no splats");
-    }
-    let lambda = data::default_lambda(data.restorer.as_ref());
+    let config = TrainConfig::build(&settings, a.data.seed, &data);
     println!(
-        "{} training steps of mode {} on {} splats at {}x{} ({} views), CPU rasterizer:",
+        "{} training steps of mode {} (λ {}) at {}x{} ({} views), the training loop's own step. {device_note}",
         a.steps,
         a.mode,
-        model.len(),
+        config.lambda,
         data.width,
         data.height,
         data.train.len()
     );
     // One untimed step first: page faults and lazy set-up are not a phase.
-    time_steps(&data, a.mode, lambda, &model, 1, a.threads[0])?;
+    let warm = TrainConfig {
+        iters: 1,
+        ..config.clone()
+    };
+    time_steps(&data, &warm, &device, a.threads[0])?;
     let runs = a
         .threads
         .iter()
-        .map(|&t| time_steps(&data, a.mode, lambda, &model, a.steps as usize, t))
+        .map(|&t| time_steps(&data, &config, &device, t))
         .collect::<Result<Vec<_>, _>>()?;
+    let mut names: Vec<&str> = Vec::new();
+    for r in &runs {
+        for (name, _) in &r.phases {
+            if !names.contains(name) {
+                names.push(name);
+            }
+        }
+    }
     print!("{:<40}", "ms per step (wall)");
     for r in &runs {
         print!(
@@ -76,23 +111,21 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         );
     }
     println!();
-    for (i, name) in PHASES.iter().enumerate() {
+    let row = |name: &str, value: &dyn Fn(&StepTimes) -> f64| {
         print!("{name:<40}");
         for r in &runs {
-            print!(
-                "{:>14}",
-                format!(
-                    "{:.1} ({:.0} %)",
-                    r.phases[i],
-                    100.0 * r.phases[i] / r.total()
-                )
-            );
+            let v = value(r);
+            print!("{:>14}", format!("{v:.1} ({:.0} %)", 100.0 * v / r.step));
         }
         println!();
+    };
+    for name in &names {
+        row(name, &|r| r.phase(name));
     }
+    row("hooks and the rest", &|r| r.other());
     print!("{:<40}", "whole step");
     for r in &runs {
-        print!("{:>14}", format!("{:.1}", r.total()));
+        print!("{:>14}", format!("{:.1}", r.step));
     }
     println!();
     if let (Some(one), Some(last)) = (runs.iter().find(|r| r.threads == 1), runs.last())
@@ -101,7 +134,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         println!(
             "{} threads run a step {:.2}x as fast as one.",
             last.threads,
-            one.total() / last.total()
+            one.step / last.step
         );
     }
     Ok(())

@@ -11,7 +11,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use metasplat::outputs::RunSummary;
 use metasplat::procedural::{ProceduralOptions, write_capture};
-use metasplat::run::RunRequest;
+use metasplat::settings::RunRequest;
 use metasplat::train::config::Mode;
 use std::path::{Path, PathBuf};
 use std::time::Instant;

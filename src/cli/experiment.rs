@@ -9,7 +9,7 @@ use aberration::optics::SimConfig;
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use metasplat::plot::{Series, line_plot};
-use metasplat::run::RunRequest;
+use metasplat::settings::RunRequest;
 use metasplat::train::config::Mode;
 use std::fmt::Write as _;
 use std::path::PathBuf;

@@ -40,7 +40,7 @@ enum Command {
     #[command(subcommand)]
     Scene(scene::SceneCommand),
     /// Train a splat scene from an (aberrated) capture: aware, restored or plain.
-    Train(metasplat::run::RunRequest),
+    Train(metasplat::settings::RunRequest),
     /// Render a splat scene (PLY, GLB or SPZ) from a capture's cameras or its spiral path.
     Render(render::RenderArgs),
     /// Open a splat scene in an interactive window; compare it with a capture, follow a run.

@@ -5,7 +5,8 @@ use std::path::Path;
 use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use metasplat::outputs::{self, RunSummary};
-use metasplat::run::{self, RunRequest};
+use metasplat::run;
+use metasplat::settings::{RunRequest, Toggle};
 use metasplat::train::config::Mode;
 use metasplat::train::{self, Event};
 
@@ -41,7 +42,7 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             println!(
                 "Opacities reset every {every} steps{}.",
                 match t.opacity_reset {
-                    run::Toggle::Auto =>
+                    Toggle::Auto =>
                         ": the cameras surround the scene, and resets clear the floaters such captures grow",
                     _ => "",
                 }

@@ -4,7 +4,7 @@
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use glam::Vec3;
-use metasplat::train::data::{DataOptions, RestorerChoice};
+use metasplat::settings::{DataOptions, RestorerChoice};
 use metasplat::view::{CaptureComparison, RunWatch};
 use std::path::PathBuf;
 

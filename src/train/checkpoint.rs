@@ -15,8 +15,8 @@ use splat::optim::Adam;
 use crate::error::{Result, TrainError};
 use crate::train::LogRow;
 use crate::train::config::TrainConfig;
-use crate::train::densify::Densifier;
-use crate::train::sh::ShBands;
+use crate::train::densify::DensifyState;
+use crate::train::sh::ShState;
 
 /// Version 2 ends with the FNV-1a checksum of everything before it; version 1 (no checksum)
 /// still loads.
@@ -28,23 +28,31 @@ struct Header {
     config: TrainConfig,
     step: u64,
     train_seconds: f64,
-    sh: ShBands,
+    sh: ShState,
     log: Vec<LogRow>,
     splats: usize,
     sh_degree: u32,
     adam_step: u64,
 }
 
-/// The loop's whole state between two steps.
+/// The loop's state between two steps, but for the model and its optimiser (which the
+/// trainer holds).
+#[derive(Clone, Debug)]
+pub struct Progress {
+    pub step: u64,
+    /// Training time so far (evaluation and checkpoint writing excluded).
+    pub train_seconds: f64,
+    pub densify: DensifyState,
+    pub sh: ShState,
+    pub log: Vec<LogRow>,
+}
+
+/// A checkpoint read back: the run's config, its progress, the model and its optimiser.
 pub struct State {
     pub config: TrainConfig,
-    pub step: u64,
-    pub train_seconds: f64,
+    pub progress: Progress,
     pub model: Gaussians,
     pub adam: Adam,
-    pub densifier: Densifier,
-    pub sh: ShBands,
-    pub log: Vec<LogRow>,
 }
 
 fn put_f32s(out: &mut Vec<u8>, v: impl IntoIterator<Item = f32>) {
@@ -63,33 +71,39 @@ fn put_gaussians(out: &mut Vec<u8>, g: &Gaussians) {
     put_f32s(out, v3(&g.sh_rest));
 }
 
-pub fn save(path: &Path, s: &State) -> Result<()> {
+pub fn save(
+    path: &Path,
+    config: &TrainConfig,
+    p: &Progress,
+    model: &Gaussians,
+    adam: &Adam,
+) -> Result<()> {
     let header = Header {
-        config: s.config.clone(),
-        step: s.step,
-        train_seconds: s.train_seconds,
-        sh: s.sh.clone(),
-        log: s.log.clone(),
-        splats: s.model.len(),
-        sh_degree: s.model.sh_degree,
-        adam_step: s.adam.steps_taken(),
+        config: config.clone(),
+        step: p.step,
+        train_seconds: p.train_seconds,
+        sh: p.sh.clone(),
+        log: p.log.clone(),
+        splats: model.len(),
+        sh_degree: model.sh_degree,
+        adam_step: adam.steps_taken(),
     };
     let json = serde_json::to_vec(&header).map_err(|e| TrainError::file(path, e.to_string()))?;
-    let mut out = Vec::with_capacity(s.model.param_bytes() * 3 + json.len() + 64);
+    let mut out = Vec::with_capacity(model.param_bytes() * 3 + json.len() + 64);
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(&(json.len() as u64).to_le_bytes());
     out.extend_from_slice(&json);
-    put_gaussians(&mut out, &s.model);
-    let (m, v) = s.adam.moments();
+    put_gaussians(&mut out, model);
+    let (m, v) = adam.moments();
     put_gaussians(&mut out, m);
     put_gaussians(&mut out, v);
-    let st = &s.densifier.stats;
+    let st = &p.densify.stats;
     put_f32s(&mut out, st.grad_norm_sum.iter().copied());
     for c in &st.count {
         out.extend_from_slice(&c.to_le_bytes());
     }
     put_f32s(&mut out, st.max_radius.iter().copied());
-    out.extend(s.densifier.seen.iter().map(|&b| b as u8));
+    out.extend(p.densify.seen.iter().map(|&b| b as u8));
     let sum = base::hash::fnv1a64(&out);
     out.extend_from_slice(&sum.to_le_bytes());
 
@@ -224,21 +238,24 @@ pub fn load(path: &Path) -> Result<State> {
         return Err(TrainError::file(path, "non-finite splat positions"));
     }
     let adam = Adam::from_state(h.adam_step, m, v)?;
-    let mut densifier = Densifier::new(h.config.recipe.clone(), h.config.max_splats, 1.0, n);
-    densifier.stats = DensifyStats {
-        grad_norm_sum,
-        count,
-        max_radius,
+    let densify = DensifyState {
+        stats: DensifyStats {
+            grad_norm_sum,
+            count,
+            max_radius,
+        },
+        seen,
     };
-    densifier.seen = seen;
     Ok(State {
         config: h.config,
-        step: h.step,
-        train_seconds: h.train_seconds,
+        progress: Progress {
+            step: h.step,
+            train_seconds: h.train_seconds,
+            densify,
+            sh: h.sh,
+            log: h.log,
+        },
         model,
         adam,
-        densifier,
-        sh: h.sh,
-        log: h.log,
     })
 }

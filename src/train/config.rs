@@ -1,9 +1,12 @@
 //! What a training run does: the mode, the objective's weights, the 3DGS recipe scaled to the
 //! run's length, and the budget.
 
-use crate::run::LambdaFade;
 use serde::{Deserialize, Serialize};
 use splat::optim::LearningRates;
+
+use crate::settings::{LambdaFade, Toggle, TrainSettings};
+use crate::train::data::Dataset;
+use crate::train::iac::IacSource;
 
 /// The paper's three rows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -125,7 +128,7 @@ pub struct TrainConfig {
     /// Checkpoint every this many steps (0: never).
     pub checkpoint_every: u64,
     pub recipe: Recipe,
-    /// Where `I_ac` comes from ([`crate::train::data::Restorer::identity`]); None in `plain`.
+    /// Where `I_ac` comes from ([`IacSource::identity`]); None in `plain`.
     #[serde(default)]
     pub i_ac: Option<String>,
     /// The splat scene the run started from (`--init`); None: the capture's points.
@@ -151,6 +154,18 @@ pub const STAND_IN_HOLD: u64 = 1000;
 
 /// The paper's weight of `L(render, I_ac)` for LLFF scenes with its trained restorer.
 pub const PAPER_LAMBDA: f32 = 0.75;
+
+/// λ with the Wiener stand-in as `I_ac`: it is worse than the aberrated input at low
+/// resolution and a large λ fits its errors (the demo-scene sweep is in RESULTS.md).
+pub const STAND_IN_LAMBDA: f32 = 0.25;
+
+/// λ when the user gives none, for the run's source of `I_ac`: every λ default is here.
+pub fn default_lambda(source: Option<&IacSource>) -> f32 {
+    match source {
+        Some(IacSource::Wiener) => STAND_IN_LAMBDA,
+        Some(IacSource::Network { .. }) | None => PAPER_LAMBDA,
+    }
+}
 
 /// Default budget: one splat per two pixels of a view (≈ 95k at 504×378), the order of
 /// what 3DGS keeps for LLFF scenes at that size, and twice that when the cameras surround the
@@ -180,32 +195,28 @@ impl TrainConfig {
     /// The config of a run with `settings` on `data`: the one place where defaults that depend
     /// on the capture (budget, λ for the capture's `I_ac`, evaluation and checkpoint cadence)
     /// are decided.
-    pub fn build(
-        settings: &crate::run::TrainSettings,
-        seed: u64,
-        data: &crate::train::data::Dataset,
-    ) -> TrainConfig {
+    pub fn build(settings: &TrainSettings, seed: u64, data: &Dataset) -> TrainConfig {
         let iters = settings.iters;
         let recipe = Recipe {
             sh_min_gain: settings.sh_min_gain.unwrap_or_else(defaults::sh_min_gain),
             ..Recipe::for_iters(
                 iters,
                 match settings.opacity_reset {
-                    crate::run::Toggle::On => true,
-                    crate::run::Toggle::Off => false,
-                    crate::run::Toggle::Auto => data.capture.surrounds_scene(),
+                    Toggle::On => true,
+                    Toggle::Off => false,
+                    Toggle::Auto => data.capture.surrounds_scene(),
                 },
             )
         };
         let stand_in = settings.mode == Mode::Aware
             && settings.lambda.is_none()
-            && matches!(data.restorer, Some(crate::train::data::Restorer::Wiener));
+            && matches!(data.restorer, Some(IacSource::Wiener));
         TrainConfig {
             mode: settings.mode,
             iters,
             lambda: settings
                 .lambda
-                .unwrap_or_else(|| crate::train::data::default_lambda(data.restorer.as_ref())),
+                .unwrap_or_else(|| default_lambda(data.restorer.as_ref())),
             max_splats: settings.max_splats.map_or_else(
                 || default_max_splats(data.width, data.height, data.capture.surrounds_scene()),
                 |m| m as usize,

@@ -1,7 +1,9 @@
 //! The densification strategy: the 3DGS "default strategy" (clone small, split large, prune
 //! transparent, optional opacity reset) held to a splat budget, plus pruning of splats that
 //! no training view can see. The trainer calls it at three hooks (after backward, after the
-//! optimiser step, at the end of an epoch) and once at the end, so the loop stays short.
+//! optimiser step, at the end of an epoch) and once at the end, so the loop stays short. As in
+//! gsplat's strategies, the settings ([`DensifyStrategy`], fixed for a run) are apart from the
+//! state the hooks change ([`DensifyState`], what a checkpoint keeps).
 
 use serde::{Deserialize, Serialize};
 use splat::conventions::ALPHA_THRESHOLD;
@@ -43,36 +45,56 @@ impl std::fmt::Display for Edit {
     }
 }
 
-/// The strategy's state (saved in checkpoints).
+/// The strategy's settings, fixed for a run: the recipe's thresholds and schedule, the splat
+/// budget and the scene's extent. The hooks read them and change only a [`DensifyState`].
 #[derive(Clone, Debug)]
-pub struct Densifier {
+pub struct DensifyStrategy {
     pub recipe: Recipe,
     pub budget: usize,
     pub extent: f32,
+}
+
+/// What the hooks accumulate between their calls (saved in checkpoints).
+#[derive(Clone, Debug)]
+pub struct DensifyState {
     pub stats: DensifyStats,
     /// Visible in at least one training view since the epoch began.
     pub seen: Vec<bool>,
 }
 
+impl DensifyState {
+    /// Whether [`DensifyStrategy::end_of_epoch`] would prune anything now.
+    pub fn has_unseen(&self) -> bool {
+        self.seen.iter().any(|s| !s)
+    }
+
+    /// A new epoch: no splat seen yet.
+    pub fn start_epoch(&mut self) {
+        self.seen.fill(false);
+    }
+}
+
 /// Applies a structural edit's `sources` to everything indexed by Gaussian.
-fn carry(
-    adam: &mut Adam,
-    stats: &mut DensifyStats,
-    seen: &mut Vec<bool>,
-    sources: &[Option<usize>],
-) -> Result<()> {
+fn carry(adam: &mut Adam, state: &mut DensifyState, sources: &[Option<usize>]) -> Result<()> {
     adam.remap(sources)?;
-    stats.remap(sources)?;
-    *seen = sources.iter().map(|s| s.is_none_or(|i| seen[i])).collect();
+    state.stats.remap(sources)?;
+    let seen = &state.seen;
+    state.seen = sources.iter().map(|s| s.is_none_or(|i| seen[i])).collect();
     Ok(())
 }
 
-impl Densifier {
-    pub fn new(recipe: Recipe, budget: usize, extent: f32, n: usize) -> Self {
+impl DensifyStrategy {
+    pub fn new(recipe: Recipe, budget: usize, extent: f32) -> Self {
         Self {
             recipe,
             budget,
             extent,
+        }
+    }
+
+    /// The state of a run starting with `n` splats.
+    pub fn initialize_state(&self, n: usize) -> DensifyState {
+        DensifyState {
             stats: DensifyStats::new(n),
             seen: vec![false; n],
         }
@@ -83,12 +105,18 @@ impl Densifier {
     }
 
     /// Hook 1: accumulate this view's screen-space gradients and visibility.
-    pub fn after_backward(&mut self, step: u64, means2d: &[[f32; 2]], out: &RenderOutput) {
-        for (s, v) in self.seen.iter_mut().zip(&out.visible) {
+    pub fn after_backward(
+        &self,
+        state: &mut DensifyState,
+        step: u64,
+        means2d: &[[f32; 2]],
+        out: &RenderOutput,
+    ) {
+        for (s, v) in state.seen.iter_mut().zip(&out.visible) {
             *s |= *v;
         }
         if self.densifying(step) {
-            self.stats.add_screen(means2d, out);
+            state.stats.add_screen(means2d, out);
         }
     }
 
@@ -105,38 +133,34 @@ impl Densifier {
                 .is_some_and(|every| step.is_multiple_of(every))
     }
 
-    /// Whether [`Densifier::after_step`] reads or edits the model at `step`.
+    /// Whether [`DensifyStrategy::after_step`] reads or edits the model at `step`.
     pub fn acts_at(&self, step: u64) -> bool {
         self.grows_at(step) || self.resets_at(step)
     }
 
-    /// Whether [`Densifier::end_of_epoch`] would prune anything now.
-    pub fn has_unseen(&self) -> bool {
-        self.seen.iter().any(|s| !s)
-    }
-
     /// Hook 2, after the optimiser step `step` (1-based count of steps done).
     pub fn after_step(
-        &mut self,
+        &self,
+        state: &mut DensifyState,
         step: u64,
         model: &mut Gaussians,
         adam: &mut Adam,
         seed: u64,
     ) -> Result<Option<Edit>> {
-        let r = self.recipe.clone();
+        let r = &self.recipe;
         let mut edit = Edit::default();
         let mut changed = false;
         if self.grows_at(step) {
-            self.grow(model, adam, seed ^ step, &mut edit)?;
+            self.grow(state, model, adam, seed ^ step, &mut edit)?;
             let after_reset = r.opacity_reset_every.is_some_and(|every| step > every);
             let mask = prune_mask(
                 model,
                 r.prune_opacity,
                 after_reset.then_some(r.max_world_scale * self.extent),
-                after_reset.then_some((&self.stats, r.max_screen_radius)),
+                after_reset.then_some((&state.stats, r.max_screen_radius)),
             );
-            edit.pruned += self.prune(model, adam, &mask)?;
-            self.stats = DensifyStats::new(model.len());
+            edit.pruned += prune(state, model, adam, &mask)?;
+            state.stats = DensifyStats::new(model.len());
             changed = true;
         }
         if self.resets_at(step) {
@@ -150,50 +174,52 @@ impl Densifier {
 
     /// Hook 3, when every training view has been rendered once since the last call: splats
     /// no view saw get no gradient and can never contribute, so they go.
-    pub fn end_of_epoch(&mut self, model: &mut Gaussians, adam: &mut Adam) -> Result<usize> {
-        let mask: Vec<bool> = self.seen.iter().map(|s| !s).collect();
-        let pruned = self.prune(model, adam, &mask)?;
-        self.seen = vec![false; model.len()];
+    pub fn end_of_epoch(
+        &self,
+        state: &mut DensifyState,
+        model: &mut Gaussians,
+        adam: &mut Adam,
+    ) -> Result<usize> {
+        let mask: Vec<bool> = state.seen.iter().map(|s| !s).collect();
+        let pruned = prune(state, model, adam, &mask)?;
+        state.start_epoch();
         Ok(pruned)
     }
 
     /// At the end of training: drop splats too transparent ever to be blended (α < 1/255
     /// everywhere), which leaves every render unchanged.
-    pub fn finish(&mut self, model: &mut Gaussians, adam: &mut Adam) -> Result<usize> {
+    pub fn finish(
+        &self,
+        state: &mut DensifyState,
+        model: &mut Gaussians,
+        adam: &mut Adam,
+    ) -> Result<usize> {
         let mask: Vec<bool> = model
             .logit_opacities
             .iter()
             .map(|&o| sigmoid(o) < ALPHA_THRESHOLD)
             .collect();
-        self.prune(model, adam, &mask)
-    }
-
-    fn prune(&mut self, model: &mut Gaussians, adam: &mut Adam, mask: &[bool]) -> Result<usize> {
-        let count = mask.iter().filter(|m| **m).count();
-        if count > 0 {
-            let sources = prune_gaussians(model, mask)?;
-            carry(adam, &mut self.stats, &mut self.seen, &sources)?;
-        }
-        Ok(count)
+        prune(state, model, adam, &mask)
     }
 
     /// Clone or split the splats with the largest mean screen gradients, as many as the budget
     /// allows (each adds one splat).
     fn grow(
-        &mut self,
+        &self,
+        state: &mut DensifyState,
         model: &mut Gaussians,
         adam: &mut Adam,
         seed: u64,
         edit: &mut Edit,
     ) -> Result<()> {
         let n = model.len();
-        let mut candidates: Vec<(f32, usize)> = self
-            .stats
+        let stats = &state.stats;
+        let mut candidates: Vec<(f32, usize)> = stats
             .grow_mask(self.recipe.grad_threshold)
             .iter()
             .enumerate()
             .filter(|(_, m)| **m)
-            .map(|(i, _)| (self.stats.grad_norm_sum[i] / self.stats.count[i] as f32, i))
+            .map(|(i, _)| (stats.grad_norm_sum[i] / stats.count[i] as f32, i))
             .collect();
         let room = self.budget.saturating_sub(n);
         if candidates.len() > room {
@@ -215,13 +241,27 @@ impl Densifier {
         edit.split = split.iter().filter(|m| **m).count();
         if edit.cloned > 0 {
             let sources = clone_gaussians(model, &clone)?;
-            carry(adam, &mut self.stats, &mut self.seen, &sources)?;
+            carry(adam, state, &sources)?;
             split.resize(model.len(), false);
         }
         if edit.split > 0 {
             let sources = split_gaussians(model, &split, seed)?;
-            carry(adam, &mut self.stats, &mut self.seen, &sources)?;
+            carry(adam, state, &sources)?;
         }
         Ok(())
     }
+}
+
+fn prune(
+    state: &mut DensifyState,
+    model: &mut Gaussians,
+    adam: &mut Adam,
+    mask: &[bool],
+) -> Result<usize> {
+    let count = mask.iter().filter(|m| **m).count();
+    if count > 0 {
+        let sources = prune_gaussians(model, mask)?;
+        carry(adam, state, &sources)?;
+    }
+    Ok(count)
 }

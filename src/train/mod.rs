@@ -1,11 +1,14 @@
-//! The training loop: render a view, score it with the mode's objective, backpropagate
-//! through the renderer, step Adam, and let the densification strategy and the SH-band
-//! controller act at their hooks. Deterministic for a seed, and resumable bit for bit.
+//! The training loop: render a view, score it with the mode's objective at the step's λ,
+//! step the [`SplatTrainer`] (backward, Adam), and let the densification strategy and the
+//! SH-band schedule act at their hooks. Deterministic for a seed, and resumable bit for bit.
 
+pub mod capture;
 pub mod checkpoint;
 pub mod config;
 pub mod data;
 pub mod densify;
+pub mod eval;
+pub mod iac;
 pub mod iac_cache;
 pub mod objective;
 pub mod sh;
@@ -16,20 +19,19 @@ use std::time::Instant;
 use base::SplitMix64;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
-use splat::gpu::GpuTraining;
+use splat::gpu::GpuTrainer;
 use splat::optim::{Adam, ExponentialLr};
-use splat::{CpuRasterizer, Gaussians, PixelGradients, RenderSettings};
+use splat::{CpuTrainer, Gaussians, PixelGradients, RenderSettings, SplatTrainer};
 
-use crate::device::{Device, forward_backward};
-
+use crate::device::Device;
 use crate::error::{Result, TrainError};
-use crate::eval::{self, Metrics};
-use checkpoint::State;
+use checkpoint::{Progress, State};
 use config::TrainConfig;
 use data::Dataset;
-use densify::{Densifier, Edit};
+use densify::{DensifyStrategy, Edit};
+use eval::Metrics;
 use objective::{LossParts, Objective};
-use sh::{ShBands, ShEvent};
+use sh::{ShEvent, ShSchedule, ShState};
 
 /// One line of `train_log.csv`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -98,14 +100,6 @@ pub fn view_index(seed: u64, step: u64, n: usize) -> usize {
     order[(step % n as u64) as usize]
 }
 
-fn settings(config: &TrainConfig, model: &Gaussians) -> RenderSettings {
-    RenderSettings {
-        sh_degree: model.sh_degree,
-        background: Vec3::from_array(config.background),
-        antialiased: false,
-    }
-}
-
 /// Names the settings that differ between two configs (for `--resume`).
 fn config_differences(a: &TrainConfig, b: &TrainConfig) -> Vec<String> {
     let (a, b) = (serde_json::to_value(a), serde_json::to_value(b));
@@ -123,7 +117,9 @@ fn config_differences(a: &TrainConfig, b: &TrainConfig) -> Vec<String> {
         .collect()
 }
 
-fn fresh_state(config: &TrainConfig, data: &Dataset) -> Result<State> {
+/// Where a run starts: its first model (the capture's points or `--init`, within the budget)
+/// with a fresh optimiser and no progress.
+fn fresh_start(config: &TrainConfig, data: &Dataset, densify: &DensifyStrategy) -> Result<State> {
     let model = match &data.initial {
         Some(g) => {
             let mut g = g.clone();
@@ -140,34 +136,280 @@ fn fresh_state(config: &TrainConfig, data: &Dataset) -> Result<State> {
             0,
         ),
     };
-    let n = model.len();
     Ok(State {
         config: config.clone(),
-        step: 0,
-        train_seconds: 0.0,
+        progress: Progress {
+            step: 0,
+            train_seconds: 0.0,
+            densify: densify.initialize_state(model.len()),
+            sh: ShState::default(),
+            log: Vec::new(),
+        },
         adam: Adam::new(&model),
-        densifier: Densifier::new(config.recipe.clone(), config.max_splats, data.extent, n),
-        sh: ShBands::new(
-            config.max_sh_degree,
-            config.recipe.sh_every,
-            config.recipe.sh_min_gain,
-        ),
-        log: Vec::new(),
         model,
     })
 }
 
-fn gradients_finite(g: &splat::Gradients) -> bool {
-    g.params.is_finite()
-        && g.means2d
-            .iter()
-            .chain(&g.means2d_abs)
-            .flatten()
-            .all(|v| v.is_finite())
+/// What stays fixed through a run: its settings, data, objective, schedules and strategy.
+struct Run<'a> {
+    config: &'a TrainConfig,
+    data: &'a Dataset,
+    /// Renders the SH-band probes and the held-out views.
+    device: &'a Device,
+    /// The mode's objective at the configured λ; [`Run::objective_at`] gives a step's.
+    objective: Objective<'a>,
+    position_lr: ExponentialLr,
+    densify: DensifyStrategy,
+    sh: ShSchedule,
+    /// The training views the SH-band probes render: up to 8, evenly spread.
+    probe: Vec<usize>,
+    checkpoint_path: Option<&'a Path>,
+}
+
+impl<'a> Run<'a> {
+    fn new(
+        config: &'a TrainConfig,
+        data: &'a Dataset,
+        device: &'a Device,
+        checkpoint_path: Option<&'a Path>,
+    ) -> Self {
+        let recipe = &config.recipe;
+        let n_views = data.train.len();
+        Run {
+            config,
+            data,
+            device,
+            objective: Objective {
+                mode: config.mode,
+                lambda: config.lambda,
+                dssim_weight: recipe.dssim_weight,
+                imaging: data.imaging.as_ref(),
+                width: data.width,
+                height: data.height,
+            },
+            position_lr: ExponentialLr {
+                lr_init: recipe.lrs.means * data.extent,
+                lr_final: recipe.lrs.means * data.extent * recipe.position_lr_final_ratio,
+                max_steps: config.iters,
+            },
+            densify: DensifyStrategy::new(recipe.clone(), config.max_splats, data.extent),
+            sh: ShSchedule::new(config.max_sh_degree, recipe.sh_every, recipe.sh_min_gain),
+            probe: (0..n_views.min(8))
+                .map(|k| k * n_views / n_views.min(8))
+                .collect(),
+            checkpoint_path,
+        }
+    }
+
+    /// The objective step `step` minimises (λ may fade).
+    fn objective_at(&self, step: u64) -> Objective<'a> {
+        Objective {
+            lambda: self.config.lambda_at(step),
+            ..self.objective
+        }
+    }
+
+    fn settings(&self, sh_degree: u32) -> RenderSettings {
+        RenderSettings {
+            sh_degree,
+            background: Vec3::from_array(self.config.background),
+            antialiased: false,
+        }
+    }
+
+    /// What an SH band is judged on after `step` steps: the mean loss of the probe views
+    /// rendered with `degree` bands, under the objective the next step minimises.
+    fn band_loss(&self, step: u64) -> impl FnMut(&Gaussians, u32) -> Result<f64> + '_ {
+        let objective = self.objective_at(step);
+        move |model, degree| {
+            let mut sum = 0.0;
+            for &i in &self.probe {
+                let view = &self.data.train[i];
+                let out = self
+                    .device
+                    .render(model, &view.camera, &self.settings(degree))?;
+                sum += objective.value(&out.color, view)? as f64;
+            }
+            Ok(sum / self.probe.len() as f64)
+        }
+    }
+
+    /// One step: render a view, score it, backpropagate and update, and let densification
+    /// read the screen-space gradients. The first non-finite value stops the run before it
+    /// reaches the model or a checkpoint.
+    fn step<T: SplatTrainer>(&self, t: &mut T, p: &mut Progress) -> Result<LossParts> {
+        let n_views = self.data.train.len();
+        let view = &self.data.train[view_index(self.config.seed, p.step, n_views)];
+        let at = |what: &str, cause: &str| {
+            TrainError::Invalid(format!(
+                "step {}: {what} is not finite (view {}); {cause}. The last checkpoint is kept",
+                p.step + 1,
+                view.name
+            ))
+        };
+        let (out, saved) = t.render(&view.camera, &self.settings(t.sh_degree()))?;
+        let (parts, v) = self.objective_at(p.step).evaluate(&out.color, view)?;
+        if !parts.total.is_finite() {
+            return Err(at(
+                "the loss",
+                "a non-finite pixel in the capture's images or I_ac, or a huge --lambda, is the likely cause",
+            ));
+        }
+        let lr = self
+            .config
+            .recipe
+            .lrs
+            .with_means(self.position_lr.at(p.step));
+        let report = t.step(
+            saved,
+            PixelGradients::color(&v),
+            &lr,
+            self.config.opacity_reg,
+        )?;
+        if report.nonfinite_gradient {
+            return Err(at(
+                "a gradient",
+                "a degenerate splat or camera is the likely cause",
+            ));
+        }
+        if report.nonfinite_parameter {
+            return Err(at(
+                "a parameter after the update",
+                "a learning rate too large for the scene is the likely cause",
+            ));
+        }
+        let _span = tracing::info_span!("densification statistics").entered();
+        self.densify
+            .after_backward(&mut p.densify, p.step, &report.means2d, &out);
+        Ok(parts)
+    }
+
+    /// The hooks after step `p.step`: SH bands, densification, the end of an epoch. Each
+    /// takes the host model only when it acts.
+    fn hooks<T: SplatTrainer>(
+        &self,
+        t: &mut T,
+        p: &mut Progress,
+        on_event: &mut dyn FnMut(Event),
+        sh_events: &mut Vec<ShEvent>,
+    ) -> Result<()> {
+        let step = p.step;
+        // SH bands are judged before densification acts on this step: an opacity reset falling
+        // on the same step would leave the probes comparing two nearly transparent models, and
+        // every band would look worthless.
+        if self.sh.acts_at(&p.sh, step) {
+            let (model, adam) = t.host_mut()?;
+            for event in
+                self.sh
+                    .after_step(&mut p.sh, step, model, adam, &mut self.band_loss(step))?
+            {
+                sh_events.push(event);
+                on_event(Event::Sh { step, event });
+            }
+        }
+        if self.densify.acts_at(step) {
+            let (model, adam) = t.host_mut()?;
+            if let Some(edit) =
+                self.densify
+                    .after_step(&mut p.densify, step, model, adam, self.config.seed)?
+            {
+                on_event(Event::Densified {
+                    step,
+                    edit,
+                    splats: model.len(),
+                });
+            }
+        }
+        if step.is_multiple_of(self.data.train.len() as u64) {
+            if p.densify.has_unseen() {
+                let (model, adam) = t.host_mut()?;
+                let pruned = self.densify.end_of_epoch(&mut p.densify, model, adam)?;
+                on_event(Event::Unseen { step, pruned });
+            } else {
+                p.densify.start_epoch();
+            }
+        }
+        Ok(())
+    }
+
+    /// Evaluation and checkpoints after step `p.step`, when they fall on it.
+    fn record<T: SplatTrainer>(
+        &self,
+        t: &mut T,
+        p: &mut Progress,
+        parts: &LossParts,
+        on_event: &mut dyn FnMut(Event),
+    ) -> Result<()> {
+        let (config, step) = (self.config, p.step);
+        if step == config.iters || (config.eval_every > 0 && step % config.eval_every == 0) {
+            let (model, _) = t.host()?;
+            let settings = self.settings(model.sh_degree);
+            let metrics = eval::evaluate(model, &self.data.test, &settings, self.device)?;
+            if let Some(m) = &metrics {
+                on_event(Event::Evaluated { step, metrics: m });
+            }
+            p.log.push(LogRow {
+                step,
+                seconds: p.train_seconds,
+                loss: parts.total,
+                train_psnr: parts.psnr,
+                test_psnr: metrics.as_ref().map(|m| m.mean_psnr),
+                test_ssim: metrics.as_ref().map(|m| m.mean_ssim),
+                splats: model.len(),
+                sh_degree: model.sh_degree,
+            });
+        }
+        if let Some(path) = self.checkpoint_path
+            && config.checkpoint_every > 0
+            && (step % config.checkpoint_every == 0 || step == config.iters)
+        {
+            let (model, adam) = t.host()?;
+            checkpoint::save(path, config, p, model, adam)?;
+            on_event(Event::Checkpoint { step });
+        }
+        Ok(())
+    }
+
+    /// Steps until the configured count, then the end-of-run pruning and band tests.
+    fn train<T: SplatTrainer>(
+        &self,
+        mut t: T,
+        mut p: Progress,
+        on_event: &mut dyn FnMut(Event),
+    ) -> Result<(Gaussians, Progress, Vec<ShEvent>, usize)> {
+        let mut sh_events = Vec::new();
+        while p.step < self.config.iters {
+            let started = Instant::now();
+            let parts = self.step(&mut t, &mut p)?;
+            p.step += 1;
+            self.hooks(&mut t, &mut p, on_event, &mut sh_events)?;
+            p.train_seconds += started.elapsed().as_secs_f64();
+            on_event(Event::Step {
+                step: p.step,
+                loss: &parts,
+                splats: t.len(),
+                sh_degree: t.sh_degree(),
+                seconds: p.train_seconds,
+            });
+            self.record(&mut t, &mut p, &parts, on_event)?;
+        }
+        let (mut model, mut adam) = t.into_host()?;
+        let final_pruned = self.densify.finish(&mut p.densify, &mut model, &mut adam)?;
+        let step = p.step;
+        for event in self
+            .sh
+            .finish(&mut p.sh, &mut model, &mut adam, &mut self.band_loss(step))?
+        {
+            sh_events.push(event);
+            on_event(Event::Sh { step, event });
+        }
+        Ok((model, p, sh_events, final_pruned))
+    }
 }
 
 /// Trains on `data`. With `checkpoint_path`, saves there every `checkpoint_every` steps;
 /// with `resume` too, continues from the checkpoint if one exists (same config required).
+/// The loop is the same wherever it trains: `device` only picks the [`SplatTrainer`].
 pub fn train(
     config: &TrainConfig,
     data: &Dataset,
@@ -176,9 +418,10 @@ pub fn train(
     resume: bool,
     on_event: &mut dyn FnMut(Event),
 ) -> Result<Outcome> {
-    let (mut s, resumed_from) = match checkpoint_path {
+    let run = Run::new(config, data, device, checkpoint_path);
+    let (start, resumed_from) = match checkpoint_path {
         Some(p) if resume && p.exists() => {
-            let mut s = checkpoint::load(p)?;
+            let s = checkpoint::load(p)?;
             let diff = config_differences(config, &s.config);
             if !diff.is_empty() {
                 return Err(TrainError::file(
@@ -186,236 +429,26 @@ pub fn train(
                     format!("cannot resume with other settings: {}", diff.join("; ")),
                 ));
             }
-            s.densifier.extent = data.extent;
-            let from = s.step;
+            let from = s.progress.step;
             (s, Some(from))
         }
-        _ => (fresh_state(config, data)?, None),
+        _ => (fresh_start(config, data, &run.densify)?, None),
     };
-    let objective = Objective {
-        mode: config.mode,
-        lambda: config.lambda,
-        dssim_weight: config.recipe.dssim_weight,
-        imaging: data.imaging.as_ref(),
-        width: data.width,
-        height: data.height,
+    let State {
+        progress,
+        model,
+        adam,
+        ..
+    } = start;
+    let (model, progress, sh_events, final_pruned) = match device {
+        Device::Cpu => run.train(CpuTrainer::new(model, adam)?, progress, on_event)?,
+        Device::Gpu(gpu) => run.train(GpuTrainer::new(gpu, model, adam)?, progress, on_event)?,
     };
-    let lrs = &config.recipe.lrs;
-    let position_lr = ExponentialLr {
-        lr_init: lrs.means * data.extent,
-        lr_final: lrs.means * data.extent * config.recipe.position_lr_final_ratio,
-        max_steps: config.iters,
-    };
-    let n_views = data.train.len();
-    let mut sh_events = Vec::new();
-    // Mean training loss over (up to 8, evenly spread) training views at a given SH degree.
-    let probe: Vec<usize> = (0..n_views.min(8))
-        .map(|k| k * n_views / n_views.min(8))
-        .collect();
-    let mut loss_at = |model: &Gaussians, degree: u32| -> Result<f64> {
-        let rs = RenderSettings {
-            sh_degree: degree,
-            ..settings(config, model)
-        };
-        let mut sum = 0.0;
-        for &i in &probe {
-            let out = device.render(model, &data.train[i].camera, &rs)?;
-            sum += objective.value(&out.color, &data.train[i])? as f64;
-        }
-        Ok(sum / probe.len() as f64)
-    };
-
-    let mut resident: Option<GpuTraining> = None;
-    while s.step < config.iters {
-        let started = Instant::now();
-        let view = &data.train[view_index(config.seed, s.step, n_views)];
-        let rs = settings(config, &s.model);
-        // The first non-finite value stops the run before it reaches the model or a checkpoint
-        // (the last checkpoint written stays the last good one).
-        let at = |what: &str, cause: &str| {
-            TrainError::Invalid(format!(
-                "step {}: {what} is not finite (view {}); {cause}. The last checkpoint is kept",
-                s.step + 1,
-                view.name
-            ))
-        };
-        let objective = Objective {
-            lambda: config.lambda_at(s.step),
-            ..objective
-        };
-        let lr = lrs.with_means(position_lr.at(s.step));
-        let check_loss = |parts: &LossParts| {
-            if parts.total.is_finite() {
-                Ok(())
-            } else {
-                Err(at(
-                    "the loss",
-                    "a non-finite pixel in the capture's images or I_ac, or a huge --lambda, is the likely cause",
-                ))
-            }
-        };
-        let not_finite_gradient = || {
-            at(
-                "a gradient",
-                "a degenerate splat or camera is the likely cause",
-            )
-        };
-        let not_finite_parameter = || {
-            at(
-                "a parameter after the update",
-                "a learning rate too large for the scene is the likely cause",
-            )
-        };
-        let (out, parts, means2d) = match device {
-            // The model and its optimiser stay on the GPU between the steps that need them here.
-            Device::Gpu(gpu) => {
-                if resident.is_none() {
-                    resident = Some(GpuTraining::new(gpu, &s.model, &s.adam)?);
-                }
-                let r = resident.as_mut().expect("uploaded above");
-                let (out, saved) = r.render_for_backward(&view.camera, &rs)?;
-                let (parts, v) = objective.evaluate(&out.color, view)?;
-                check_loss(&parts)?;
-                let report = r.step(&saved, PixelGradients::color(&v), &lr, config.opacity_reg)?;
-                if report.nonfinite_gradient {
-                    return Err(not_finite_gradient());
-                }
-                if report.nonfinite_parameter {
-                    return Err(not_finite_parameter());
-                }
-                (out, parts, report.means2d)
-            }
-            Device::Cpu => {
-                let (out, parts, mut grads) =
-                    forward_backward(&CpuRasterizer, &s.model, &view.camera, &rs, |out| {
-                        let (parts, v) = objective.evaluate(&out.color, view)?;
-                        check_loss(&parts)?;
-                        Ok((parts, v))
-                    })?;
-                if !gradients_finite(&grads) {
-                    return Err(not_finite_gradient());
-                }
-                if config.opacity_reg > 0.0 {
-                    // d/dx of reg·mean(sigmoid(x)): a splat no view needs has no other
-                    // gradient, so Adam turns even this small one into full steps towards
-                    // transparency.
-                    let k = config.opacity_reg / s.model.len().max(1) as f32;
-                    for (g, &x) in grads
-                        .params
-                        .logit_opacities
-                        .iter_mut()
-                        .zip(&s.model.logit_opacities)
-                    {
-                        let o = splat::model::sigmoid(x);
-                        *g += k * o * (1.0 - o);
-                    }
-                }
-                s.adam.step(&mut s.model, &grads.params, &lr)?;
-                if !s.model.is_finite() {
-                    return Err(not_finite_parameter());
-                }
-                (out, parts, grads.means2d)
-            }
-        };
-        s.densifier.after_backward(s.step, &means2d, &out);
-        drop((out, means2d));
-        s.step += 1;
-        let step = s.step;
-        let eval_now =
-            step == config.iters || (config.eval_every > 0 && step % config.eval_every == 0);
-        let checkpoint_now = checkpoint_path.is_some()
-            && config.checkpoint_every > 0
-            && (step % config.checkpoint_every == 0 || step == config.iters);
-        let epoch_end = step % n_views as u64 == 0;
-        // The hooks below read the host model: bring it back from the GPU when one will.
-        if let Some(r) = &resident
-            && (eval_now
-                || checkpoint_now
-                || s.sh.acts_at(step)
-                || s.densifier.acts_at(step)
-                || (epoch_end && s.densifier.has_unseen()))
-        {
-            (s.model, s.adam) = r.download()?;
-        }
-        let mut edited = false;
-        // SH bands are judged before densification acts on this step: an opacity reset falling
-        // on the same step would leave the probes comparing two nearly transparent models, and
-        // every band would look worthless.
-        for event in
-            s.sh.after_step(step, &mut s.model, &mut s.adam, &mut loss_at)?
-        {
-            sh_events.push(event);
-            on_event(Event::Sh { step, event });
-            edited = true;
-        }
-        if let Some(edit) = s
-            .densifier
-            .after_step(step, &mut s.model, &mut s.adam, config.seed)?
-        {
-            edited = true;
-            on_event(Event::Densified {
-                step,
-                edit,
-                splats: s.model.len(),
-            });
-        }
-        if epoch_end {
-            let pruned = s.densifier.end_of_epoch(&mut s.model, &mut s.adam)?;
-            if pruned > 0 {
-                edited = true;
-                on_event(Event::Unseen { step, pruned });
-            }
-        }
-        if edited {
-            resident = None;
-        }
-        s.train_seconds += started.elapsed().as_secs_f64();
-        on_event(Event::Step {
-            step,
-            loss: &parts,
-            splats: s.model.len(),
-            sh_degree: s.model.sh_degree,
-            seconds: s.train_seconds,
-        });
-
-        if eval_now {
-            let metrics =
-                eval::evaluate(&s.model, &data.test, &settings(config, &s.model), device)?;
-            if let Some(m) = &metrics {
-                on_event(Event::Evaluated { step, metrics: m });
-            }
-            s.log.push(LogRow {
-                step,
-                seconds: s.train_seconds,
-                loss: parts.total,
-                train_psnr: parts.psnr,
-                test_psnr: metrics.as_ref().map(|m| m.mean_psnr),
-                test_ssim: metrics.as_ref().map(|m| m.mean_ssim),
-                splats: s.model.len(),
-                sh_degree: s.model.sh_degree,
-            });
-        }
-        if let Some(p) = checkpoint_path
-            && checkpoint_now
-        {
-            checkpoint::save(p, &s)?;
-            on_event(Event::Checkpoint { step });
-        }
-    }
-
-    let final_pruned = s.densifier.finish(&mut s.model, &mut s.adam)?;
-    for event in s.sh.finish(&mut s.model, &mut s.adam, &mut loss_at)? {
-        sh_events.push(event);
-        on_event(Event::Sh {
-            step: s.step,
-            event,
-        });
-    }
     Ok(Outcome {
-        settings: settings(config, &s.model),
-        model: s.model,
-        log: s.log,
-        train_seconds: s.train_seconds,
+        settings: run.settings(model.sh_degree),
+        model,
+        log: progress.log,
+        train_seconds: progress.train_seconds,
         final_pruned,
         sh_events,
         resumed_from,

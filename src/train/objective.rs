@@ -24,17 +24,6 @@ pub struct LossParts {
     pub psnr: f64,
 }
 
-/// The stages of [`Objective::evaluate_timed`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Stage {
-    /// The render through the PSF (aware).
-    Blur,
-    /// A photometric term, value and gradient (L1 + SSIM).
-    Loss,
-    /// The gradient back through the blur's adjoint, and the terms' gradients combined.
-    Adjoint,
-}
-
 #[derive(Clone, Copy)]
 pub struct Objective<'a> {
     pub mode: Mode,
@@ -103,20 +92,9 @@ impl Objective<'_> {
         }
     }
 
-    /// Loss and `∂loss/∂rendered`.
+    /// Loss and `∂loss/∂rendered`. Its stages are `tracing` spans ("PSF blur", "loss", "blur
+    /// adjoint"), which `metasplat bench step` times.
     pub fn evaluate(&self, rendered: &[Vec3], view: &View) -> Result<(LossParts, Vec<Vec3>)> {
-        self.evaluate_timed(rendered, view, &mut |_| {})
-    }
-
-    /// [`Self::evaluate`], calling `done(stage)` as each of its stages ends (an aware view
-    /// runs Blur, Loss, Adjoint, Loss, Adjoint), so that `metasplat bench step` times the
-    /// objective training runs rather than a copy of it.
-    pub fn evaluate_timed(
-        &self,
-        rendered: &[Vec3],
-        view: &View,
-        done: &mut dyn FnMut(Stage),
-    ) -> Result<(LossParts, Vec<Vec3>)> {
         let restored = || {
             view.restored.as_deref().ok_or_else(|| {
                 TrainError::Invalid(format!("view {} has no restored image", view.name))
@@ -128,8 +106,8 @@ impl Objective<'_> {
                     Mode::Plain => view.observed.as_slice(),
                     _ => restored()?,
                 };
-                let (v, g, p) = self.term(rendered, target)?;
-                done(Stage::Loss);
+                let (v, g, p) =
+                    tracing::info_span!("loss").in_scope(|| self.term(rendered, target))?;
                 Ok((
                     LossParts {
                         total: v,
@@ -141,23 +119,26 @@ impl Objective<'_> {
                 ))
             }
             Mode::Aware => {
-                let blurred = self.as_observed(rendered)?;
-                done(Stage::Blur);
-                let (v_abr, g_blurred, p) = self.term(&blurred, &view.observed)?;
-                done(Stage::Loss);
-                let g_abr = self.blur()?.plan().adjoint_pixels(&g_blurred)?;
-                done(Stage::Adjoint);
-                let (v_ac, g_ac) = if self.lambda != 0.0 {
-                    self.term_without_psnr(rendered, restored()?)?
-                } else {
-                    (0.0, vec![Vec3::ZERO; rendered.len()])
-                };
-                done(Stage::Loss);
+                let blurred =
+                    tracing::info_span!("PSF blur").in_scope(|| self.as_observed(rendered))?;
+                let (v_abr, g_blurred, p) =
+                    tracing::info_span!("loss").in_scope(|| self.term(&blurred, &view.observed))?;
+                let g_abr = tracing::info_span!("blur adjoint").in_scope(|| -> Result<_> {
+                    Ok(self.blur()?.plan().adjoint_pixels(&g_blurred)?)
+                })?;
+                let (v_ac, g_ac) = tracing::info_span!("loss").in_scope(|| {
+                    if self.lambda != 0.0 {
+                        self.term_without_psnr(rendered, restored()?)
+                    } else {
+                        Ok((0.0, vec![Vec3::ZERO; rendered.len()]))
+                    }
+                })?;
                 let mut grad = g_abr;
-                grad.par_iter_mut()
-                    .zip(&g_ac)
-                    .for_each(|(a, b)| *a += *b * self.lambda);
-                done(Stage::Adjoint);
+                tracing::info_span!("blur adjoint").in_scope(|| {
+                    grad.par_iter_mut()
+                        .zip(&g_ac)
+                        .for_each(|(a, b)| *a += *b * self.lambda)
+                });
                 let parts = LossParts {
                     total: v_abr + self.lambda * v_ac,
                     main: v_abr,

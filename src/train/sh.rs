@@ -45,24 +45,33 @@ impl std::fmt::Display for ShEvent {
     }
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct ShBands {
+/// When bands are raised and what a band must earn, fixed for a run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShSchedule {
     pub max_degree: u32,
     pub every: u64,
-    /// No more bands once one was dropped.
-    pub frozen: bool,
     /// A band stays when dropping it raises the training loss by at least this fraction
     /// ([`crate::train::config::Recipe::sh_min_gain`]).
-    #[serde(default = "crate::train::config::defaults::sh_min_gain")]
     pub min_gain: f64,
 }
 
-impl ShBands {
+/// What the schedule's hooks change (saved in checkpoints; a checkpoint's header of earlier
+/// versions, which also held the schedule, still reads as one).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ShState {
+    /// No more bands once one was dropped.
+    pub frozen: bool,
+}
+
+/// The mean training loss when rendering with a given number of bands: what a band is
+/// judged on. It must be the loss the step minimises at that moment (λ included).
+pub type BandLoss<'a> = dyn FnMut(&Gaussians, u32) -> Result<f64> + 'a;
+
+impl ShSchedule {
     pub fn new(max_degree: u32, every: u64, min_gain: f64) -> Self {
         Self {
             max_degree: max_degree.min(splat::MAX_SH_DEGREE),
             every: every.max(1),
-            frozen: false,
             min_gain,
         }
     }
@@ -70,10 +79,11 @@ impl ShBands {
     /// Tests the model's top band with `loss_at(model, degree)` (the mean training loss when
     /// rendering with `degree` bands); drops it if it does not pay.
     fn test_top(
-        &mut self,
+        &self,
+        state: &mut ShState,
         model: &mut Gaussians,
         adam: &mut Adam,
-        loss_at: &mut dyn FnMut(&Gaussians, u32) -> Result<f64>,
+        loss_at: &mut BandLoss,
     ) -> Result<Option<ShEvent>> {
         let d = model.sh_degree;
         if d == 0 {
@@ -85,7 +95,7 @@ impl ShBands {
         if gain < self.min_gain {
             model.set_sh_degree(d - 1);
             adam.set_sh_degree(d - 1);
-            self.frozen = true;
+            state.frozen = true;
             Ok(Some(ShEvent::Dropped {
                 degree: d - 1,
                 gain,
@@ -95,27 +105,28 @@ impl ShBands {
         }
     }
 
-    /// Whether [`ShBands::after_step`] reads or edits the model at `step`.
-    pub fn acts_at(&self, step: u64) -> bool {
-        !self.frozen && step != 0 && step.is_multiple_of(self.every)
+    /// Whether [`ShSchedule::after_step`] reads or edits the model at `step`.
+    pub fn acts_at(&self, state: &ShState, step: u64) -> bool {
+        !state.frozen && step != 0 && step.is_multiple_of(self.every)
     }
 
     /// Called after every step: on a band step, test the top band, then raise if it paid.
     pub fn after_step(
-        &mut self,
+        &self,
+        state: &mut ShState,
         step: u64,
         model: &mut Gaussians,
         adam: &mut Adam,
-        loss_at: &mut dyn FnMut(&Gaussians, u32) -> Result<f64>,
+        loss_at: &mut BandLoss,
     ) -> Result<Vec<ShEvent>> {
         let mut events = Vec::new();
-        if !self.acts_at(step) {
+        if !self.acts_at(state, step) {
             return Ok(events);
         }
-        if let Some(e) = self.test_top(model, adam, loss_at)? {
+        if let Some(e) = self.test_top(state, model, adam, loss_at)? {
             events.push(e);
         }
-        if !self.frozen && model.sh_degree < self.max_degree {
+        if !state.frozen && model.sh_degree < self.max_degree {
             let d = model.sh_degree + 1;
             model.set_sh_degree(d);
             adam.set_sh_degree(d);
@@ -126,13 +137,14 @@ impl ShBands {
 
     /// At the end of training: drop top bands while they do not pay.
     pub fn finish(
-        &mut self,
+        &self,
+        state: &mut ShState,
         model: &mut Gaussians,
         adam: &mut Adam,
-        loss_at: &mut dyn FnMut(&Gaussians, u32) -> Result<f64>,
+        loss_at: &mut BandLoss,
     ) -> Result<Vec<ShEvent>> {
         let mut events = Vec::new();
-        while let Some(e) = self.test_top(model, adam, loss_at)? {
+        while let Some(e) = self.test_top(state, model, adam, loss_at)? {
             events.push(e);
             if matches!(e, ShEvent::Kept { .. }) {
                 break;

@@ -23,8 +23,9 @@ use std::sync::Arc;
 
 use glam::Vec3;
 
+pub use crate::trainer::StepReport;
 pub use context::GpuContext;
-pub use training::{GpuTraining, StepReport};
+pub use training::{GpuTrainer, GpuTraining};
 pub use wgpu::DeviceType;
 
 use crate::camera::Camera;

@@ -3,7 +3,7 @@
 //! screen-space mean gradients densification accumulates, and one word of finiteness flags.
 //! The host copy is brought back ([`GpuTraining::download`]) when something there needs it —
 //! densification, SH-band tests, evaluation, checkpoints — and the model is uploaded again
-//! only when the host changed it.
+//! only when the host changed it. [`GpuTrainer`] puts that behind [`SplatTrainer`].
 
 use crate::camera::Camera;
 use crate::error::SplatError;
@@ -11,6 +11,7 @@ use crate::model::Gaussians;
 use crate::optim::{Adam, LearningRates};
 use crate::rasterizer::PixelGradients;
 use crate::render::{RenderOutput, RenderSettings};
+use crate::trainer::{SplatTrainer, StepReport, check_shapes};
 
 use super::util::{
     Pool, Scratch, bind_resources, blocks, dispatch, f32s, grid, part, read_back, storage_init,
@@ -32,17 +33,6 @@ pub struct GpuTraining {
     pool: Pool,
 }
 
-/// What one step leaves on the host.
-#[derive(Clone, Debug)]
-pub struct StepReport {
-    /// Screen-space mean gradient per Gaussian (what densification accumulates).
-    pub means2d: Vec<[f32; 2]>,
-    /// Some gradient was not finite: those values and their moments were left alone.
-    pub nonfinite_gradient: bool,
-    /// Some parameter is not finite after the update.
-    pub nonfinite_parameter: bool,
-}
-
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct AdamUniform {
@@ -61,16 +51,8 @@ struct AdamUniform {
 impl GpuTraining {
     /// Uploads `model` and the moments of `adam`, which must have the model's shape.
     pub fn new(raster: &GpuRasterizer, model: &Gaussians, adam: &Adam) -> Result<Self, SplatError> {
+        check_shapes(model, adam)?;
         let (m, v) = adam.moments();
-        if m.len() != model.len() || m.sh_degree != model.sh_degree {
-            return Err(SplatError::InvalidInput(format!(
-                "optimiser state for {} Gaussians of SH degree {}, model has {} of degree {}",
-                m.len(),
-                m.sh_degree,
-                model.len(),
-                model.sh_degree
-            )));
-        }
         let scene = raster.upload_static(model)?;
         let dev = &raster.ctx.device;
         Ok(Self {
@@ -269,5 +251,109 @@ impl GpuTraining {
         let mut adam = Adam::from_state(self.steps, m, v)?;
         (adam.beta1, adam.beta2, adam.eps) = (self.beta1, self.beta2, self.eps);
         Ok((model, adam))
+    }
+}
+
+/// [`SplatTrainer`] on a GPU: the model and its moments resident between the steps, brought
+/// to the host when a hook reads them and uploaded again after a hook edits them.
+pub struct GpuTrainer {
+    raster: GpuRasterizer,
+    /// The host copy, current when `host_current` (else the GPU's is newer).
+    model: Gaussians,
+    adam: Adam,
+    host_current: bool,
+    /// None until the first render, and after the host copy was edited.
+    resident: Option<GpuTraining>,
+}
+
+impl GpuTrainer {
+    /// Takes `model` and `adam`, which must have the model's shape; nothing is uploaded until
+    /// the first render.
+    pub fn new(raster: &GpuRasterizer, model: Gaussians, adam: Adam) -> Result<Self, SplatError> {
+        check_shapes(&model, &adam)?;
+        Ok(Self {
+            raster: raster.clone(),
+            model,
+            adam,
+            host_current: true,
+            resident: None,
+        })
+    }
+
+    fn bring_back(&mut self) -> Result<(), SplatError> {
+        if !self.host_current
+            && let Some(r) = &self.resident
+        {
+            let _span = tracing::info_span!("model to the host").entered();
+            (self.model, self.adam) = r.download()?;
+        }
+        self.host_current = true;
+        Ok(())
+    }
+}
+
+impl SplatTrainer for GpuTrainer {
+    type Saved = GpuSaved;
+
+    fn name(&self) -> &str {
+        "gpu"
+    }
+
+    fn len(&self) -> usize {
+        self.model.len()
+    }
+
+    fn sh_degree(&self) -> u32 {
+        self.model.sh_degree
+    }
+
+    fn render(
+        &mut self,
+        cam: &Camera,
+        settings: &RenderSettings,
+    ) -> Result<(RenderOutput, GpuSaved), SplatError> {
+        if self.resident.is_none() {
+            let _span = tracing::info_span!("model to the GPU").entered();
+            self.resident = Some(GpuTraining::new(&self.raster, &self.model, &self.adam)?);
+        }
+        let _span = tracing::info_span!("render forward").entered();
+        self.resident
+            .as_mut()
+            .expect("uploaded above")
+            .render_for_backward(cam, settings)
+    }
+
+    fn step(
+        &mut self,
+        saved: GpuSaved,
+        pixel: PixelGradients<'_>,
+        lr: &LearningRates,
+        opacity_reg: f32,
+    ) -> Result<StepReport, SplatError> {
+        let Some(r) = self.resident.as_mut() else {
+            return Err(SplatError::InvalidInput(
+                "a step needs the render it follows".into(),
+            ));
+        };
+        let _span = tracing::info_span!("render backward and Adam").entered();
+        let report = r.step(&saved, pixel, lr, opacity_reg)?;
+        self.host_current = false;
+        Ok(report)
+    }
+
+    fn host(&mut self) -> Result<(&Gaussians, &Adam), SplatError> {
+        self.bring_back()?;
+        Ok((&self.model, &self.adam))
+    }
+
+    fn host_mut(&mut self) -> Result<(&mut Gaussians, &mut Adam), SplatError> {
+        self.bring_back()?;
+        self.resident = None;
+        Ok((&mut self.model, &mut self.adam))
+    }
+
+    fn into_host(mut self) -> Result<(Gaussians, Adam), SplatError> {
+        self.bring_back()?;
+        Ok((self.model, self.adam))
     }
 }

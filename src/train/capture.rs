@@ -1,0 +1,218 @@
+//! A capture opened with its imaging model and its source of `I_ac`, before any image is
+//! read: training loads its views from it ([`crate::train::data::load`]), and the viewer's
+//! comparison asks it for one view at a time, so both see the same pixels.
+
+use std::path::Path;
+
+use aberration::{BlurMode, ImagingModel, NoiseModel, PsfGrid};
+use glam::Vec3;
+use scenes::aberrated::{self, AberrationRecord};
+use scenes::{Capture, OpenOptions, Resolution};
+
+use crate::convert::{image_to_pixels, pixels_to_image, rgb_to_pixels, splat_camera};
+use crate::error::{Result, TrainError};
+use crate::settings::DataOptions;
+use crate::train::data::View;
+use crate::train::iac::{IacSource, OpenedRestorer, open_restorer};
+
+fn load_psf(path: &Path) -> Result<PsfGrid> {
+    PsfGrid::load_npy(path).map_err(|e| TrainError::file(path, e.to_string()))
+}
+
+/// How a capture was imaged: grid, blur mode, sensor size, noise.
+type ImagingSettings = (PsfGrid, BlurMode, Option<usize>, NoiseModel);
+
+/// The PSF grid and blur settings of a capture: its own record, checked against `--psf`.
+fn imaging_settings(
+    dir: &Path,
+    capture: &Capture,
+    user_psf: Option<&Path>,
+) -> Result<Option<ImagingSettings>> {
+    let record = AberrationRecord::read(dir)?;
+    let (w, h) = (capture.cameras[0].width, capture.cameras[0].height);
+    if let Some(r) = &record
+        && (r.width, r.height) != (w, h)
+    {
+        return Err(TrainError::file(
+            dir.join(aberrated::RECORD_FILE),
+            format!(
+                "the capture was aberrated at {}x{} but {} holds {w}x{h} images; the PSF model would not match (use the downsample it was made at)",
+                r.width,
+                r.height,
+                capture.image_dir.display()
+            ),
+        ));
+    }
+    let own = match &record {
+        Some(r) => Some(r.load_psf(dir)?),
+        None => None,
+    };
+    let given = user_psf.map(load_psf).transpose()?;
+    let psf = match (own, given) {
+        (Some(own), Some(given)) => {
+            if own != given {
+                return Err(TrainError::file(
+                    user_psf.expect("given implies a path"),
+                    format!(
+                        "this PSF grid ({}x{} of {} px) is not the one {} was made with ({}x{} of {} px, {}); leave out --psf to use the capture's",
+                        given.grid(),
+                        given.grid(),
+                        given.size(),
+                        dir.display(),
+                        own.grid(),
+                        own.grid(),
+                        own.size(),
+                        dir.join(aberrated::PSF_FILE).display()
+                    ),
+                ));
+            }
+            own
+        }
+        (Some(p), None) | (None, Some(p)) => p,
+        (None, None) => return Ok(None),
+    };
+    let (mode, sensor, noise) = match &record {
+        Some(r) => (
+            r.blur_mode(&dir.join(aberrated::RECORD_FILE))?,
+            r.sensor_px,
+            r.noise(),
+        ),
+        None => (BlurMode::Tiled, None, NoiseModel::default()),
+    };
+    Ok(Some((psf, mode, sensor, noise)))
+}
+
+/// A capture with its imaging model and its source of `I_ac`.
+pub struct CaptureModel {
+    pub capture: Capture,
+    pub width: u32,
+    pub height: u32,
+    /// The blur the capture went through (None for a clean capture without `--psf`).
+    pub imaging: Option<ImagingModel>,
+    /// Where `I_ac` comes from, when it was asked for and the capture has a PSF grid.
+    pub restorer: Option<IacSource>,
+    pub restorer_note: Option<String>,
+    network: Option<OpenedRestorer>,
+    /// Names cached `I_ac` images (None without a restorer).
+    keyer: Option<crate::train::iac_cache::Keyer>,
+}
+
+impl CaptureModel {
+    /// Opens the capture, its PSF model, and (with `with_restorer`) the restorer. Errors name
+    /// the file and the problem.
+    pub fn open(dir: &Path, options: &DataOptions, with_restorer: bool) -> Result<Self> {
+        let open = OpenOptions {
+            resolution: Resolution::Downsample(options.downsample),
+            llffhold: options.llffhold,
+            seed: options.seed,
+            ..OpenOptions::default()
+        };
+        let capture = scenes::open(dir, &open)?;
+        if capture.split.train.is_empty() {
+            return Err(TrainError::file(dir, "no training views after the split"));
+        }
+        let (width, height) = (capture.cameras[0].width, capture.cameras[0].height);
+        let settings = imaging_settings(dir, &capture, options.psf.as_deref())?;
+        let imaging = match &settings {
+            Some((psf, blur, sensor, noise)) => Some(
+                ImagingModel::new(psf, width as usize, height as usize, *blur, *sensor, *noise)
+                    .map_err(|e| {
+                        TrainError::file(
+                            options.psf.clone().unwrap_or(dir.join(aberrated::PSF_FILE)),
+                            format!("PSF grid does not fit {width}x{height} images: {e}"),
+                        )
+                    })?,
+            ),
+            None => None,
+        };
+        let (network, restorer_note) = match (&settings, &imaging, with_restorer) {
+            (Some((psf, ..)), Some(model), true) => {
+                open_restorer(&options.restorer, psf, model.psf().size())?
+            }
+            _ => (None, None),
+        };
+        let restorer = (with_restorer && imaging.is_some()).then(|| match &network {
+            Some((r, source)) => IacSource::Network {
+                config: r.config().name.clone(),
+                source: source.clone(),
+                weights: r.weights_hash.clone().unwrap_or_default(),
+            },
+            None => IacSource::Wiener,
+        });
+        let keyer = match (&restorer, &imaging) {
+            (Some(r), Some(m)) => Some(crate::train::iac_cache::Keyer::new(&r.identity(), m.psf())),
+            _ => None,
+        };
+        Ok(Self {
+            capture,
+            width,
+            height,
+            imaging,
+            restorer,
+            restorer_note,
+            network,
+            keyer,
+        })
+    }
+
+    /// View `i` with its observed and clean images; `I_ac` is left to [`Self::restore`].
+    pub fn view(&self, i: usize) -> Result<View> {
+        let observed = rgb_to_pixels(&self.capture.load_image(i)?);
+        let clean = aberrated::load_clean_image(&self.capture, i)?.map(|c| rgb_to_pixels(&c));
+        Ok(View {
+            name: self.capture.cameras[i].name.clone(),
+            camera: splat_camera(&self.capture.cameras[i]),
+            observed,
+            restored: None,
+            clean,
+        })
+    }
+
+    /// True when `I_ac` comes from the network (which parallelises inside, so callers
+    /// restore its views one at a time).
+    pub fn restores_with_network(&self) -> bool {
+        self.network.is_some()
+    }
+
+    /// `I_ac` from the cache folder `cache` when it holds it, else computed
+    /// ([`Self::restore`]) together with the key to cache it under (None when it was read, or
+    /// when there is no cache).
+    pub fn restore_cached(
+        &self,
+        observed: &[Vec3],
+        cache: Option<&Path>,
+    ) -> Result<Option<(Vec<Vec3>, Option<u64>)>> {
+        let key = match (cache, &self.keyer) {
+            (Some(_), Some(k)) => Some(k.key(self.width, self.height, observed)),
+            _ => None,
+        };
+        if let (Some(dir), Some(key)) = (cache, key)
+            && let Some(img) = crate::train::iac_cache::get(dir, key, observed.len())
+        {
+            return Ok(Some((img, None)));
+        }
+        Ok(self.restore(observed)?.map(|img| (img, key)))
+    }
+
+    /// `I_ac` for an observed image: the restorer's output, or None when no restorer was
+    /// asked for or the capture has no PSF grid.
+    pub fn restore(&self, observed: &[Vec3]) -> Result<Option<Vec<Vec3>>> {
+        let (Some(_), Some(model)) = (&self.restorer, &self.imaging) else {
+            return Ok(None);
+        };
+        let blurred = pixels_to_image(observed, self.width, self.height);
+        let restored = match &self.network {
+            Some((net, _)) => net.restore(&blurred, model.psf())?,
+            None => {
+                let mut wiener = aberration::wiener::deconvolve(
+                    &blurred,
+                    model.psf(),
+                    aberration::wiener::Regularizer::Fixed(aberration::wiener::DEFAULT_K),
+                )?;
+                wiener.clamp01();
+                wiener
+            }
+        };
+        Ok(Some(image_to_pixels(&restored)))
+    }
+}

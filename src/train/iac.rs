@@ -1,0 +1,88 @@
+//! Where `I_ac` comes from: the user's choice ([`RestorerChoice`]) resolved for a capture's
+//! PSF grid and scale into a source ([`IacSource`]): the MAFG + STAF network (`restore`) or the
+//! Wiener stand-in.
+
+use aberration::PsfGrid;
+
+use crate::error::Result;
+use crate::settings::RestorerChoice;
+
+/// Where a run's `I_ac` comes from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum IacSource {
+    /// The Wiener filter with `metasplat deconvolve`'s default constant (no trained weights
+    /// for this PSF grid). It replaced the median of the MAFG bank, which at low resolution is
+    /// worse than the aberrated input and whose ringing long runs learned (RESULTS.md).
+    Wiener,
+    /// The MAFG + STAF transformer: its config name, where its weights came from, and a
+    /// hash of the weights file.
+    Network {
+        config: String,
+        source: String,
+        weights: String,
+    },
+}
+
+impl IacSource {
+    pub fn describe(&self) -> String {
+        match self {
+            IacSource::Wiener => {
+                "I_ac = Wiener image, K = 1e-2 (stand-in: no trained restorer fits this PSF grid and scale)"
+                    .into()
+            }
+            IacSource::Network { config, source, .. } => {
+                format!("I_ac = MAFG + STAF restorer, config '{config}', weights {source}")
+            }
+        }
+    }
+
+    /// What makes `I_ac` what it is, independent of where the weights file lies: a resumed
+    /// run must get its `I_ac` from the same source.
+    pub fn identity(&self) -> String {
+        match self {
+            IacSource::Wiener => "Wiener K=1e-2".into(),
+            IacSource::Network {
+                config, weights, ..
+            } => format!("{config} network, weights fnv1a {weights}"),
+        }
+    }
+}
+
+/// A loaded network and where its weights came from.
+pub(crate) type OpenedRestorer = (restore::Restorer, String);
+
+/// Resolves a restorer choice for the capture's PSF grid (`native`, as simulated) whose PSFs
+/// are `psf_px` wide at the capture's size. Also returns a note when `auto` passes over the
+/// shipped network, or when given weights never saw this blur scale.
+pub(crate) fn open_restorer(
+    choice: &RestorerChoice,
+    native: &PsfGrid,
+    psf_px: usize,
+) -> Result<(Option<OpenedRestorer>, Option<String>)> {
+    let scale_note = |r: &restore::Restorer, name: &str| {
+        let [lo, hi] = r.header.trained_psf_px.unwrap_or([0, 0]);
+        format!("{name} was trained on {lo}-{hi} px PSFs; this capture's are {psf_px} px")
+    };
+    Ok(match choice {
+        RestorerChoice::Wiener => (None, None),
+        RestorerChoice::Auto => match restore::shipped::for_psf(native)? {
+            Some(r) if r.header.fits_psf_px(psf_px) => {
+                (Some((r, restore::shipped::TINY_NAME.to_string())), None)
+            }
+            Some(r) => (
+                None,
+                Some(format!(
+                    "{}: using the Wiener image instead",
+                    scale_note(&r, "the shipped restorer")
+                )),
+            ),
+            None => (None, None),
+        },
+        RestorerChoice::Weights(p) => {
+            let r = restore::Restorer::load(p, native)?;
+            let note = (!r.header.fits_psf_px(psf_px))
+                .then(|| format!("warning: {}", scale_note(&r, &p.display().to_string())));
+            (Some((r, p.display().to_string())), note)
+        }
+    })
+}
