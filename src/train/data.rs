@@ -4,15 +4,13 @@
 
 use std::path::Path;
 
-use aberration::ImagingModel;
 use glam::Vec3;
 use rayon::prelude::*;
-use scenes::{Capture, PointCloud};
+use scenes::PointCloud;
 
 use crate::error::{Result, TrainError};
 use crate::settings::DataOptions;
 use crate::train::config::Mode;
-use crate::train::iac::IacSource;
 
 pub use crate::train::capture::CaptureModel;
 
@@ -29,17 +27,13 @@ pub struct View {
     pub clean: Option<Vec<Vec3>>,
 }
 
+/// A capture's views loaded for training: the [`CaptureModel`] they came from (its capture,
+/// size, imaging model and `I_ac` source read through this type, as `data.width`), the
+/// training and held-out views, and what initialisation needs.
 pub struct Dataset {
-    pub capture: Capture,
-    pub width: u32,
-    pub height: u32,
+    pub source: CaptureModel,
     pub train: Vec<View>,
     pub test: Vec<View>,
-    /// The blur the capture went through (None for a clean capture without `--psf`).
-    pub imaging: Option<ImagingModel>,
-    pub restorer: Option<IacSource>,
-    /// Why the restorer is not the one asked for, or a warning about it.
-    pub restorer_note: Option<String>,
     /// 3DGS scene extent (camera radius × 1.1): scales position lr and size thresholds.
     pub extent: f32,
     pub points: PointCloud,
@@ -48,6 +42,14 @@ pub struct Dataset {
     /// Training views whose `I_ac` was computed (not found in the cache), with their cache
     /// keys: [`Dataset::cache_restored`] stores them.
     pub restored_fresh: Vec<(usize, u64)>,
+}
+
+impl std::ops::Deref for Dataset {
+    type Target = CaptureModel;
+
+    fn deref(&self) -> &CaptureModel {
+        &self.source
+    }
 }
 
 impl Dataset {
@@ -126,31 +128,17 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
         .par_iter()
         .map(|&i| make_view(i, false).map(|(v, _)| v))
         .collect::<Result<Vec<_>>>()?;
-    let CaptureModel {
-        capture,
-        width,
-        height,
-        imaging,
-        restorer,
-        restorer_note,
-        ..
-    } = model;
     // One camera (or all at one spot) has no radius; 1 keeps the thresholds meaningful.
-    let radius = capture.normalization().radius as f32;
+    let radius = model.capture.normalization().radius as f32;
     let extent = if radius > 0.0 { radius } else { 1.0 };
-    let points = capture.points.clone();
+    let points = model.capture.points.clone();
     Ok(Dataset {
-        width,
-        height,
+        source: model,
         train,
         test,
-        imaging,
-        restorer,
-        restorer_note,
         extent,
         points,
         initial: None,
         restored_fresh,
-        capture,
     })
 }
