@@ -1,10 +1,9 @@
 //! Line plots written as PNG files (training curves such as PSNR against time).
 //!
 //! Drawing uses `plotters` with its pure-Rust `ab_glyph` text renderer, so the build links no
-//! system font libraries. Text needs a TrueType font file at run time: the first readable one in
-//! [`FONT_PATHS`] is used (on Debian/Ubuntu, package `fonts-dejavu-core` provides the first).
-//! Without any of them the plot is still written, with lines, grid and frame but no text at all
-//! (no title, axis labels, tick labels, legend or "no data" note); that is not an error.
+//! system font libraries, and its text is set in the font the viewer's egui already ships in
+//! the binary (Ubuntu Light, from `epaint_default_fonts`): a plot looks the same on every
+//! machine, with no font files to find.
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -17,23 +16,6 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 pub const WIDTH: u32 = 800;
 /// Height of the written PNG in pixels.
 pub const HEIGHT: u32 = 500;
-
-/// Font files tried in order; the first that exists and parses is used for all text.
-pub const FONT_PATHS: &[&str] = &[
-    // Debian, Ubuntu (fonts-dejavu-core)
-    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-    // Fedora (dejavu-sans-fonts), older Red Hat layouts, Arch (ttf-dejavu)
-    "/usr/share/fonts/dejavu-sans-fonts/DejaVuSans.ttf",
-    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
-    "/usr/share/fonts/TTF/DejaVuSans.ttf",
-    // Debian, Ubuntu (fonts-liberation, fonts-liberation2)
-    "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-    "/usr/share/fonts/truetype/liberation2/LiberationSans-Regular.ttf",
-    // macOS, Windows
-    "/System/Library/Fonts/Supplemental/Arial.ttf",
-    "/Library/Fonts/Arial.ttf",
-    "C:\\Windows\\Fonts\\arial.ttf",
-];
 
 /// One named line of (x, y) points.
 #[derive(Debug, Clone, PartialEq)]
@@ -70,9 +52,6 @@ pub enum PlotError {
 /// [0, 1] and the plot says "no data". Each series gets its own colour (ten distinct ones, then more from
 /// a larger palette).
 ///
-/// Text needs one of the font files in [`FONT_PATHS`]; when none is readable the plot is still
-/// written, without any text (no error, no panic).
-///
 /// The PNG is written to a temporary file in the same folder and renamed onto `path`, so `path`
 /// never holds a partial image; on failure the temporary file is removed.
 pub fn line_plot(
@@ -103,19 +82,17 @@ struct Labels<'a> {
 /// Family name under which the font is registered; `FontFamily::SansSerif` looks it up.
 const FONT_FAMILY: &str = "sans-serif";
 
-/// Registers the first usable font in [`FONT_PATHS`] once per process; false when none is.
+/// Registers the embedded font once per process; false only if it does not parse (then the
+/// plot is drawn without text rather than not at all).
 fn font_available() -> bool {
     static AVAILABLE: OnceLock<bool> = OnceLock::new();
     *AVAILABLE.get_or_init(|| {
-        FONT_PATHS.iter().any(|p| {
-            let Ok(bytes) = std::fs::read(p) else {
-                return false;
-            };
-            // plotters keeps fonts for the life of the process and wants `'static` bytes; this
-            // runs once per process, so at most a few font files are leaked.
-            let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-            plotters::style::register_font(FONT_FAMILY, FontStyle::Normal, bytes).is_ok()
-        })
+        plotters::style::register_font(
+            FONT_FAMILY,
+            FontStyle::Normal,
+            epaint_default_fonts::UBUNTU_LIGHT,
+        )
+        .is_ok()
     })
 }
 
@@ -416,6 +393,25 @@ mod tests {
         // Overwriting an existing plot works too.
         line_plot(&path, "PSNR", "time (s)", "PSNR (dB)", &s[..1]).unwrap();
         assert_eq!(dir_entries(tmp.path()), ["psnr.png"]);
+    }
+
+    /// The embedded font registers on any machine, and text is drawn with it: the same plot
+    /// with text has far more dark (text-coloured) pixels than without.
+    #[test]
+    fn the_embedded_font_draws_the_text() {
+        assert!(font_available(), "the embedded font did not register");
+        let s = [series("a line", &[(0.0, 1.0), (1.0, 2.0)])];
+        let dark = |rgb: &[u8]| {
+            rgb.chunks_exact(3)
+                .filter(|p| p.iter().all(|&v| v < 80))
+                .count()
+        };
+        let with = dark(&render(&s, &labels(), true).unwrap());
+        let without = dark(&render(&s, &labels(), false).unwrap());
+        assert!(
+            with > without + 500,
+            "{with} dark pixels with text, {without} without"
+        );
     }
 
     #[test]
