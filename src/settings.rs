@@ -10,8 +10,43 @@ use std::path::PathBuf;
 
 use clap::{Args, FromArgMatches};
 
+use serde::{Deserialize, Serialize};
+
 use crate::device::DeviceChoice;
-use crate::train::config::Mode;
+
+/// The paper's three rows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// "3D-GS + Ours": `L(PSF ⊛ render, I_abr) + λ·L(render, I_ac)`.
+    Aware,
+    /// "3D-GS w/ Ours": plain 3DGS on the restored images `I_ac`.
+    Restored,
+    /// "3D-GS": plain 3DGS on the aberrated images.
+    Plain,
+}
+
+impl Mode {
+    pub const ALL: [Mode; 3] = [Mode::Plain, Mode::Restored, Mode::Aware];
+
+    pub fn needs_psf(self) -> bool {
+        self != Mode::Plain
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Mode::Aware => "aware",
+            Mode::Restored => "restored",
+            Mode::Plain => "plain",
+        }
+    }
+}
+
+impl std::fmt::Display for Mode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
 
 /// What a run is asked to do: where from, where to, and how.
 #[derive(Args, Clone, Debug)]

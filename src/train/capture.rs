@@ -12,7 +12,6 @@ use scenes::{Capture, OpenOptions, Resolution};
 use crate::convert::{image_to_pixels, pixels_to_image, rgb_to_pixels, splat_camera};
 use crate::error::{Result, TrainError};
 use crate::settings::DataOptions;
-use crate::train::data::View;
 use crate::train::iac::{IacSource, OpenedRestorer, open_restorer};
 
 fn load_psf(path: &Path) -> Result<PsfGrid> {
@@ -80,6 +79,19 @@ fn imaging_settings(
         None => (BlurMode::Tiled, None, NoiseModel::default()),
     };
     Ok(Some((psf, mode, sensor, noise)))
+}
+
+/// One camera and its images, row-major RGB in [0, 1].
+#[derive(Clone, Debug)]
+pub struct View {
+    pub name: String,
+    pub camera: splat::Camera,
+    /// What the camera recorded: `I_abr` for an aberrated capture.
+    pub observed: Vec<Vec3>,
+    /// `I_ac`: the restorer's output for `observed` (training views of modes that use it).
+    pub restored: Option<Vec<Vec3>>,
+    /// Ground truth from the capture's `clean/` folder, when it has one.
+    pub clean: Option<Vec<Vec3>>,
 }
 
 /// A capture with its imaging model and its source of `I_ac`.

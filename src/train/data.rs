@@ -4,28 +4,13 @@
 
 use std::path::Path;
 
-use glam::Vec3;
 use rayon::prelude::*;
 use scenes::PointCloud;
 
 use crate::error::{Result, TrainError};
-use crate::settings::DataOptions;
-use crate::train::config::Mode;
+use crate::settings::{DataOptions, Mode};
 
-pub use crate::train::capture::CaptureModel;
-
-/// One camera and its images, row-major RGB in [0, 1].
-#[derive(Clone, Debug)]
-pub struct View {
-    pub name: String,
-    pub camera: splat::Camera,
-    /// What the camera recorded: `I_abr` for an aberrated capture.
-    pub observed: Vec<Vec3>,
-    /// `I_ac`: the restorer's output for `observed` (training views of modes that use it).
-    pub restored: Option<Vec<Vec3>>,
-    /// Ground truth from the capture's `clean/` folder, when it has one.
-    pub clean: Option<Vec<Vec3>>,
-}
+pub use crate::train::capture::{CaptureModel, View};
 
 /// A capture's views loaded for training: the [`CaptureModel`] they came from (its capture,
 /// size, imaging model and `I_ac` source read through this type, as `data.width`), the

@@ -9,7 +9,7 @@ use rayon::prelude::*;
 use splat::loss::photometric_loss;
 
 use crate::error::{Result, TrainError};
-use crate::train::config::Mode;
+use crate::settings::Mode;
 use crate::train::data::View;
 
 /// Loss parts of one view.
