@@ -17,25 +17,30 @@ use crate::project::{
 };
 use crate::sh::{SH_C0, basis_grad_of, basis_of};
 
+/// A block of up to [`N`] consecutive Gaussians as one camera sees them: what the projection
+/// and its backward both read (the block's length is that of their outputs).
+#[derive(Clone, Copy)]
+pub struct Block<'a> {
+    pub g: &'a Gaussians,
+    /// The block's first Gaussian.
+    pub first: usize,
+    pub cam: &'a Camera,
+    pub sh_degree: u32,
+    pub antialiased: bool,
+}
+
 /// Projects Gaussians `first .. first + count` (`count` from 1 to [`N`]); a culled Gaussian,
 /// and every lane from `count` on, gets `Projected::default()`.
-pub fn project_lanes(
-    g: &Gaussians,
-    first: usize,
-    count: usize,
-    cam: &Camera,
-    sh_degree: u32,
-    antialiased: bool,
-) -> [Projected; N] {
+pub fn project_lanes(at: &Block, count: usize) -> [Projected; N] {
     let mut out = [Projected::default(); N];
     let out_part = &mut out[..count.clamp(1, N)];
     #[cfg(target_arch = "x86_64")]
     if crate::blocks::Isa::chosen() != crate::blocks::Isa::Portable {
         // SAFETY: the chosen build's CPU has AVX2 and FMA.
-        unsafe { project_avx2(g, first, cam, sh_degree, antialiased, out_part) };
+        unsafe { project_avx2(at, out_part) };
         return out;
     }
-    project_body(g, first, cam, sh_degree, antialiased, out_part);
+    project_body(at, out_part);
     out
 }
 
@@ -43,15 +48,8 @@ pub fn project_lanes(
 /// so it gives the portable build's bits.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn project_avx2(
-    g: &Gaussians,
-    first: usize,
-    cam: &Camera,
-    sh_degree: u32,
-    antialiased: bool,
-    out: &mut [Projected],
-) {
-    project_body(g, first, cam, sh_degree, antialiased, out);
+unsafe fn project_avx2(at: &Block, out: &mut [Projected]) {
+    project_body(at, out);
 }
 
 /// What the projection and its backward share of a Gaussian (the scalar `project::geometry`),
@@ -211,14 +209,14 @@ fn geometry(g: &Gaussians, idx: &[usize; N], cam: &Camera) -> Geo {
 }
 
 #[inline(always)]
-fn project_body(
-    g: &Gaussians,
-    first: usize,
-    cam: &Camera,
-    sh_degree: u32,
-    antialiased: bool,
-    out: &mut [Projected],
-) {
+fn project_body(at: &Block, out: &mut [Projected]) {
+    let &Block {
+        g,
+        first,
+        cam,
+        sh_degree,
+        antialiased,
+    } = at;
     let count = out.len();
     debug_assert!((1..=N).contains(&count));
     // Lanes past the end repeat the last Gaussian; their results are dropped.
@@ -351,96 +349,58 @@ fn sh_color(g: &Gaussians, idx: &[usize; N], degree: u32, cam_pos: Vec3, mean: [
 /// takes the screen-space gradient `screen[l]` and the forward's clamped colour `colors[l]`,
 /// and is skipped (zero gradients) unless `touched[l]`. SH-rest gradients go to `v_rest`
 /// (`count · rest_count` entries, zeroed by the caller), the rest is returned per lane.
-#[allow(clippy::too_many_arguments)]
 pub fn project_backward_lanes(
-    g: &Gaussians,
-    first: usize,
-    cam: &Camera,
-    sh_degree: u32,
-    antialiased: bool,
-    colors: &[Vec3],
-    screen: &[ScreenGrad],
-    touched: [bool; N],
+    at: &Block,
+    from: &BackwardIn,
     v_rest: &mut [Vec3],
 ) -> [ParamGrad; N] {
     let mut out = [ParamGrad::default(); N];
     #[cfg(target_arch = "x86_64")]
     if crate::blocks::Isa::chosen() != crate::blocks::Isa::Portable {
         // SAFETY: the chosen build's CPU has AVX2 and FMA.
-        unsafe {
-            backward_avx2(
-                g,
-                first,
-                cam,
-                sh_degree,
-                antialiased,
-                colors,
-                screen,
-                touched,
-                v_rest,
-                &mut out,
-            )
-        };
+        unsafe { backward_avx2(at, from, v_rest, &mut out) };
         return out;
     }
-    backward_body(
-        g,
-        first,
-        cam,
-        sh_degree,
-        antialiased,
-        colors,
-        screen,
-        touched,
-        v_rest,
-        &mut out,
-    );
+    backward_body(at, from, v_rest, &mut out);
     out
+}
+
+/// What the backward of a block takes from the forward and the blending backward.
+pub struct BackwardIn<'a> {
+    /// The forward's clamped colour per lane.
+    pub colors: &'a [Vec3],
+    /// The screen-space gradient per lane.
+    pub screen: &'a [ScreenGrad],
+    /// Lanes not touched get zero gradients.
+    pub touched: [bool; N],
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
 unsafe fn backward_avx2(
-    g: &Gaussians,
-    first: usize,
-    cam: &Camera,
-    sh_degree: u32,
-    antialiased: bool,
-    colors: &[Vec3],
-    screen: &[ScreenGrad],
-    touched: [bool; N],
+    at: &Block,
+    from: &BackwardIn,
     v_rest: &mut [Vec3],
     out: &mut [ParamGrad; N],
 ) {
-    backward_body(
+    backward_body(at, from, v_rest, out);
+}
+
+#[allow(clippy::needless_range_loop)]
+#[inline(always)]
+fn backward_body(at: &Block, from: &BackwardIn, v_rest: &mut [Vec3], out: &mut [ParamGrad; N]) {
+    let &Block {
         g,
         first,
         cam,
         sh_degree,
         antialiased,
+    } = at;
+    let &BackwardIn {
         colors,
         screen,
         touched,
-        v_rest,
-        out,
-    );
-}
-
-#[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
-#[inline(always)]
-fn backward_body(
-    g: &Gaussians,
-    first: usize,
-    cam: &Camera,
-    sh_degree: u32,
-    antialiased: bool,
-    colors: &[Vec3],
-    screen: &[ScreenGrad],
-    touched: [bool; N],
-    v_rest: &mut [Vec3],
-    out: &mut [ParamGrad; N],
-) {
+    } = from;
     let count = screen.len();
     debug_assert!((1..=N).contains(&count) && colors.len() == count);
     let idx: [usize; N] = std::array::from_fn(|l| first + l.min(count - 1));
@@ -718,7 +678,14 @@ mod tests {
             let ref_cam = reference::RefCamera::from(&cam);
             for first in (0..g.len()).step_by(N) {
                 let count = N.min(g.len() - first);
-                let got = project_lanes(&g, first, count, &cam, deg, aa);
+                let at = Block {
+                    g: &g,
+                    first,
+                    cam: &cam,
+                    sh_degree: deg,
+                    antialiased: aa,
+                };
+                let got = project_lanes(&at, count);
                 for l in 0..count {
                     let i = first + l;
                     let want = project_one(&g, i, &cam, deg, aa, pos);
@@ -808,9 +775,16 @@ mod tests {
         for first in (0..g.len()).step_by(N) {
             let mut a = [Projected::default(); N];
             let mut b = [Projected::default(); N];
+            let at = Block {
+                g: &g,
+                first,
+                cam: &cam,
+                sh_degree: 3,
+                antialiased: true,
+            };
             // SAFETY: checked above.
-            unsafe { project_avx2(&g, first, &cam, 3, true, &mut a) };
-            project_body(&g, first, &cam, 3, true, &mut b);
+            unsafe { project_avx2(&at, &mut a) };
+            project_body(&at, &mut b);
             for l in 0..N {
                 assert_eq!(bits(&a[l]), bits(&b[l]), "Gaussian {}", first + l);
             }
@@ -902,45 +876,34 @@ mod tests {
             for first in (0..n).step_by(N) {
                 let count = N.min(n - first);
                 let t = std::array::from_fn(|l| l < count && touched(first + l));
-                let out = project_backward_lanes(
-                    &g,
+                let at = Block {
+                    g: &g,
                     first,
-                    &cam,
-                    deg,
-                    aa,
-                    &colors[first..first + count],
-                    &screen[first..first + count],
-                    t,
+                    cam: &cam,
+                    sh_degree: deg,
+                    antialiased: aa,
+                };
+                let from = BackwardIn {
+                    colors: &colors[first..first + count],
+                    screen: &screen[first..first + count],
+                    touched: t,
+                };
+                let out = project_backward_lanes(
+                    &at,
+                    &from,
                     &mut got_r[first * rc..(first + count) * rc],
                 );
                 got_p.extend_from_slice(&out[..count]);
                 // The AVX2 build gives the portable build's bits.
                 #[cfg(target_arch = "x86_64")]
                 if avx2 {
-                    let (cols, scr) =
-                        (&colors[first..first + count], &screen[first..first + count]);
                     let (mut o_port, mut r_port) =
                         ([ParamGrad::default(); N], vec![Vec3::ZERO; count * rc]);
                     let (mut o_avx, mut r_avx) =
                         ([ParamGrad::default(); N], vec![Vec3::ZERO; count * rc]);
-                    backward_body(
-                        &g,
-                        first,
-                        &cam,
-                        deg,
-                        aa,
-                        cols,
-                        scr,
-                        t,
-                        &mut r_port,
-                        &mut o_port,
-                    );
+                    backward_body(&at, &from, &mut r_port, &mut o_port);
                     // SAFETY: `avx2` says the CPU has AVX2 and FMA.
-                    unsafe {
-                        backward_avx2(
-                            &g, first, &cam, deg, aa, cols, scr, t, &mut r_avx, &mut o_avx,
-                        )
-                    };
+                    unsafe { backward_avx2(&at, &from, &mut r_avx, &mut o_avx) };
                     let bits = |o: &[ParamGrad; N], r: &[Vec3]| {
                         let mut v: Vec<f32> = o[..count].iter().flat_map(flat).collect();
                         v.extend(r.iter().flat_map(|x| x.to_array()));

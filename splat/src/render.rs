@@ -16,7 +16,7 @@ use crate::error::SplatError;
 use crate::lanes;
 use crate::model::Gaussians;
 use crate::project::{self, Projected, ScreenGrad};
-use crate::project_lanes::{project_backward_lanes, project_lanes};
+use crate::project_lanes::{BackwardIn, Block, project_backward_lanes, project_lanes};
 use crate::raster::{self, IsectGrad, PixelGrads, Splat};
 use crate::tiles::{self, TileBins};
 
@@ -159,14 +159,14 @@ fn forward(
         .enumerate()
         .for_each(|(b, slots)| {
             let first = b * lanes::N;
-            let block = project_lanes(
+            let at = Block {
                 g,
                 first,
-                slots.len(),
                 cam,
-                settings.sh_degree,
-                settings.antialiased,
-            );
+                sh_degree: settings.sh_degree,
+                antialiased: settings.antialiased,
+            };
+            let block = project_lanes(&at, slots.len());
             for (slot, p) in slots.iter_mut().zip(block) {
                 slot.write(p);
             }
@@ -476,17 +476,19 @@ pub(crate) fn gradients_from_screen(
                 let touched = std::array::from_fn(|l| l < count && touched(first + l));
                 // SAFETY: the SH part of Gaussians `first .. first + count` is this block's.
                 let v_rest = unsafe { rest.part(first * rc, count * rc) };
-                let grads = project_backward_lanes(
+                let at = Block {
                     g,
                     first,
                     cam,
-                    settings.sh_degree,
-                    settings.antialiased,
-                    &colors[..count],
-                    &sg[..count],
+                    sh_degree: settings.sh_degree,
+                    antialiased: settings.antialiased,
+                };
+                let from = BackwardIn {
+                    colors: &colors[..count],
+                    screen: &sg[..count],
                     touched,
-                    v_rest,
-                );
+                };
+                let grads = project_backward_lanes(&at, &from, v_rest);
                 for (l, slot) in slots.iter_mut().enumerate() {
                     let (s, abs) = &part[l];
                     slot.write((grads[l], [s.mean2d.x, s.mean2d.y], [abs.x, abs.y]));
