@@ -5,6 +5,7 @@
 pub mod atomic;
 pub mod error;
 pub mod hash;
+pub mod isa;
 pub mod limits;
 pub mod metrics;
 pub mod npy;

@@ -10,7 +10,6 @@
 //! Sizes that do not match are errors, never panics.
 
 use glam::Vec3;
-use multiversion::multiversion;
 use rayon::prelude::*;
 
 use crate::error::BaseError;
@@ -229,13 +228,13 @@ fn blur_planes<const P: usize>(
         .for_each(|(y, o)| blur_column(tmp, y, h, o, k, &zeros));
 }
 
+crate::simd_builds! {
 /// One row of the horizontal pass: `out[x] = Σ_j k[j]·row[x + j − r]`, summed in increasing
 /// `j` from zero. Taps that fall outside the row read the zeros of a padded copy; adding
 /// `k[j]·0 = +0` leaves every sum as skipping the tap would (a sum started at `+0` is never
 /// `−0`), so the bits are those of the direct loops. Each output is summed in a register;
 /// compiled for several instruction sets and chosen at run time, with the same arithmetic
 /// (separate multiply and add, never fused) in each.
-#[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
 fn blur_row(row: &[f32], out: &mut [f32], k: &[f32; SSIM_WINDOW], pad: &mut Vec<f32>) {
     let (w, r) = (row.len(), SSIM_WINDOW / 2);
     pad.clear();
@@ -251,10 +250,11 @@ fn blur_row(row: &[f32], out: &mut [f32], k: &[f32; SSIM_WINDOW], pad: &mut Vec<
         *o = acc;
     }
 }
+}
 
+crate::simd_builds! {
 /// Output row `y` of the vertical pass over `tmp` (rows of `out.len()` values), as
 /// [`blur_row`] does along a row: rows outside the image read `zeros`.
-#[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
 fn blur_column(
     tmp: &[f32],
     y: usize,
@@ -276,6 +276,7 @@ fn blur_column(
         }
         *o = acc;
     }
+}
 }
 
 /// Planes per channel of the statistics: μx, μy, E[x²], E[y²], E[xy] before blurring.
@@ -354,16 +355,17 @@ fn ssim_channels(
     total
 }
 
+crate::simd_builds! {
 /// A row of channel `ch`'s five statistics' planes (as [`stats_row`]'s) from interleaved RGB.
-#[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
 fn stats_rgb_row(x: &[Vec3], y: &[Vec3], ch: usize, s: &mut [f32]) {
     let y = &y[..x.len()];
     fill_stats(s, x.len(), |i| (x[i][ch], y[i][ch]));
 }
+}
 
+crate::simd_builds! {
 /// Channel `ch` of a row of the SSIM gradient, interleaved RGB, from the blurred derivatives
 /// `g` (planes as [`map_row`]'s `d`).
-#[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
 fn grad_rgb_row(g: &[f32], x: &[Vec3], y: &[Vec3], ch: usize, out: &mut [Vec3]) {
     let w = out.len();
     let (g0, g) = g.split_at(w);
@@ -372,12 +374,14 @@ fn grad_rgb_row(g: &[f32], x: &[Vec3], y: &[Vec3], ch: usize, out: &mut [Vec3]) 
         out[i][ch] = g0[i] + 2.0 * x[i][ch] * g1[i] + y[i][ch] * g2[i];
     }
 }
+}
 
+crate::simd_builds! {
 /// A row of the five statistics' planes `[x, y, x², y², xy]` (each `x.len()` long).
-#[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
 fn stats_row(x: &[f32], y: &[f32], s: &mut [f32]) {
     let y = &y[..x.len()];
     fill_stats(s, x.len(), |i| (x[i], y[i]));
+}
 }
 
 /// The five statistics' planes of `w` pixels whose values `pixel(i)` gives; inlined into each
@@ -398,9 +402,9 @@ fn fill_stats(s: &mut [f32], w: usize, pixel: impl Fn(usize) -> (f32, f32)) {
     }
 }
 
+crate::simd_builds! {
 /// A row of the SSIM map `m` and its derivatives `d` (planes: μx, E[x²], E[xy]; scaled by
 /// `inv_count`) from the blurred statistics `b` (planes as [`stats_row`]'s).
-#[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
 fn map_row(b: &[f32], m: &mut [f32], d: &mut [f32], inv_count: f32) {
     let w = m.len();
     let (bx, b) = b.split_at(w);
@@ -427,4 +431,5 @@ fn map_row(b: &[f32], m: &mut [f32], d: &mut [f32], inv_count: f32) {
         d1[i] = d_m2 * inv_count;
         d2[i] = d_mxy * inv_count;
     }
+}
 }

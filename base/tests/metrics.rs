@@ -64,3 +64,50 @@ fn fast_ssim_is_the_direct_ssim_bit_for_bit() {
         assert_eq!(ssim_value(&a, &b, w as u32, h as u32).unwrap(), rv as f64);
     }
 }
+
+/// SSIM's value and gradient bits under one build of the kernels (the one this process chose).
+fn ssim_bits() -> Vec<u32> {
+    let (w, h) = (131, 97);
+    let (a, b) = (image(7, w * h), image(8, w * h));
+    let (v, g) = ssim(&a, &b, w as u32, h as u32).unwrap();
+    std::iter::once(v.to_bits())
+        .chain(g.iter().flat_map(|p| p.to_array()).map(f32::to_bits))
+        .collect()
+}
+
+/// Every build of the kernels gives the same bits: this process's build against the portable
+/// loops (`METASPLAT_NO_AVX2`) and AVX2 at most (`METASPLAT_NO_AVX512`), each in a child
+/// process, since the choice is made once per process (`base::isa`).
+#[test]
+fn ssim_has_the_same_bits_in_every_build() {
+    const OUT: &str = "METASPLAT_TEST_SSIM_BITS";
+    if let Some(path) = std::env::var_os(OUT) {
+        let bytes: Vec<u8> = ssim_bits().iter().flat_map(|b| b.to_le_bytes()).collect();
+        std::fs::write(path, bytes).unwrap();
+        return;
+    }
+    let here = ssim_bits();
+    eprintln!("this process runs the {:?} build", base::isa::Isa::chosen());
+    let dir = tempfile::tempdir().unwrap();
+    for var in ["METASPLAT_NO_AVX2", "METASPLAT_NO_AVX512"] {
+        let path = dir.path().join(var);
+        let status = std::process::Command::new(std::env::current_exe().unwrap())
+            .args([
+                "--exact",
+                "ssim_has_the_same_bits_in_every_build",
+                "--test-threads",
+                "1",
+            ])
+            .env(var, "1")
+            .env(OUT, &path)
+            .status()
+            .unwrap();
+        assert!(status.success(), "the child with {var} failed");
+        let child: Vec<u32> = std::fs::read(&path)
+            .unwrap()
+            .chunks_exact(4)
+            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        assert!(child == here, "SSIM differs with {var}");
+    }
+}

@@ -119,49 +119,8 @@ struct TileState {
     done: [i32; TILE_PX],
 }
 
-/// The builds of the kernels, all giving the same bits.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Isa {
-    /// Lane loops in plain Rust, for every CPU.
-    Portable,
-    /// AVX2 and FMA intrinsics.
-    Avx2,
-    /// The same intrinsics compiled with AVX-512VL (32 vector registers).
-    Avx512,
-}
-
-impl Isa {
-    /// The builds this CPU can run, portable first.
-    pub fn available() -> Vec<Isa> {
-        let mut v = vec![Isa::Portable];
-        #[cfg(target_arch = "x86_64")]
-        {
-            use std::arch::is_x86_feature_detected as has;
-            if has!("avx2") && has!("fma") && has!("popcnt") {
-                v.push(Isa::Avx2);
-                if has!("avx512f") && has!("avx512vl") {
-                    v.push(Isa::Avx512);
-                }
-            }
-        }
-        v
-    }
-
-    /// The build the renderer uses: the last available one, unless `METASPLAT_NO_AVX2` (the
-    /// portable loops) or `METASPLAT_NO_AVX512` (AVX2 at most) is set, which lets tests and
-    /// benchmarks run each build on the same machine.
-    pub fn chosen() -> Isa {
-        static ISA: std::sync::OnceLock<Isa> = std::sync::OnceLock::new();
-        *ISA.get_or_init(|| {
-            let off = |v| std::env::var_os(v).is_some();
-            Isa::available()
-                .into_iter()
-                .filter(|&i| !(off("METASPLAT_NO_AVX2") && i != Isa::Portable))
-                .rfind(|&i| !(off("METASPLAT_NO_AVX512") && i == Isa::Avx512))
-                .unwrap_or(Isa::Portable)
-        })
-    }
-}
+/// The builds of the kernels: the project's one choice ([`base::isa`]).
+pub use base::isa::Isa;
 
 /// Blends a tile with the kernels of `isa`, which must be [`Isa::available`].
 fn forward_tile_dispatch(

@@ -4,7 +4,6 @@
 //! them along with [`Adam::remap`] (new Gaussians start from zero moments, as in gsplat).
 
 use glam::Vec3;
-use multiversion::multiversion;
 use rayon::prelude::*;
 
 use crate::error::SplatError;
@@ -122,12 +121,12 @@ impl Step {
     }
 }
 
+base::simd_builds! {
 /// The Adam update of one chunk, without branches so that it vectorises: a non-finite
 /// gradient would poison the moments forever, so such an element keeps its parameter and
 /// moments (selected, not branched around). Compiled for several instruction sets and chosen
 /// at run time; separate multiplies and adds (never fused) and exact division and square
 /// root give the same bits in each.
-#[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
 fn adam_chunk(s: &Step, p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32]) {
     let n = p.len().min(g.len()).min(m.len()).min(v.len());
     let (p, g, m, v) = (&mut p[..n], &g[..n], &mut m[..n], &mut v[..n]);
@@ -143,6 +142,7 @@ fn adam_chunk(s: &Step, p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32]) 
         v[i] = if ok { vi } else { v[i] };
         p[i] = if ok { pi } else { p[i] };
     }
+}
 }
 
 /// The floats of a slice of `Vec3`s (`#[repr(C)]`, three `f32`s, no padding).

@@ -11,7 +11,6 @@
 use std::mem::MaybeUninit;
 
 use glam::{Vec2, Vec3};
-use multiversion::multiversion;
 use rayon::prelude::*;
 
 use crate::conventions::{ALPHA_THRESHOLD, MAX_ALPHA, TILE_SIZE, TRANSMITTANCE_MIN};
@@ -100,11 +99,12 @@ pub fn splats_of(projected: &[Projected]) -> Vec<Splat> {
     out
 }
 
-#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+base::simd_builds! {
 fn splat_chunk(p: &[Projected], out: &mut [MaybeUninit<Splat>]) {
     for (o, p) in out.iter_mut().zip(p) {
         o.write(Splat::new(p));
     }
+}
 }
 
 /// Tile `t`'s list of splats, front to back, copied out contiguously.

@@ -6,7 +6,6 @@
 //! Within a tile Gaussians are ordered by the sort key `(depth, gaussian index)` ascending —
 //! the index breaks ties so the order, and hence the image, is fully deterministic.
 
-use multiversion::multiversion;
 use rayon::prelude::*;
 
 use crate::conventions::TILE_SIZE;
@@ -49,13 +48,14 @@ pub fn tile_rect(p: &Projected, tiles_x: u32, tiles_y: u32) -> [u32; 4] {
     ]
 }
 
-/// [`tile_rect`] of each of `projected`, compiled for SSE4.1 and up where the CPU has them
-/// (floor and ceil are then instructions rather than library calls; the same values).
-#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+base::simd_builds! {
+/// [`tile_rect`] of each of `projected`, compiled for each [`base::isa::Isa`] (in the AVX2 and
+/// AVX-512 builds floor and ceil are instructions rather than library calls; the same values).
 fn tile_rects(projected: &[Projected], tiles_x: u32, tiles_y: u32, out: &mut [[u32; 4]]) {
     for (o, p) in out.iter_mut().zip(projected) {
         *o = tile_rect(p, tiles_x, tiles_y);
     }
+}
 }
 
 pub fn bin(projected: &[Projected], width: u32, height: u32) -> TileBins {
