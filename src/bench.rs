@@ -8,7 +8,7 @@
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use tracing::span::{Attributes, Id};
+use tracing::span::Id;
 use tracing_subscriber::layer::{Context, Layer, SubscriberExt};
 use tracing_subscriber::registry::LookupSpan;
 
@@ -22,7 +22,6 @@ use crate::train::data::Dataset;
 #[derive(Clone, Debug)]
 pub struct StepTimes {
     pub threads: usize,
-    pub steps: u64,
     pub phases: Vec<(&'static str, f64)>,
     pub step: f64,
 }
@@ -49,8 +48,6 @@ struct SpanTimes(Arc<Mutex<Vec<(&'static str, Duration)>>>);
 struct Entered(Instant);
 
 impl<S: tracing::Subscriber + for<'a> LookupSpan<'a>> Layer<S> for SpanTimes {
-    fn on_new_span(&self, _: &Attributes<'_>, _: &Id, _: Context<'_, S>) {}
-
     fn on_enter(&self, id: &Id, ctx: Context<'_, S>) {
         if let Some(span) = ctx.span(id) {
             span.extensions_mut().replace(Entered(Instant::now()));
@@ -101,7 +98,6 @@ pub fn time_steps(
         .collect();
     Ok(StepTimes {
         threads,
-        steps: config.iters,
         phases,
         step: outcome.train_seconds * 1e3 / config.iters.max(1) as f64,
     })

@@ -31,9 +31,6 @@ pub trait SplatTrainer {
     /// What a render keeps for its step (only the latest render may be stepped).
     type Saved;
 
-    /// Where it trains, for logs ("cpu", "gpu").
-    fn name(&self) -> &str;
-
     /// Number of Gaussians.
     fn len(&self) -> usize;
 
@@ -126,10 +123,6 @@ pub(crate) fn check_shapes(model: &Gaussians, adam: &Adam) -> Result<(), SplatEr
 
 impl SplatTrainer for CpuTrainer {
     type Saved = ForwardState;
-
-    fn name(&self) -> &str {
-        "cpu"
-    }
 
     fn len(&self) -> usize {
         self.model.len()

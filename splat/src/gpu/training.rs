@@ -295,10 +295,6 @@ impl GpuTrainer {
 impl SplatTrainer for GpuTrainer {
     type Saved = GpuSaved;
 
-    fn name(&self) -> &str {
-        "gpu"
-    }
-
     fn len(&self) -> usize {
         self.model.len()
     }

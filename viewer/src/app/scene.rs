@@ -16,7 +16,7 @@ use crate::ViewerError;
 
 /// The model on the GPU and the display settings it is rendered with.
 pub(super) struct ShownModel {
-    pub raster: GpuRasterizer,
+    raster: GpuRasterizer,
     /// The adapter, described for the panel.
     pub adapter: String,
     /// The model as loaded; the GPU holds it with the splat-scale slider applied.
@@ -127,7 +127,7 @@ pub(super) struct ViewImage {
     pub frame_ms: f32,
     last_frame: Option<Instant>,
     /// Every render's time, for the report at the end.
-    pub timings: Arc<Mutex<Vec<f32>>>,
+    timings: Arc<Mutex<Vec<f32>>>,
 }
 
 impl ViewImage {
