@@ -110,6 +110,40 @@ pub fn camera_pose(s: &str) -> Result<[f32; 6], String> {
     Ok(v)
 }
 
+/// A background choice: `auto` or a [`colour`].
+pub fn background(s: &str) -> Result<crate::settings::Background, String> {
+    use crate::settings::Background;
+    if s.trim() == "auto" {
+        Ok(Background::Auto)
+    } else {
+        colour(s).map(Background::Colour)
+    }
+}
+
+/// A background colour: `black`, `white`, or `R,G,B` with each channel in [0, 1].
+pub fn colour(s: &str) -> Result<[f32; 3], String> {
+    match s.trim() {
+        "black" => return Ok([0.0; 3]),
+        "white" => return Ok([1.0; 3]),
+        _ => {}
+    }
+    let parts: Vec<&str> = s.split(',').collect();
+    if parts.len() != 3 {
+        return Err(format!(
+            "'{s}' is not a colour (black, white, or R,G,B with channels in [0, 1])"
+        ));
+    }
+    let mut rgb = [0.0f32; 3];
+    for (c, p) in rgb.iter_mut().zip(parts) {
+        let v = float(p)?;
+        if !(0.0..=1.0).contains(&v) {
+            return Err(format!("colour channel {v} is outside [0, 1]"));
+        }
+        *c = v as f32;
+    }
+    Ok(rgb)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -126,5 +160,14 @@ mod tests {
         assert!(field_angle("90").is_err() && field_angle("0").is_err());
         assert!(llffhold("1").is_err());
         assert_eq!(llffhold("0").unwrap(), 0);
+        assert_eq!(colour("white").unwrap(), [1.0; 3]);
+        assert_eq!(colour("0.5, 0.25,1").unwrap(), [0.5, 0.25, 1.0]);
+        for bad in ["1,2", "0.5,0.5,1.5", "grey", "0,0,nan", "0,0,0,0"] {
+            assert!(colour(bad).is_err(), "{bad}");
+        }
+        assert_eq!(
+            background("auto").unwrap(),
+            crate::settings::Background::Auto
+        );
     }
 }

@@ -147,14 +147,9 @@ pub fn write_run(
     splat::ply::write_ply(dir.join(PLY_FILE), model)?;
     write_log_csv(&dir.join(LOG_FILE), &outcome.log)?;
     let metrics = eval::evaluate(model, &data.test, &outcome.settings, device)?;
-    let not_evaluated = match (&metrics, data.test.is_empty()) {
-        (Some(_), _) => None,
-        (None, true) => Some("no held-out views (llffhold 0 or too few images)".to_string()),
-        (None, false) => Some(format!(
-            "{} has no clean/ images to compare with (make captures with `metasplat scene aberrate`)",
-            data.capture.root.display()
-        )),
-    };
+    let not_evaluated = metrics
+        .is_none()
+        .then(|| "no held-out views (llffhold 0 or too few images)".to_string());
 
     // All or nothing: test views and spiral frames are rendered into a staging folder in the
     // run folder and moved in when every frame is written.
@@ -203,14 +198,14 @@ pub fn write_run(
     }
 
     let observed_psnr = match &metrics {
-        Some(_) => {
+        Some(m) if m.against == crate::train::eval::Against::Clean => {
             let mut sum = 0.0;
             for v in &data.test {
-                sum += base::psnr_rgb(&v.observed, v.clean.as_deref().expect("evaluated"))?;
+                sum += base::psnr_rgb(&v.observed, v.clean.as_deref().unwrap_or(&v.observed))?;
             }
             Some(sum / data.test.len() as f64)
         }
-        None => None,
+        _ => None,
     };
     let summary = RunSummary {
         mode: config.mode.to_string(),

@@ -132,6 +132,21 @@ impl std::fmt::Display for LambdaFade {
     }
 }
 
+/// The background colour asked for.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Background {
+    Auto,
+    Colour([f32; 3]),
+}
+
+/// The densification strategy asked for.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StrategyChoice {
+    Auto,
+    Adaptive,
+    Mcmc,
+}
+
 /// How to train; what is left unset is derived from the capture in [`TrainConfig::build`].
 #[derive(Args, Clone, Debug)]
 pub struct TrainSettings {
@@ -159,10 +174,27 @@ pub struct TrainSettings {
     /// turned it off for LLFF); `on` (or the bare flag) or `off`.
     #[arg(long, value_enum, default_value_t = Toggle::Auto, num_args = 0..=1, default_missing_value = "on")]
     pub opacity_reset: Toggle,
+    /// How splats are added and removed: `auto` (mcmc when the capture has no SfM points and
+    /// training starts from random ones, else adaptive), `adaptive` (3DGS's clone, split and
+    /// prune on screen-space gradients, with opacity resets), or `mcmc` (3DGS as Markov chain
+    /// Monte Carlo: transparent splats are moved onto opaque ones, new ones grow 5 % at a time
+    /// up to the budget, with position noise and opacity and scale penalties).
+    #[arg(long, value_enum, default_value_t = StrategyChoice::Auto)]
+    pub strategy: StrategyChoice,
     /// Weight of a mean-opacity penalty: splats that no training view needs (floaters seen
-    /// only against a black background) fade and are pruned; 0 turns it off.
-    #[arg(long, default_value_t = 0.0, value_parser = crate::flags::weight, allow_negative_numbers = true)]
-    pub opacity_reg: f32,
+    /// only against a black background) fade and are pruned or moved; 0 turns it off
+    /// (default: 0.01 with mcmc, 0 with adaptive).
+    #[arg(long, value_parser = crate::flags::weight, allow_negative_numbers = true)]
+    pub opacity_reg: Option<f32>,
+    /// Weight of a mean-scale penalty, which keeps splats small unless the images need them
+    /// large (default: 0.01 with mcmc, 0 with adaptive).
+    #[arg(long, value_parser = crate::flags::weight, allow_negative_numbers = true)]
+    pub scale_reg: Option<f32>,
+    /// Colour behind the splats, in training and in the run's renders: `auto` (for a capture
+    /// taken all around an object, the median colour of the photos' borders, where its
+    /// backdrop shows; black otherwise), `black`, `white`, or `R,G,B` in [0, 1].
+    #[arg(long, default_value = "auto", value_parser = crate::flags::background)]
+    pub background: Background,
     /// An SH band stays when dropping it raises the training loss by at least this fraction
     /// (default 0.001); 0 keeps every band that lowers it at all.
     #[arg(long, value_parser = crate::flags::non_negative, allow_negative_numbers = true)]

@@ -3,7 +3,7 @@
 
 use glam::Vec3;
 use metasplat::train::config::Recipe;
-use metasplat::train::densify::DensifyStrategy;
+use metasplat::train::densify::{DensifyStrategy, Unseen};
 use metasplat::train::sh::{ShEvent, ShSchedule, ShState};
 use splat::model::logit;
 use splat::optim::Adam;
@@ -92,9 +92,9 @@ fn unseen_and_invisible_splats_are_pruned_without_changing_renders() {
     let mut d = strategy.initialize_state(n);
     d.seen = (0..n).map(|i| i % 3 != 0).collect();
     let pruned = strategy
-        .end_of_epoch(&mut d, &mut model, &mut adam)
+        .end_of_epoch(&mut d, 30, &mut model, &mut adam, 0)
         .unwrap();
-    assert_eq!(pruned, 4);
+    assert_eq!(pruned, Unseen::Pruned(4));
     assert_eq!(model.len(), 6);
     assert!(d.seen.iter().all(|s| !s), "a new epoch starts unseen");
 

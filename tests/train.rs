@@ -10,8 +10,9 @@ use aberration::optics::{SimConfig, simulate_grid};
 use metasplat::device::Device;
 use metasplat::procedural::ProceduralOptions;
 use metasplat::settings::DataOptions;
-use metasplat::train::config::{Mode, TrainConfig};
+use metasplat::train::config::{Mode, Strategy, TrainConfig};
 use metasplat::train::data::{self, Dataset};
+use metasplat::train::eval::Against;
 use metasplat::train::objective::Objective;
 use metasplat::train::{self, Event};
 use splat::{RenderSettings, render, render_backward, render_for_backward};
@@ -379,20 +380,36 @@ fn l_abr_gradient_through_the_blur_adjoint_matches_finite_differences() {
 #[test]
 fn bad_input_is_reported_clearly() {
     let f = fixture();
-    // A clean capture has no clean/ copies: training runs, evaluation says it cannot compare.
+    // A clean capture has no clean/ copies: training runs, and the held-out views are compared
+    // with their own photos (the 3DGS report), said so in the metrics.
     let opts = DataOptions {
         psf: Some(f.aberrated.join("psf.npy")),
         ..options()
     };
     let data = data::load(&f.clean, Mode::Aware, &opts).unwrap();
-    assert!(!data.can_evaluate());
+    assert_eq!(data.evaluated_against(), Some(Against::Photos));
     let cfg = config(Mode::Aware, 20, &data);
     let out = train::train(&cfg, &data, &Device::Cpu, None, false, &mut |_| {}).unwrap();
+    let m = metasplat::train::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu)
+        .unwrap()
+        .unwrap();
+    assert_eq!(m.against, Against::Photos);
+    let v = &data.test[0];
+    let render = Device::Cpu
+        .render(&out.model, &v.camera, &out.settings)
+        .unwrap()
+        .color;
+    let (psnr, _) =
+        metasplat::train::eval::compare(&render, &v.observed, v.camera.width, v.camera.height)
+            .unwrap();
     assert!(
-        metasplat::train::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu)
-            .unwrap()
-            .is_none()
+        (m.views[0].psnr - psnr).abs() < 1e-9,
+        "{} vs {psnr}",
+        m.views[0].psnr
     );
+    // The aberrated capture has clean copies, and is compared with them.
+    let aberrated = data::load(&f.aberrated, Mode::Aware, &options()).unwrap();
+    assert_eq!(aberrated.evaluated_against(), Some(Against::Clean));
 
     // Aware mode needs a PSF: a clean capture without --psf is refused, naming the folder.
     let err = data::load(&f.clean, Mode::Aware, &options())
@@ -462,8 +479,10 @@ fn the_first_non_finite_value_stops_the_run_and_keeps_the_last_checkpoint() {
 
 /// The capture's geometry sets two defaults: cameras all around the scene get opacity resets
 /// and twice the splat budget of a forward-facing capture of the same image size.
+/// A capture taken all around gets twice the budget; without SfM points `auto` trains it as
+/// MCMC (no resets), and the adaptive strategy asked for resets its opacities.
 #[test]
-fn a_capture_taken_all_around_gets_resets_and_a_larger_budget() {
+fn a_capture_taken_all_around_gets_a_larger_budget_and_mcmc_or_resets() {
     let dir = tempfile::tempdir().unwrap();
     let o = ProceduralOptions {
         width: 64,
@@ -474,15 +493,29 @@ fn a_capture_taken_all_around_gets_resets_and_a_larger_budget() {
     let facing = metasplat::procedural::write_capture(&dir.path().join("facing"), &o).unwrap();
     let around =
         metasplat::procedural::write_capture_around(&dir.path().join("around"), &o).unwrap();
-    let build = |capture: &std::path::Path| {
+    let build = |capture: &std::path::Path, strategy| {
         let data = data::load(capture, Mode::Plain, &options()).unwrap();
-        config(Mode::Plain, 1000, &data)
+        let settings = metasplat::settings::TrainSettings {
+            mode: Mode::Plain,
+            iters: 1000,
+            strategy,
+            ..Default::default()
+        };
+        TrainConfig::build(&settings, 0, &data)
     };
-    let (f, a) = (build(&facing), build(&around));
+    let auto = metasplat::settings::StrategyChoice::Auto;
+    let (f, a) = (build(&facing, auto), build(&around, auto));
     assert_eq!(f.max_splats, 64 * 48 / 2);
     assert_eq!(a.max_splats, 2 * f.max_splats);
+    // The forward-facing capture has SfM points: adaptive, without resets.
+    assert_eq!(f.strategy, Strategy::Adaptive);
     assert!(f.recipe.opacity_reset_every.is_none());
-    assert!(a.recipe.opacity_reset_every.is_some());
+    assert!(matches!(a.strategy, Strategy::Mcmc(_)));
+    assert!(a.recipe.opacity_reset_every.is_none());
+    let adaptive = build(&around, metasplat::settings::StrategyChoice::Adaptive);
+    assert_eq!(adaptive.strategy, Strategy::Adaptive);
+    assert!(adaptive.recipe.opacity_reset_every.is_some());
+    assert_eq!((adaptive.opacity_reg, adaptive.scale_reg), (0.0, 0.0));
 }
 
 /// With the Wiener stand-in as `I_ac` and no λ given, aware's λ holds for the first thousand

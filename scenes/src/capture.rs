@@ -70,7 +70,13 @@ pub enum CaptureFormat {
 #[derive(Clone, Debug, PartialEq)]
 pub enum PointSource {
     Sparse(PathBuf),
-    Random { count: usize, seed: u64 },
+    /// `background` of the `count` points lie on the far shell
+    /// ([`points::random_on_background_shell`]), the rest in the frusta.
+    Random {
+        count: usize,
+        seed: u64,
+        background: usize,
+    },
 }
 
 /// Forward-facing captures keep their viewing directions within a cone (fern: a mean
@@ -373,12 +379,23 @@ fn initial_points(
             return Ok((cloud, PointSource::Sparse(path)));
         }
     }
-    let cloud = points::random_in_frusta(cameras, bounds, options.random_points, options.seed);
+    let count = options.random_points;
+    let background = if surrounds(cameras) {
+        (count as f64 * points::BACKGROUND_FRACTION).round() as usize
+    } else {
+        0
+    };
+    let mut cloud = points::random_in_frusta(cameras, bounds, count - background, options.seed);
+    let shell =
+        points::random_on_background_shell(cameras, background, options.seed ^ 0x5348454c4c);
+    cloud.positions.extend(shell.positions);
+    cloud.colors.extend(shell.colors);
     Ok((
         cloud,
         PointSource::Random {
-            count: options.random_points,
+            count,
             seed: options.seed,
+            background,
         },
     ))
 }

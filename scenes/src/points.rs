@@ -58,6 +58,55 @@ pub fn random_in_frusta(
     cloud
 }
 
+/// Fraction of a random cloud placed on the background shell for a capture whose cameras
+/// surround the scene.
+pub const BACKGROUND_FRACTION: f64 = 0.25;
+
+/// The background shell's radii, in units of [`Normalization::radius`] around the cameras'
+/// mean centre: beyond every camera, so each looks at it from inside.
+pub const SHELL_RADII: (f64, f64) = (2.0, 4.0);
+
+/// `count` points on the far shell behind everything the cameras look at, where a capture
+/// taken all around an object has its background (floor, walls, furniture): a camera chosen
+/// uniformly, a pixel uniform over its image, and the point where that pixel's ray leaves a
+/// sphere around the cameras' mean centre whose radius is uniform in [`SHELL_RADII`]. Without
+/// them, random points lie only within the object's depth range, and the background seen
+/// behind the object from one side is painted by splats in front of it from the other.
+/// Colours are uniform in `[0, 1]`. The same seed gives the same cloud.
+pub fn random_on_background_shell(cameras: &[Camera], count: usize, seed: u64) -> PointCloud {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut cloud = PointCloud {
+        positions: Vec::with_capacity(count),
+        colors: Vec::with_capacity(count),
+    };
+    let norm = Normalization::from_cameras(cameras);
+    if cameras.is_empty() || norm.radius.is_nan() || norm.radius <= 0.0 {
+        return cloud;
+    }
+    let centre = -norm.translate;
+    for _ in 0..count {
+        let camera = &cameras[rng.random_range(0..cameras.len())];
+        let u = rng.random::<f64>() * camera.width as f64;
+        let v = rng.random::<f64>() * camera.height as f64;
+        let radius =
+            norm.radius * (SHELL_RADII.0 + rng.random::<f64>() * (SHELL_RADII.1 - SHELL_RADII.0));
+        let origin = camera.center();
+        let dir = (camera.unproject(u, v, 1.0) - origin).normalize();
+        // |o + t d − c|² = r² with the camera inside the sphere: the positive root.
+        let oc = origin - centre;
+        let b = oc.dot(dir);
+        let t = -b
+            + (b * b - oc.length_squared() + radius * radius)
+                .max(0.0)
+                .sqrt();
+        cloud.positions.push(origin + t * dir);
+        cloud
+            .colors
+            .push([rng.random(), rng.random(), rng.random()]);
+    }
+    cloud
+}
+
 /// 3DGS's `getNerfppNorm`: the camera centres' mean and the radius that encloses them, with a
 /// 10% margin. 3DGS uses `radius` as the scene extent (densification and learning-rate scale)
 /// and `translate` to recentre.

@@ -117,9 +117,22 @@ impl fmt::Display for SceneSummary {
             PointSource::Sparse(p) => {
                 writeln!(f, "points      {} from {}", self.points, p.display())?
             }
-            PointSource::Random { count, seed } => writeln!(
+            PointSource::Random {
+                count,
+                seed,
+                background: 0,
+            } => writeln!(
                 f,
                 "points      {count} random in the camera frusta (seed {seed})"
+            )?,
+            PointSource::Random {
+                count,
+                seed,
+                background,
+            } => writeln!(
+                f,
+                "points      {count} random (seed {seed}): {} in the camera frusta, {background} on a background shell behind them",
+                count - background
             )?,
         }
         writeln!(

@@ -114,7 +114,8 @@ fn synthetic_capture_round_trips() {
         capture.point_source,
         PointSource::Random {
             count: 2000,
-            seed: 7
+            seed: 7,
+            background: 0,
         }
     );
     assert_eq!(capture.points.len(), 2000);

@@ -95,8 +95,13 @@ fn bench(c: &mut Criterion) {
                 let mut t = GpuTraining::new(&gpu, &g, &Adam::new(&g)).unwrap();
                 b.iter(|| {
                     let (_, s) = t.render_for_backward(&cam, &settings).unwrap();
-                    t.step(&s, PixelGradients::color(&v_color), &lr, 0.0)
-                        .unwrap()
+                    t.step(
+                        &s,
+                        PixelGradients::color(&v_color),
+                        &lr,
+                        splat::Regularisers::default(),
+                    )
+                    .unwrap()
                 })
             });
         }

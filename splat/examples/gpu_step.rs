@@ -105,7 +105,13 @@ fn main() {
     let mut t = GpuTraining::new(&gpu, &g, &Adam::new(&g)).unwrap();
     let gpu_step = median_ms(repeats, || {
         let (_, s) = t.render_for_backward(&cam, &settings).unwrap();
-        t.step(&s, PixelGradients::color(&v), &lr, 0.0).unwrap();
+        t.step(
+            &s,
+            PixelGradients::color(&v),
+            &lr,
+            splat::Regularisers::default(),
+        )
+        .unwrap();
     });
     if let Some(dir) = args.get(4) {
         export(

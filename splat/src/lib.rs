@@ -17,6 +17,7 @@ pub mod gpu;
 #[doc(hidden)]
 pub mod lanes;
 pub mod loss;
+pub mod mcmc;
 pub mod model;
 pub mod optim;
 pub mod ply;
@@ -49,4 +50,4 @@ pub use render::{
     ForwardState, Gradients, RenderOutput, RenderSettings, render, render_backward,
     render_for_backward,
 };
-pub use trainer::{CpuTrainer, SplatTrainer, StepReport};
+pub use trainer::{CpuTrainer, Regularisers, SplatTrainer, StepReport};

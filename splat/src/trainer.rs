@@ -1,6 +1,6 @@
 //! One training step behind one interface: a [`SplatTrainer`] owns the model, its Adam state
 //! and wherever they live (host memory, GPU buffers). A step is [`SplatTrainer::render`] →
-//! the caller's loss on the image → [`SplatTrainer::step`] (backward, the opacity penalty,
+//! the caller's loss on the image → [`SplatTrainer::step`] (backward, the regularisers,
 //! Adam, the screen-space statistics densification reads). Hooks that read or edit the model
 //! go through [`SplatTrainer::host`] and [`SplatTrainer::host_mut`]; moving it between device
 //! and host is the trainer's business, not the loop's.
@@ -48,14 +48,14 @@ pub trait SplatTrainer {
         settings: &RenderSettings,
     ) -> Result<(RenderOutput, Self::Saved), SplatError>;
 
-    /// Backpropagates `pixel` through the render `saved`, adds the gradient of
-    /// `opacity_reg · mean(sigmoid(logit opacity))`, and takes one Adam step with `lr`.
+    /// Backpropagates `pixel` through the render `saved`, adds the gradients of the
+    /// regularisers `reg`, and takes one Adam step with `lr`.
     fn step(
         &mut self,
         saved: Self::Saved,
         pixel: PixelGradients<'_>,
         lr: &LearningRates,
-        opacity_reg: f32,
+        reg: Regularisers,
     ) -> Result<StepReport, SplatError>;
 
     /// The model and optimiser as they stand, for reading.
@@ -67,6 +67,39 @@ pub trait SplatTrainer {
 
     /// The model and optimiser, the trainer given up.
     fn into_host(self) -> Result<(Gaussians, Adam), SplatError>;
+}
+
+/// Penalties added to the image loss: `opacity · mean(sigmoid(logit opacity))` and
+/// `scale · mean(exp(log scale))` over every axis (MCMC densification's pair, which keeps
+/// Gaussians transparent and small unless the images need them). Zero turns one off.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Regularisers {
+    pub opacity: f32,
+    pub scale: f32,
+}
+
+impl Regularisers {
+    /// Adds both penalties' gradients to `grads` for `model`.
+    pub fn add_gradients(&self, grads: &mut Gaussians, model: &Gaussians) {
+        add_opacity_penalty(
+            &mut grads.logit_opacities,
+            &model.logit_opacities,
+            self.opacity,
+        );
+        add_scale_penalty(&mut grads.log_scales, &model.log_scales, self.scale);
+    }
+}
+
+/// Adds `∂/∂x of weight · mean(exp(x))` over every axis to the log-scale gradients. (The
+/// GPU's Adam kernel adds the same term in WGSL.)
+pub fn add_scale_penalty(grads: &mut [glam::Vec3], log_scales: &[glam::Vec3], weight: f32) {
+    if weight <= 0.0 {
+        return;
+    }
+    let k = weight / (3 * log_scales.len()).max(1) as f32;
+    for (g, &x) in grads.iter_mut().zip(log_scales) {
+        *g += k * x.exp();
+    }
 }
 
 /// Adds `∂/∂x of weight · mean(sigmoid(x))` to the opacity-logit gradients: a splat no view
@@ -146,7 +179,7 @@ impl SplatTrainer for CpuTrainer {
         saved: ForwardState,
         pixel: PixelGradients<'_>,
         lr: &LearningRates,
-        opacity_reg: f32,
+        reg: Regularisers,
     ) -> Result<StepReport, SplatError> {
         let mut grads = {
             let _span = tracing::info_span!("render backward").entered();
@@ -160,11 +193,7 @@ impl SplatTrainer for CpuTrainer {
             });
         }
         let _span = tracing::info_span!("Adam").entered();
-        add_opacity_penalty(
-            &mut grads.params.logit_opacities,
-            &self.model.logit_opacities,
-            opacity_reg,
-        );
+        reg.add_gradients(&mut grads.params, &self.model);
         self.adam.step(&mut self.model, &grads.params, lr)?;
         Ok(StepReport {
             nonfinite_parameter: !self.model.is_finite(),

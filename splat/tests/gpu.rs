@@ -262,7 +262,7 @@ fn max_rel(a: &[f32], b: &[f32], floor: f32) -> f32 {
 }
 
 /// The GPU optimiser against the CPU one on the same gradients: every group's own learning
-/// rate, bias correction over several steps, the opacity penalty, and a non-finite gradient
+/// rate, bias correction over several steps, the opacity and scale penalties, and a non-finite gradient
 /// that both skip (the GPU also reports it).
 #[test]
 fn gpu_adam_matches_the_cpu_optimiser() {
@@ -272,7 +272,10 @@ fn gpu_adam_matches_the_cpu_optimiser() {
         means: 1e-3,
         ..Default::default()
     };
-    let reg = 0.5;
+    let reg = splat::Regularisers {
+        opacity: 0.5,
+        scale: 0.3,
+    };
     let mut adam = splat::optim::Adam::new(&model);
     let mut resident = splat::gpu::GpuTraining::new(&gpu, &model, &adam).unwrap();
     let mut rng = base::SplitMix64::new(8);
@@ -289,12 +292,8 @@ fn gpu_adam_matches_the_cpu_optimiser() {
         let report = resident.apply_gradients(&grads, &lr, reg).unwrap();
         assert_eq!(report.nonfinite_gradient, step == 2);
         assert!(!report.nonfinite_parameter);
-        // The CPU: the penalty's gradient added as the CPU trainer adds it.
-        splat::trainer::add_opacity_penalty(
-            &mut grads.logit_opacities,
-            &model.logit_opacities,
-            reg,
-        );
+        // The CPU: the penalties' gradients added as the CPU trainer adds them.
+        reg.add_gradients(&mut grads, &model);
         adam.step(&mut model, &grads, &lr).unwrap();
     }
     let (got, got_adam) = resident.download().unwrap();
@@ -339,7 +338,9 @@ fn a_resident_training_step_matches_the_cpu_step() {
         splat::gpu::GpuTraining::new(&gpu, &model, &splat::optim::Adam::new(&model)).unwrap();
     let (out, saved) = resident.render_for_backward(&cam, &s).unwrap();
     assert_eq!(out.color.len(), np);
-    let report = resident.step(&saved, pixel, &lr, 0.0).unwrap();
+    let report = resident
+        .step(&saved, pixel, &lr, splat::Regularisers::default())
+        .unwrap();
     assert!(!report.nonfinite_gradient && !report.nonfinite_parameter);
     let e2d = (rel(&report.means2d.concat(), &grads.means2d.concat())) as f32;
     let (got, _) = resident.download().unwrap();
@@ -363,7 +364,9 @@ fn a_resident_training_step_matches_the_cpu_step() {
     assert!(held > 0);
     for _ in 0..3 {
         let (_, saved) = resident.render_for_backward(&cam, &s).unwrap();
-        resident.step(&saved, pixel, &lr, 0.0).unwrap();
+        resident
+            .step(&saved, pixel, &lr, splat::Regularisers::default())
+            .unwrap();
     }
     assert_eq!(
         resident.scratch_bytes(),
@@ -376,13 +379,14 @@ fn a_resident_training_step_matches_the_cpu_step() {
     let mut fresh = splat::gpu::GpuTraining::new(&gpu, &state, &adam).unwrap();
     for t in [&mut resident, &mut fresh] {
         let (_, saved) = t.render_for_backward(&cam, &s).unwrap();
-        t.step(&saved, pixel, &lr, 0.0).unwrap();
+        t.step(&saved, pixel, &lr, splat::Regularisers::default())
+            .unwrap();
     }
     assert_eq!(resident.download().unwrap().0, fresh.download().unwrap().0);
     let (_, old) = resident.render_for_backward(&cam, &s).unwrap();
     let (_, _new) = resident.render_for_backward(&cam, &s).unwrap();
     let err = resident
-        .step(&old, pixel, &lr, 0.0)
+        .step(&old, pixel, &lr, splat::Regularisers::default())
         .unwrap_err()
         .to_string();
     assert!(err.contains("reused"), "{err}");
@@ -430,7 +434,16 @@ fn a_scene_bound_in_pieces_matches_one_bound_whole() {
         let mut t = splat::gpu::GpuTraining::new(r, &model, &adam).unwrap();
         for _ in 0..2 {
             let (_, saved) = t.render_for_backward(&cam, &s).unwrap();
-            t.step(&saved, pixel, &lr, 0.01).unwrap();
+            t.step(
+                &saved,
+                pixel,
+                &lr,
+                splat::Regularisers {
+                    opacity: 0.01,
+                    scale: 0.01,
+                },
+            )
+            .unwrap();
         }
         let (g, adam) = t.download().unwrap();
         let (m, v) = adam.moments();
@@ -476,7 +489,11 @@ fn the_gpu_trainer_follows_the_cpu_trainer_through_steps_and_edits() {
             let (out, saved) = t.render(cam, &settings(t)).unwrap();
             // The gradient of ½‖render − target‖².
             let v: Vec<Vec3> = out.color.iter().zip(target).map(|(a, b)| *a - *b).collect();
-            let report = t.step(saved, PixelGradients::color(&v), lr, 0.3).unwrap();
+            let reg = splat::Regularisers {
+                opacity: 0.3,
+                scale: 0.2,
+            };
+            let report = t.step(saved, PixelGradients::color(&v), lr, reg).unwrap();
             assert!(!report.nonfinite_gradient && !report.nonfinite_parameter);
             assert_eq!(report.means2d.len(), t.len());
         }
@@ -539,7 +556,12 @@ fn the_gpu_trainer_follows_the_cpu_trainer_through_steps_and_edits() {
         .render(&cam, &RenderSettings::default())
         .unwrap();
     let v = vec![Vec3::ZERO; cam.num_pixels()];
-    let err = on_gpu_again(&gpu, &model, &adam).step(saved, PixelGradients::color(&v), &lr, 0.0);
+    let err = on_gpu_again(&gpu, &model, &adam).step(
+        saved,
+        PixelGradients::color(&v),
+        &lr,
+        splat::Regularisers::default(),
+    );
     assert!(err.is_err(), "a step before the trainer's own render");
 }
 

@@ -77,6 +77,10 @@ pub struct ExperimentRuns {
     /// Replace runs already in --out (otherwise a folder holding a run is refused).
     #[arg(long)]
     pub overwrite: bool,
+    /// Also train plain 3DGS on the clean photos with the same settings: the ceiling every
+    /// mode is measured against (`--ceiling false` leaves it out).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    pub ceiling: bool,
     /// Continue the runs already in --out from their checkpoints (a finished one is only
     /// evaluated again): an interrupted experiment goes on where it stopped, and a run trained
     /// on its own into its folder (with this experiment's settings) joins the table.
@@ -180,7 +184,20 @@ fn budget(a: BudgetArgs) -> Result<()> {
         let (summary, log) = train_run(&args, false)?;
         let ply_bytes =
             std::fs::metadata(run_dir.join(metasplat::outputs::PLY_FILE)).map_or(0, |m| m.len());
-        rows.push((b, summary, log, ply_bytes));
+        let ceiling = if a.runs.ceiling {
+            let mut clean = a
+                .runs
+                .ceiling_run(a.runs.out.join(format!("budget_{b}_clean")));
+            clean.training.max_splats = args.training.max_splats;
+            clean.training.eval_every = args.training.eval_every;
+            println!(
+                "Training plain on the clean photos with a budget of {b} splats (the ceiling)."
+            );
+            train_run(&clean, false)?.0.metrics.map(|m| m.mean_psnr)
+        } else {
+            None
+        };
+        rows.push((b, summary, log, ply_bytes, ceiling));
     }
     // The reference is the largest budget run (unbounded when it is among them).
     let reference = rows
@@ -196,24 +213,28 @@ fn budget(a: BudgetArgs) -> Result<()> {
     let mut table = String::new();
     writeln!(
         table,
-        "| budget | splats | PSNR (dB) | vs largest | SSIM | splats vs largest | minutes | PLY MB | B/splat | SH |"
+        "| budget | splats | PSNR (dB) | vs largest | SSIM | splats vs largest | minutes | PLY MB | B/splat | SH | clean-photo ceiling (dB) |"
     )?;
-    writeln!(table, "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")?;
-    for (b, s, _, bytes) in &rows {
+    writeln!(
+        table,
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+    )?;
+    for (b, s, _, bytes, ceiling) in &rows {
         let (p, ss) = s
             .metrics
             .as_ref()
             .map_or((f64::NAN, f64::NAN), |m| (m.mean_psnr, m.mean_ssim));
         writeln!(
             table,
-            "| {b} | {} | {p:.2} | {:+.2} | {ss:.4} | {:.0} % | {:.1} | {:.1} | {} | {} |",
+            "| {b} | {} | {p:.2} | {:+.2} | {ss:.4} | {:.0} % | {:.1} | {:.1} | {} | {} | {} |",
             s.splats,
             p - reference.0,
             100.0 * s.splats as f64 / reference.1.max(1) as f64,
             s.train_seconds / 60.0,
             *bytes as f64 / 1e6,
             bytes / s.splats.max(1) as u64,
-            s.sh_degree
+            s.sh_degree,
+            ceiling.map_or("not run".to_string(), |c| format!("{c:.2}"))
         )?;
     }
     println!("\n{table}");
@@ -224,7 +245,9 @@ fn budget(a: BudgetArgs) -> Result<()> {
         name: format!("{} (held-out PSNR)", a.mode),
         points: rows
             .iter()
-            .filter_map(|(_, s, _, _)| s.metrics.as_ref().map(|m| (s.splats as f64, m.mean_psnr)))
+            .filter_map(|(_, s, _, _, _)| {
+                s.metrics.as_ref().map(|m| (s.splats as f64, m.mean_psnr))
+            })
             .collect(),
     }];
     line_plot(
@@ -248,6 +271,14 @@ impl ExperimentRuns {
             self.downsample,
             self.seed,
         )
+    }
+
+    /// Plain 3DGS on the clean capture (`--scene` itself) into `run_dir`, with the settings
+    /// every other run has.
+    fn ceiling_run(&self, run_dir: PathBuf) -> RunRequest {
+        let mut args = self.run(&self.scene, run_dir, Mode::Plain);
+        args.data.iac_cache = None;
+        args
     }
 
     /// A run of `mode` on the aberrated capture into `run_dir`.
@@ -293,6 +324,14 @@ fn near_final(log: &[metasplat::train::LogRow]) -> Option<(u64, f64, f64)> {
 
 fn llff(a: LlffArgs) -> Result<()> {
     let aberrated = a.runs.aberrated()?;
+    let ceiling = if a.runs.ceiling {
+        let mut args = a.runs.ceiling_run(a.runs.out.join("run_clean"));
+        args.training.eval_every = Some((a.runs.iters / 20).max(1));
+        println!("Training plain on the clean photos (the ceiling).");
+        Some(train_run(&args, false)?)
+    } else {
+        None
+    };
     let mut rows = Vec::new();
     for &mode in &a.modes {
         let run_dir = a.runs.out.join(format!("run_{mode}"));
@@ -308,25 +347,41 @@ fn llff(a: LlffArgs) -> Result<()> {
         .iter()
         .find_map(|r| r.1.observed_psnr)
         .unwrap_or(f64::NAN);
+    let ceiling_psnr = ceiling
+        .as_ref()
+        .and_then(|(s, _)| s.metrics.as_ref())
+        .map(|m| m.mean_psnr);
+    let below = |p: f64| ceiling_psnr.map_or(String::new(), |c| format!("{:+.2}", p - c));
     writeln!(
         table,
-        "| method | PSNR (dB) | SSIM | minutes | splats | SH |"
+        "| method | PSNR (dB) | vs ceiling | SSIM | minutes | splats | SH |"
     )?;
-    writeln!(table, "|---|---:|---:|---:|---:|---:|")?;
-    writeln!(table, "| aberrated input | {observed:.2} | | | | |")?;
-    for (mode, s, _) in &rows {
+    writeln!(table, "|---|---:|---:|---:|---:|---:|---:|")?;
+    writeln!(
+        table,
+        "| aberrated input | {observed:.2} | {} | | | | |",
+        below(observed)
+    )?;
+    let named = ceiling
+        .iter()
+        .map(|(s, _)| ("3D-GS on the clean photos (ceiling)", s))
+        .chain(rows.iter().map(|(mode, s, _)| {
+            let name = match mode {
+                Mode::Plain => "3D-GS (plain)",
+                Mode::Restored => "3D-GS w/ restored I_ac",
+                Mode::Aware => "3D-GS + aberration-aware",
+            };
+            (name, s)
+        }));
+    for (name, s) in named {
         let (p, ss) = s
             .metrics
             .as_ref()
             .map_or((f64::NAN, f64::NAN), |m| (m.mean_psnr, m.mean_ssim));
-        let name = match mode {
-            Mode::Plain => "3D-GS (plain)",
-            Mode::Restored => "3D-GS w/ restored I_ac",
-            Mode::Aware => "3D-GS + aberration-aware",
-        };
         writeln!(
             table,
-            "| {name} | {p:.2} | {ss:.4} | {:.1} | {} | {} |",
+            "| {name} | {p:.2} | {} | {ss:.4} | {:.1} | {} | {} |",
+            below(p),
             s.train_seconds / 60.0,
             s.splats,
             s.sh_degree
@@ -367,15 +422,21 @@ fn llff(a: LlffArgs) -> Result<()> {
     let table_path = a.runs.out.join("table.md");
     base::write_bytes_atomically(&table_path, table.as_bytes())
         .with_context(|| format!("cannot write {}", table_path.display()))?;
-    let series: Vec<Series> = rows
+    let curve = |log: &[metasplat::train::LogRow]| {
+        log.iter()
+            .filter_map(|r| r.test_psnr.map(|p| (r.seconds, p)))
+            .collect()
+    };
+    let series: Vec<Series> = ceiling
         .iter()
-        .map(|(mode, _, log)| Series {
-            name: mode.to_string(),
-            points: log
-                .iter()
-                .filter_map(|r| r.test_psnr.map(|p| (r.seconds, p)))
-                .collect(),
+        .map(|(_, log)| Series {
+            name: "clean photos (ceiling)".into(),
+            points: curve(log),
         })
+        .chain(rows.iter().map(|(mode, _, log)| Series {
+            name: mode.to_string(),
+            points: curve(log),
+        }))
         .collect();
     line_plot(
         &a.runs.out.join("psnr_vs_time.png"),

@@ -6,8 +6,9 @@ use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use metasplat::outputs::{self, RunSummary};
 use metasplat::run;
-use metasplat::settings::{RunRequest, Toggle};
-use metasplat::train::config::Mode;
+use metasplat::settings::{Background, RunRequest, StrategyChoice, Toggle};
+use metasplat::train::config::{Mode, Strategy};
+use metasplat::train::eval::Against;
 use metasplat::train::{self, Event};
 
 /// Trains one run and writes its folder; shared by `train`, `experiment` and `demo`, which
@@ -38,6 +39,30 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             config.max_splats
         );
         println!("{}", prepared.device_note);
+        match (&config.strategy, t.strategy) {
+            (Strategy::Mcmc(m), choice) => println!(
+                "Densification as MCMC{}: transparent splats move onto opaque ones every {} steps, and the count grows {:.0} % at a time up to the budget.",
+                if choice == StrategyChoice::Auto {
+                    " (the capture has no SfM points, and training starts from random ones)"
+                } else {
+                    ""
+                },
+                m.refine_every,
+                100.0 * m.grow_fraction
+            ),
+            (Strategy::Adaptive, _) => {}
+        }
+        if config.background.iter().any(|c| *c >= 5e-4) {
+            let [r, g, b] = config.background;
+            println!(
+                "Background {r:.3},{g:.3},{b:.3}{}.",
+                if t.background == Background::Auto {
+                    ": the median colour of the photos' borders, as the cameras surround an object on its backdrop"
+                } else {
+                    ""
+                }
+            );
+        }
         if let Some(every) = config.recipe.opacity_reset_every {
             println!(
                 "Opacities reset every {every} steps{}.",
@@ -86,10 +111,15 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
                 }
             }
         }
-        if !data.can_evaluate() {
-            println!(
-                "no clean images for the held-out views: training runs, but cannot be compared with ground truth"
-            );
+        match data.evaluated_against() {
+            Some(Against::Photos) if data.imaging.is_some() => println!(
+                "no clean images: held-out views are compared with their photos, which are aberrated, so the PSNR counts the blur too"
+            ),
+            Some(Against::Photos) => {
+                println!("held-out views are compared with their photos (the 3DGS report)")
+            }
+            Some(Against::Clean) => {}
+            None => println!("no held-out views: training runs, but nothing is evaluated"),
         }
     }
 
@@ -142,8 +172,8 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
         Event::Densified { step, edit, .. } => {
             last_edit = format!(" | step {step}: {edit}");
         }
-        Event::Unseen { step, pruned } => {
-            last_edit = format!(" | step {step}: {pruned} splats no view saw were pruned");
+        Event::Unseen { step, done } => {
+            last_edit = format!(" | step {step}: {done}");
         }
         Event::Checkpoint { .. } => {}
     };
@@ -167,6 +197,7 @@ fn print_summary(dir: &Path, s: &RunSummary, outcome: &train::Outcome) {
                 println!("{:<16} {:>8.2} {:>7.4}", v.name, v.psnr, v.ssim);
             }
             println!("{:<16} {:>8.2} {:>7.4}", "mean", m.mean_psnr, m.mean_ssim);
+            println!("(rendered test views vs {})", m.against);
             if let Some(o) = s.observed_psnr {
                 println!("(observed images vs clean: {o:.2} dB)");
             }

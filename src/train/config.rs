@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 use splat::optim::LearningRates;
 
 pub use crate::settings::Mode;
-use crate::settings::{LambdaFade, Toggle, TrainSettings};
+use crate::settings::{Background, LambdaFade, StrategyChoice, Toggle, TrainSettings};
 use crate::train::data::Dataset;
 use crate::train::iac::IacSource;
 
@@ -64,7 +64,14 @@ impl Recipe {
             densify_from: scale(500.0, 2 * densify_every, 500),
             densify_until: iters / 2,
             densify_every,
-            opacity_reset_every: opacity_reset.then(|| scale(3000.0, 4 * densify_every, 3000)),
+            // Room for the recovery after each reset, and for pruning between two.
+            opacity_reset_every: opacity_reset.then(|| {
+                scale(
+                    3000.0,
+                    (4 * densify_every).max(2 * crate::train::densify::adaptive::RESET_RECOVERY),
+                    3000,
+                )
+            }),
             sh_every: scale(1000.0, 100, 1000),
             grad_threshold: 2e-4,
             percent_dense: 0.01,
@@ -78,6 +85,60 @@ impl Recipe {
         }
     }
 }
+
+/// The MCMC strategy's schedule and constants (gsplat's `MCMCStrategy` and the paper's
+/// settings at 30k steps).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct McmcRecipe {
+    /// Relocation and growth happen after this step, every `refine_every`, until
+    /// `refine_until`.
+    pub refine_from: u64,
+    pub refine_until: u64,
+    pub refine_every: u64,
+    /// Splats at or below this opacity are dead: they are moved onto live ones.
+    pub min_opacity: f32,
+    /// Each refinement adds this fraction of the count, up to the budget.
+    pub grow_fraction: f32,
+    /// Position noise per unit of position learning rate (0: none).
+    pub noise_lr: f32,
+    /// Opacity of the splats made from the capture's points.
+    pub init_opacity: f32,
+    /// Their scale, as a fraction of 3DGS's (the distance to the nearest points).
+    pub init_scale: f32,
+}
+
+impl McmcRecipe {
+    /// The 30k-step schedule scaled to `iters`, as [`Recipe::for_iters`] scales 3DGS's.
+    pub fn for_iters(iters: u64) -> McmcRecipe {
+        let f = iters as f64 / 30_000.0;
+        let scale = |v: f64, lo: u64, hi: u64| ((v * f).round() as u64).clamp(lo, hi);
+        let refine_every = scale(100.0, 25, 100);
+        McmcRecipe {
+            refine_from: scale(500.0, 2 * refine_every, 500),
+            refine_until: iters * 5 / 6,
+            refine_every,
+            min_opacity: 0.005,
+            grow_fraction: 0.05,
+            noise_lr: 5e5,
+            init_opacity: 0.5,
+            init_scale: 0.1,
+        }
+    }
+}
+
+/// How splats are added and removed.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Strategy {
+    /// 3DGS's clone, split and prune, with [`TrainConfig::recipe`]'s schedule (and every
+    /// config written before there was a choice).
+    #[default]
+    Adaptive,
+    Mcmc(McmcRecipe),
+}
+
+/// The penalties' weight MCMC trains with (the paper's, for opacity and scale alike).
+pub const MCMC_REG: f32 = 0.01;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TrainConfig {
@@ -104,6 +165,11 @@ pub struct TrainConfig {
     /// Weight of the mean-opacity penalty (0: none).
     #[serde(default)]
     pub opacity_reg: f32,
+    /// Weight of the mean-scale penalty (0: none).
+    #[serde(default)]
+    pub scale_reg: f32,
+    #[serde(default)]
+    pub strategy: Strategy,
     /// When set, λ falls linearly from `lambda` (from step `lambda_hold_until`) to zero at
     /// this step and stays there: with a Wiener stand-in as `I_ac`, whose errors a long run
     /// learns (RESULTS.md, all-around section).
@@ -143,6 +209,39 @@ pub fn default_max_splats(width: u32, height: u32, surrounds: bool) -> usize {
     if surrounds { 2 * per_view } else { per_view }
 }
 
+/// The background `--background auto` gives: for a capture whose cameras surround the scene,
+/// the per-channel median of the training photos' outermost pixels (an object photographed
+/// all around sits on a backdrop that fills the borders, and rendering empty space in its
+/// colour spares the model from painting it with splats that float in front of the object
+/// from other sides); black for a forward-facing capture, whose views the scene fills.
+pub fn auto_background(data: &Dataset) -> [f32; 3] {
+    if !data.capture.surrounds_scene() || data.train.is_empty() {
+        return [0.0; 3];
+    }
+    let (w, h) = (data.width as usize, data.height as usize);
+    let mut channels: [Vec<f32>; 3] = Default::default();
+    for v in &data.train {
+        let border = (0..w)
+            .flat_map(|x| [x, (h - 1) * w + x])
+            .chain((1..h.saturating_sub(1)).flat_map(|y| [y * w, y * w + w - 1]));
+        for i in border {
+            if let Some(p) = v.observed.get(i) {
+                for (c, ch) in channels.iter_mut().enumerate() {
+                    ch.push(p[c]);
+                }
+            }
+        }
+    }
+    channels.map(|mut ch| {
+        if ch.is_empty() {
+            return 0.0;
+        }
+        let mid = ch.len() / 2;
+        let (_, m, _) = ch.select_nth_unstable_by(mid, f32::total_cmp);
+        m.clamp(0.0, 1.0)
+    })
+}
+
 impl TrainConfig {
     /// λ at `step`.
     pub fn lambda_at(&self, step: u64) -> f32 {
@@ -164,6 +263,19 @@ impl TrainConfig {
     /// are decided.
     pub fn build(settings: &TrainSettings, seed: u64, data: &Dataset) -> TrainConfig {
         let iters = settings.iters;
+        let random_start = data.initial.is_none()
+            && matches!(
+                data.capture.point_source,
+                scenes::PointSource::Random { .. }
+            );
+        let strategy = match settings.strategy {
+            StrategyChoice::Adaptive => Strategy::Adaptive,
+            StrategyChoice::Mcmc => Strategy::Mcmc(McmcRecipe::for_iters(iters)),
+            StrategyChoice::Auto if random_start => Strategy::Mcmc(McmcRecipe::for_iters(iters)),
+            StrategyChoice::Auto => Strategy::Adaptive,
+        };
+        let mcmc = matches!(strategy, Strategy::Mcmc(_));
+        let reg_default = if mcmc { MCMC_REG } else { 0.0 };
         let recipe = Recipe {
             sh_min_gain: settings.sh_min_gain.unwrap_or_else(defaults::sh_min_gain),
             ..Recipe::for_iters(
@@ -171,7 +283,8 @@ impl TrainConfig {
                 match settings.opacity_reset {
                     Toggle::On => true,
                     Toggle::Off => false,
-                    Toggle::Auto => data.capture.surrounds_scene(),
+                    // MCMC moves transparent splats instead of resetting and pruning.
+                    Toggle::Auto => !mcmc && data.capture.surrounds_scene(),
                 },
             )
         };
@@ -190,12 +303,17 @@ impl TrainConfig {
             ),
             max_sh_degree: settings.max_sh_degree,
             seed,
-            background: [0.0; 3],
+            background: match settings.background {
+                Background::Auto => auto_background(data),
+                Background::Colour(c) => c,
+            },
             eval_every: settings.eval_every.unwrap_or((iters / 10).max(1)),
             checkpoint_every: settings.checkpoint_every.unwrap_or((iters / 5).max(100)),
             i_ac: data.restorer.as_ref().map(|r| r.identity()),
             init: settings.init.as_ref().map(|p| p.display().to_string()),
-            opacity_reg: settings.opacity_reg,
+            opacity_reg: settings.opacity_reg.unwrap_or(reg_default),
+            scale_reg: settings.scale_reg.unwrap_or(reg_default),
+            strategy,
             lambda_fade_until: match settings.lambda_fade {
                 LambdaFade::Auto => stand_in.then_some(recipe.densify_until.max(STAND_IN_HOLD)),
                 LambdaFade::Never => None,

@@ -54,9 +54,9 @@ impl Dataset {
         None
     }
 
-    /// True when every test view has a clean image to compare against.
-    pub fn can_evaluate(&self) -> bool {
-        !self.test.is_empty() && self.test.iter().all(|v| v.clean.is_some())
+    /// What held-out evaluation compares with (None: no held-out views).
+    pub fn evaluated_against(&self) -> Option<crate::train::eval::Against> {
+        crate::train::eval::reference(&self.test)
     }
 }
 

@@ -21,14 +21,14 @@ use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use splat::gpu::GpuTrainer;
 use splat::optim::{Adam, ExponentialLr};
-use splat::{CpuTrainer, Gaussians, PixelGradients, RenderSettings, SplatTrainer};
+use splat::{CpuTrainer, Gaussians, PixelGradients, Regularisers, RenderSettings, SplatTrainer};
 
 use crate::device::Device;
 use crate::error::{Result, TrainError};
 use checkpoint::{Progress, State};
-use config::TrainConfig;
+use config::{Strategy, TrainConfig};
 use data::Dataset;
-use densify::{DensifyStrategy, Edit};
+use densify::{DensifyStrategy, Edit, Mcmc, Unseen};
 use eval::Metrics;
 use objective::{LossParts, Objective};
 use sh::{ShEvent, ShSchedule, ShState};
@@ -67,7 +67,7 @@ pub enum Event<'a> {
     },
     Unseen {
         step: u64,
-        pruned: usize,
+        done: Unseen,
     },
     Sh {
         step: u64,
@@ -131,10 +131,12 @@ fn fresh_start(config: &TrainConfig, data: &Dataset, densify: &DensifyStrategy) 
         None if data.points.is_empty() => {
             return Err(TrainError::file(&data.capture.root, "no initial points"));
         }
-        None => crate::init::from_points(
-            &crate::init::within_budget(&data.points, config.max_splats, config.seed),
-            0,
-        ),
+        None => {
+            let cloud = crate::init::within_budget(&data.points, config.max_splats, config.seed);
+            let mut g = crate::init::from_points(&cloud, 0);
+            densify.prepare_initial(&mut g);
+            g
+        }
     };
     Ok(State {
         config: config.clone(),
@@ -175,6 +177,21 @@ impl<'a> Run<'a> {
     ) -> Self {
         let recipe = &config.recipe;
         let n_views = data.train.len();
+        let position_lr = ExponentialLr {
+            lr_init: recipe.lrs.means * data.extent,
+            lr_final: recipe.lrs.means * data.extent * recipe.position_lr_final_ratio,
+            max_steps: config.iters,
+        };
+        let densify = match &config.strategy {
+            Strategy::Adaptive => {
+                DensifyStrategy::new(recipe.clone(), config.max_splats, data.extent)
+            }
+            Strategy::Mcmc(m) => DensifyStrategy::Mcmc(Mcmc {
+                recipe: m.clone(),
+                budget: config.max_splats,
+                position_lr: position_lr.clone(),
+            }),
+        };
         Run {
             config,
             data,
@@ -187,12 +204,8 @@ impl<'a> Run<'a> {
                 width: data.width,
                 height: data.height,
             },
-            position_lr: ExponentialLr {
-                lr_init: recipe.lrs.means * data.extent,
-                lr_final: recipe.lrs.means * data.extent * recipe.position_lr_final_ratio,
-                max_steps: config.iters,
-            },
-            densify: DensifyStrategy::new(recipe.clone(), config.max_splats, data.extent),
+            position_lr,
+            densify,
             sh: ShSchedule::new(config.max_sh_degree, recipe.sh_every, recipe.sh_min_gain),
             probe: (0..n_views.min(8))
                 .map(|k| k * n_views / n_views.min(8))
@@ -264,7 +277,10 @@ impl<'a> Run<'a> {
             saved,
             PixelGradients::color(&v),
             &lr,
-            self.config.opacity_reg,
+            Regularisers {
+                opacity: self.config.opacity_reg,
+                scale: self.config.scale_reg,
+            },
         )?;
         if report.nonfinite_gradient {
             return Err(at(
@@ -323,8 +339,14 @@ impl<'a> Run<'a> {
         if step.is_multiple_of(self.data.train.len() as u64) {
             if p.densify.has_unseen() {
                 let (model, adam) = t.host_mut()?;
-                let pruned = self.densify.end_of_epoch(&mut p.densify, model, adam)?;
-                on_event(Event::Unseen { step, pruned });
+                let done = self.densify.end_of_epoch(
+                    &mut p.densify,
+                    step,
+                    model,
+                    adam,
+                    self.config.seed,
+                )?;
+                on_event(Event::Unseen { step, done });
             } else {
                 p.densify.start_epoch();
             }

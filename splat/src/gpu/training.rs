@@ -11,7 +11,7 @@ use crate::model::Gaussians;
 use crate::optim::{Adam, LearningRates};
 use crate::rasterizer::PixelGradients;
 use crate::render::{RenderOutput, RenderSettings};
-use crate::trainer::{SplatTrainer, StepReport, check_shapes};
+use crate::trainer::{Regularisers, SplatTrainer, StepReport, check_shapes};
 
 use super::util::{
     Pool, Scratch, bind_resources, blocks, dispatch, f32s, grid, part, read_back, storage_init,
@@ -98,13 +98,13 @@ impl GpuTraining {
     }
 
     /// Backpropagates `pixel` through the render `saved` and takes one Adam step with `lr`,
-    /// adding the gradient of `opacity_reg · mean(sigmoid(logit opacity))` first.
+    /// adding the regularisers' gradients first.
     pub fn step(
         &mut self,
         saved: &GpuSaved,
         pixel: PixelGradients<'_>,
         lr: &LearningRates,
-        opacity_reg: f32,
+        reg: Regularisers,
     ) -> Result<StepReport, SplatError> {
         let (raster, scene) = (&self.raster, &self.scene);
         let dev = &raster.ctx.device;
@@ -116,7 +116,7 @@ impl GpuTraining {
             &mut enc,
             &mut Scratch(Some(&mut self.pool)),
         )?;
-        let flags = self.encode_adam(&grads, lr, opacity_reg, &mut enc, true)?;
+        let flags = self.encode_adam(&grads, lr, reg, &mut enc, true)?;
         self.finish(enc, Some(&screen), &flags)
     }
 
@@ -126,7 +126,7 @@ impl GpuTraining {
         &mut self,
         grads: &Gaussians,
         lr: &LearningRates,
-        opacity_reg: f32,
+        reg: Regularisers,
     ) -> Result<StepReport, SplatError> {
         if grads.len() != self.len() || grads.sh_degree != self.scene.sh_degree {
             return Err(SplatError::InvalidInput(
@@ -136,7 +136,7 @@ impl GpuTraining {
         let dev = &self.raster.ctx.device;
         let g = storage_init(dev, "gradients", bytemuck::cast_slice(&grads.packed()));
         let mut enc = dev.create_command_encoder(&Default::default());
-        let flags = self.encode_adam(&g, lr, opacity_reg, &mut enc, false)?;
+        let flags = self.encode_adam(&g, lr, reg, &mut enc, false)?;
         self.finish(enc, None, &flags)
     }
 
@@ -144,7 +144,7 @@ impl GpuTraining {
         &mut self,
         grads: &wgpu::Buffer,
         lr: &LearningRates,
-        opacity_reg: f32,
+        reg: Regularisers,
         enc: &mut wgpu::CommandEncoder,
         // In the step's pool (after a render, which starts the pool over) or a buffer of its own.
         pooled: bool,
@@ -160,14 +160,19 @@ impl GpuTraining {
         let u = AdamUniform {
             n,
             stride: scene.stride,
-            reg: opacity_reg / scene.n.max(1) as f32,
+            reg: reg.opacity.max(0.0) / scene.n.max(1) as f32,
             eps: self.eps,
             b1: self.beta1,
             b2: self.beta2,
             bc1: 1.0 - self.beta1.powi(t),
             bc2: 1.0 - self.beta2.powi(t),
             lr_a: [lr.means, lr.log_scales, lr.rotations, lr.opacities],
-            lr_b: [lr.sh_dc, lr.sh_rest, 0.0, 0.0],
+            lr_b: [
+                lr.sh_dc,
+                lr.sh_rest,
+                reg.scale.max(0.0) / (3 * scene.n.max(1)) as f32,
+                0.0,
+            ],
         };
         let flags = Scratch(pooled.then_some(&mut self.pool)).storage(dev, "adam flags", 4);
         enc.clear_buffer(&flags, 0, None);
@@ -324,7 +329,7 @@ impl SplatTrainer for GpuTrainer {
         saved: GpuSaved,
         pixel: PixelGradients<'_>,
         lr: &LearningRates,
-        opacity_reg: f32,
+        reg: Regularisers,
     ) -> Result<StepReport, SplatError> {
         let Some(r) = self.resident.as_mut() else {
             return Err(SplatError::InvalidInput(
@@ -332,7 +337,7 @@ impl SplatTrainer for GpuTrainer {
             ));
         };
         let _span = tracing::info_span!("render backward and Adam").entered();
-        let report = r.step(&saved, pixel, lr, opacity_reg)?;
+        let report = r.step(&saved, pixel, lr, reg)?;
         self.host_current = false;
         Ok(report)
     }

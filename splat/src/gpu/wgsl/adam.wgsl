@@ -1,6 +1,7 @@
 // One Adam step over every parameter of a resident model, one invocation per value: the
 // CPU's `optim::Adam::step` (a learning rate per parameter group, found from the value's
-// place in its Gaussian), with the mean-opacity penalty's gradient added first. A non-finite
+// place in its Gaussian), with the gradients of the mean-opacity and mean-scale penalties
+// added first. A non-finite
 // gradient leaves its value and moments alone and raises bit 0 of `flags`; a non-finite value
 // after the update raises bit 1 (the trainer stops on either, as on the CPU).
 
@@ -17,7 +18,7 @@ struct AdamStep {
     bc2: f32,
     // Means, log-scales, rotations, opacities.
     lr_a: vec4<f32>,
-    // SH DC, SH rest.
+    // SH DC, SH rest; then the mean-scale penalty per value, and one unused.
     lr_b: vec4<f32>,
 }
 
@@ -57,6 +58,9 @@ fn main(
     if (k == 10u && st.reg > 0.0) {
         let o = 1.0 / (1.0 + exp(-params[i]));
         g = g + st.reg * o * (1.0 - o);
+    }
+    if (k >= 3u && k < 6u && st.lr_b.z > 0.0) {
+        g = g + st.lr_b.z * exp(params[i]);
     }
     if (!finite(g)) {
         atomicOr(&flags, 1u);
