@@ -77,6 +77,9 @@ pub struct ExperimentRuns {
     /// Replace runs already in --out (otherwise a folder holding a run is refused).
     #[arg(long)]
     pub overwrite: bool,
+    /// Densification strategy of every run (as `train --strategy`).
+    #[arg(long, value_enum, default_value_t = metasplat::settings::StrategyChoice::Auto)]
+    pub strategy: metasplat::settings::StrategyChoice,
     /// Also train plain 3DGS on the clean photos with the same settings: the ceiling every
     /// mode is measured against (`--ceiling false` leaves it out).
     #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
@@ -303,6 +306,7 @@ impl ExperimentRuns {
         args.resume = resume;
         args.training.mode = mode;
         args.training.iters = self.iters;
+        args.training.strategy = self.strategy;
         args
     }
 }
