@@ -11,7 +11,8 @@ use crate::project::quat_to_rotmat;
 use crate::render::{Gradients, RenderOutput};
 use base::SplitMix64;
 
-fn check_mask(g: &Gaussians, mask: &[bool]) -> Result<(), SplatError> {
+/// A per-Gaussian mask must have the model's length.
+pub(crate) fn check_mask(g: &Gaussians, mask: &[bool]) -> Result<(), SplatError> {
     if mask.len() == g.len() {
         Ok(())
     } else {

@@ -12,6 +12,7 @@
 
 use glam::{Mat3, Vec3};
 
+use crate::densify::check_mask;
 use crate::error::SplatError;
 use crate::model::{Gaussians, logit, sigmoid};
 use crate::project::quat_to_rotmat;
@@ -97,7 +98,7 @@ pub fn relocate_gaussians(
     min_opacity: f32,
     seed: u64,
 ) -> Result<Vec<Option<usize>>, SplatError> {
-    check_len(g, dead.len(), "dead mask")?;
+    check_mask(g, dead)?;
     let n = g.len();
     let dead_ids: Vec<usize> = (0..n).filter(|&i| dead[i]).collect();
     let alive: Vec<usize> = (0..n).filter(|&i| !dead[i]).collect();
@@ -159,18 +160,6 @@ fn copy_into(g: &mut Gaussians, dst: usize, src: usize) {
     g.sh_dc[dst] = g.sh_dc[src];
     let r = g.rest_count();
     g.sh_rest.copy_within(src * r..(src + 1) * r, dst * r);
-}
-
-fn check_len(g: &Gaussians, got: usize, what: &'static str) -> Result<(), SplatError> {
-    if got == g.len() {
-        Ok(())
-    } else {
-        Err(SplatError::SizeMismatch {
-            what,
-            expected: g.len(),
-            got,
-        })
-    }
 }
 
 /// How strongly a Gaussian of opacity `o` feels the position noise: ≈ 1 below 0.995 opacity's
