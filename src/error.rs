@@ -14,6 +14,8 @@ pub enum TrainError {
     Splat(#[from] splat::SplatError),
     #[error(transparent)]
     Metric(#[from] base::BaseError),
+    #[error(transparent)]
+    Lock(#[from] base::LockError),
     #[error("{}: {source}", path.display())]
     Io {
         path: PathBuf,

@@ -1,10 +1,24 @@
 //! Outputs never land on inputs: a command refuses, before it writes anything, an output path
-//! that is one of its inputs or lies inside an input folder (`render --out CAPTURE/images`
-//! would otherwise replace the capture's own photos).
+//! that is one of the files it reads, lies inside an input folder (`render --out
+//! CAPTURE/images` would otherwise replace the capture's own photos) or contains an input
+//! (`train --init RUN/point_cloud.ply --out RUN --overwrite` would remove its own start).
+//!
+//! Paths are compared as the files they name, not as written: every input is resolved to its
+//! canonical path, and an input folder contributes what its links lead to (a capture whose
+//! `images/` links to a shared photo folder reads that folder), so no alias of an input slips
+//! through.
 
+use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
 use crate::error::{Result, TrainError};
+
+/// How deep inside an input folder links are followed: a capture's links sit one or two
+/// levels down (`images/`, `sparse/0/`).
+const LINK_DEPTH: usize = 4;
+/// Entries looked at per input folder, so that a huge folder named by mistake costs
+/// milliseconds, not minutes; what lies beyond is still covered when it is physically inside.
+const MAX_ENTRIES: usize = 200_000;
 
 /// `path` made absolute with every existing part resolved (links, `..`), so that two names of
 /// one file compare equal even when the output does not exist yet.
@@ -32,27 +46,131 @@ fn resolved(path: &Path) -> PathBuf {
     }
 }
 
-/// Refuses output `out` (given with `flag`) when it is any of `inputs` (`(flag, path)`) or
-/// lies inside one of them.
-pub fn refuse_overwrite(flag: &str, out: &Path, inputs: &[(&str, &Path)]) -> Result<()> {
-    let o = resolved(out);
-    for (in_flag, input) in inputs {
-        let i = resolved(input);
-        if o == i {
+/// One input as the user named it and as the file system resolves it.
+struct Input {
+    /// What it is and where, for the message: `--scene S`, `S/images (a link inside
+    /// --scene S)`.
+    label: String,
+    real: PathBuf,
+    is_dir: bool,
+}
+
+/// Everything a command reads, resolved.
+#[derive(Default)]
+pub struct Inputs {
+    items: Vec<Input>,
+    seen: HashSet<PathBuf>,
+}
+
+impl Inputs {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The inputs named by flags, as `(flag, path)`.
+    pub fn of(inputs: &[(&str, &Path)]) -> Self {
+        let mut all = Self::new();
+        for (flag, path) in inputs {
+            all.add(flag, path);
+        }
+        all
+    }
+
+    /// Adds `path` (given with `what`); a folder adds the targets of the links inside it.
+    pub fn add(&mut self, what: &str, path: &Path) {
+        let real = resolved(path);
+        if !self.push(format!("{what} {}", path.display()), real.clone()) {
+            return;
+        }
+        if real.is_dir() {
+            let mut budget = MAX_ENTRIES;
+            self.add_links(what, path, &real, LINK_DEPTH, &mut budget);
+        }
+    }
+
+    /// Adds files read that a folder walk would not find (a capture's photos named by its
+    /// model file), each described as `what`.
+    pub fn add_files<'a>(&mut self, what: &str, paths: impl IntoIterator<Item = &'a PathBuf>) {
+        for p in paths {
+            self.add(what, p);
+        }
+    }
+
+    fn push(&mut self, label: String, real: PathBuf) -> bool {
+        if !self.seen.insert(real.clone()) {
+            return false;
+        }
+        let is_dir = real.is_dir();
+        self.items.push(Input {
+            label,
+            real,
+            is_dir,
+        });
+        true
+    }
+
+    fn add_links(&mut self, what: &str, top: &Path, dir: &Path, depth: usize, budget: &mut usize) {
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            return;
+        };
+        for entry in entries.flatten() {
+            if *budget == 0 {
+                return;
+            }
+            *budget -= 1;
+            let Ok(kind) = entry.file_type() else {
+                continue;
+            };
+            let path = entry.path();
+            if kind.is_symlink() {
+                let Ok(real) = path.canonicalize() else {
+                    continue;
+                };
+                let label = format!(
+                    "{} (a link inside {what} {})",
+                    path.display(),
+                    top.display()
+                );
+                if self.push(label, real.clone()) && real.is_dir() && depth > 0 {
+                    self.add_links(what, top, &real, depth - 1, budget);
+                }
+            } else if kind.is_dir() && depth > 0 {
+                self.add_links(what, top, &path, depth - 1, budget);
+            }
+        }
+    }
+
+    /// Refuses output `out` (given with `flag`) when it is an input, lies inside an input
+    /// folder or contains an input.
+    pub fn refuse(&self, flag: &str, out: &Path) -> Result<()> {
+        let o = resolved(out);
+        for i in &self.items {
+            let label = &i.label;
+            let problem = if o == i.real {
+                format!("is the same file as {label}: refusing to write over an input")
+            } else if i.is_dir && o.starts_with(&i.real) {
+                format!("lies inside {label}: refusing to write into an input")
+            } else if i.real.starts_with(&o) {
+                format!(
+                    "contains {label}, at {}: refusing to write where an input lies",
+                    i.real.display()
+                )
+            } else {
+                continue;
+            };
             return Err(TrainError::Invalid(format!(
-                "{flag} {} is the same file as {in_flag}: refusing to write over an input",
+                "{flag} {} {problem}",
                 out.display()
             )));
         }
-        if o.starts_with(&i) && i.is_dir() {
-            return Err(TrainError::Invalid(format!(
-                "{flag} {} lies inside {in_flag} {}: refusing to write into an input",
-                out.display(),
-                input.display()
-            )));
-        }
+        Ok(())
     }
-    Ok(())
+}
+
+/// Refuses output `out` (given with `flag`) when it is any of `inputs` (`(flag, path)`), lies
+/// inside one of them or contains one (see [`Inputs`]).
+pub fn refuse_overwrite(flag: &str, out: &Path, inputs: &[(&str, &Path)]) -> Result<()> {
+    Inputs::of(inputs).refuse(flag, out)
 }
 
 #[cfg(test)]
@@ -74,6 +192,7 @@ mod tests {
             d.join("scene"),
             d.join("scene/images"),
             d.join("scene/new/deeper"),
+            d.to_path_buf(),
         ] {
             let err = refuse_overwrite("--out", &bad, &inputs)
                 .unwrap_err()
@@ -83,5 +202,32 @@ mod tests {
         for good in [d.join("b.png"), d.join("out/scene"), d.join("scene2")] {
             refuse_overwrite("--out", &good, &inputs).unwrap();
         }
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn what_links_inside_an_input_folder_lead_to_is_an_input() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let shared = d.join("shared/photos");
+        std::fs::create_dir_all(&shared).unwrap();
+        std::fs::write(shared.join("a.png"), b"x").unwrap();
+        std::fs::create_dir_all(d.join("scene/sparse")).unwrap();
+        std::os::unix::fs::symlink(&shared, d.join("scene/images")).unwrap();
+        std::os::unix::fs::symlink(d.join("scene"), d.join("linked")).unwrap();
+        let scene = d.join("linked");
+        for bad in [
+            shared.clone(),
+            shared.join("a.png"),
+            shared.join("new"),
+            d.join("shared"),
+            d.join("scene/sparse/x"),
+        ] {
+            let err = refuse_overwrite("--out", &bad, &[("--scene", &scene)])
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains("--out") && err.contains("input"), "{err}");
+        }
+        refuse_overwrite("--out", &d.join("shared2"), &[("--scene", &scene)]).unwrap();
     }
 }

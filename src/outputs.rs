@@ -53,18 +53,21 @@ pub fn clear_run(dir: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Creates the run folder and proves it writable before any training time is spent; a killed
-/// run's temporary files and staging folders in it are removed.
-pub fn prepare_run_dir(dir: &Path) -> Result<()> {
+/// Creates the run folder, takes it for this process alone (a second writer is refused until
+/// the returned lock is dropped) and proves it writable before any training time is spent; a
+/// killed run's temporary files and staging folders in it are removed. `command` names the
+/// writer for the message a second one gets.
+pub fn prepare_run_dir(dir: &Path, command: &str) -> Result<base::FolderLock> {
     std::fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
-    base::remove_orphans(dir).map_err(|e| TrainError::io(dir, e))?;
+    let lock = base::FolderLock::folder(dir, command)?;
+    base::remove_orphans(dir);
     // Named as our temporaries are, so a run killed right here leaves nothing the next run
     // in this folder does not remove.
     let probe = dir.join(format!("{}write-test", base::temp_prefix()));
     std::fs::write(&probe, b"ok")
         .map_err(|e| TrainError::file(dir, format!("not writable: {e}")))?;
     let _ = std::fs::remove_file(&probe);
-    Ok(())
+    Ok(lock)
 }
 
 pub fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {

@@ -22,6 +22,8 @@ pub struct PreparedRun {
     pub device_note: String,
     /// Where the restorer's images came from or went (the cache), as a sentence.
     pub cache_note: Option<String>,
+    /// The run folder is this run's alone while it is held.
+    _lock: base::FolderLock,
 }
 
 /// Checks and loads everything a run needs, before any training time is spent.
@@ -37,7 +39,8 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
     if let Some(i) = &request.training.init {
         inputs.push(("--init", i));
     }
-    crate::guard::refuse_overwrite("--out", out, &inputs)?;
+    let mut inputs = crate::guard::Inputs::of(&inputs);
+    inputs.refuse("--out", out)?;
     check_run_folder(request)?;
     let (device, device_note) = Device::choose(request.device)?;
     // Every input is checked before the run folder is made.
@@ -58,12 +61,29 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
         }
         data.initial = Some(g);
     }
-    outputs::prepare_run_dir(out)
+    // The photos the capture's model names, wherever they are.
+    inputs.add_files("a photo of --scene", &data.capture.image_paths);
+    inputs.refuse("--out", out)?;
+    let config = TrainConfig::build(&request.training, request.data.seed, &data);
+    if let Some(g) = &data.initial
+        && g.len() > config.max_splats
+        && let Some(path) = &request.training.init
+    {
+        return Err(TrainError::file(
+            path,
+            format!(
+                "--init holds {} splats, more than the run's budget of {}: pass --max-splats {} (or more) to train them all",
+                g.len(),
+                config.max_splats,
+                g.len()
+            ),
+        ));
+    }
+    let lock = outputs::prepare_run_dir(out, "train")
         .map_err(|e| e.context(format!("cannot use {} as the run folder", out.display())))?;
     if request.overwrite {
         outputs::clear_run(out)?;
     }
-    let config = TrainConfig::build(&request.training, request.data.seed, &data);
     outputs::write_json(&out.join(outputs::CONFIG_FILE), &config)?;
     let restored = data.train.iter().filter(|v| v.restored.is_some()).count();
     let cache_note = match data.cache_restored(&cache_dir) {
@@ -90,6 +110,7 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
         device,
         device_note,
         cache_note,
+        _lock: lock,
     })
 }
 

@@ -381,13 +381,18 @@ fn hostile_psf_files_and_photos() {
         ("photo header only", png[..40].to_vec()),
         ("text as photo", b"hello".to_vec()),
         ("photo claiming 60000x60000 px", png_claiming(60000, 60000)),
+        // Within every side limit, but gigabytes once decoded.
+        ("photo claiming 13000x13000 px", png_claiming(13000, 13000)),
+        ("photo claiming 12000x9000 px", png_claiming(12000, 9000)),
     ] {
         suite.with_file(&bad_png, &bytes, |suite| {
-            suite.case(
-                label,
-                &args(&["aberrate", "--psf", &gp, "--in", &s(&bad_png), "--out", &o]),
-                &["bad.png"],
-            );
+            for command in ["aberrate", "deconvolve"] {
+                suite.case(
+                    &format!("{command}: {label}"),
+                    &args(&[command, "--psf", &gp, "--in", &s(&bad_png), "--out", &o]),
+                    &["bad.png"],
+                );
+            }
         });
     }
     // Outputs that alias inputs.
@@ -785,6 +790,7 @@ fn hostile_captures() {
             format!("{}\n", fields[..fields.len() - 1].join(" ")),
         ),
         ("garbage", "\u{0}\u{1}binary\n".to_string()),
+        ("camera id used twice", format!("{cam_txt}{cam_line}\n")),
     ] {
         damage(
             &mut suite,
@@ -816,10 +822,38 @@ fn hostile_captures() {
             text.as_bytes(),
         );
     }
+    // A photo whose header claims gigabytes, in each layout.
+    for scene in [&llff, &colmap_txt, &colmap_bin] {
+        let file = format!("images/{}.png", capture.cameras[0].name);
+        damage(
+            &mut suite,
+            scene,
+            &file,
+            "photo claiming 12000x9000 px",
+            &png_claiming(12000, 9000),
+        );
+    }
     let img_txt = std::fs::read_to_string(colmap_txt.join("sparse/0/images.txt")).unwrap();
+    let first_name = format!("{}.png", capture.cameras[0].name);
+    let second_name = format!("{}.png", capture.cameras[1].name);
+    let absolute = s(&colmap_txt.join("images").join(&first_name));
     for (label, text) in [
         ("image line cut short", img_txt.replace(" 1 view", " view")),
         ("nan quaternion", img_txt.replacen("\n1 ", "\n1 nan ", 1)),
+        // Names that leave the image folder, even where they lead to a real photo.
+        (
+            "image name with ..",
+            img_txt.replace(&first_name, &format!("../images/{first_name}")),
+        ),
+        (
+            "absolute image name",
+            img_txt.replace(&format!(" {first_name}"), &format!(" {absolute}")),
+        ),
+        (
+            "image name used twice",
+            img_txt.replace(&second_name, &first_name),
+        ),
+        ("image id used twice", img_txt.replacen("\n2 ", "\n1 ", 1)),
     ] {
         damage(
             &mut suite,
@@ -1360,6 +1394,31 @@ fn hostile_run_files() {
             "--grid",
             args(&["psf", "simulate", "--out", &o, "--grid", "100000"]),
         ),
+        // Flags each in range whose product is not.
+        (
+            "--sensor-pitch-um",
+            args(&["psf", "simulate", "--out", &o, "--sensor-pitch-um", "1e20"]),
+        ),
+        (
+            "--sensor-pitch-um",
+            args(&["psf", "simulate", "--out", &o, "--sensor-pitch-um", "1e6"]),
+        ),
+        (
+            "--size",
+            args(&[
+                "psf", "simulate", "--out", &o, "--grid", "33", "--size", "1023",
+            ]),
+        ),
+        (
+            "--size",
+            args(&[
+                "psf", "simulate", "--out", &o, "--grid", "33", "--size", "400",
+            ]),
+        ),
+        (
+            "--aperture-um",
+            args(&["psf", "simulate", "--out", &o, "--aperture-um", "1e-300"]),
+        ),
         (
             "--width",
             args(&["scene", "procedural", "--out", &o, "--width", "100000"]),
@@ -1391,4 +1450,198 @@ fn hostile_run_files() {
         suite.case("flag", &c, &[flag]);
     }
     suite.finish("run file");
+}
+
+/// Outputs aimed at the files a command reads through links and model files: photo folders
+/// shared by a link (the usual way to share a data set), captures reached through a linked
+/// folder, and a run's own `--init`. Every case must refuse naming `--out` and leave every
+/// file, the shared photos included, as it was.
+#[cfg(unix)]
+#[test]
+fn hostile_outputs_over_linked_inputs() {
+    use std::os::unix::fs::symlink;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = llff_scene(d);
+    // A capture whose photos live elsewhere, linked in.
+    let shared = d.join("shared/photos");
+    std::fs::create_dir_all(d.join("shared")).unwrap();
+    let linked = d.join("linked");
+    std::fs::create_dir_all(&linked).unwrap();
+    copy_dir(&scene.join("images"), &shared);
+    std::fs::copy(
+        scene.join("poses_bounds.npy"),
+        linked.join("poses_bounds.npy"),
+    )
+    .unwrap();
+    symlink(&shared, linked.join("images")).unwrap();
+    // The same capture reached through a linked folder.
+    let alias = d.join("alias");
+    symlink(&linked, &alias).unwrap();
+    let psf = d.join("psf.npy");
+    std::fs::write(&psf, npy(&psf_dict("(9, 5, 5, 3)"), &f32s(&psf_values()))).unwrap();
+    let run = d.join("run");
+    let train = |scene: &Path, out: &Path, extra: &[&str]| {
+        let mut a = args(&[
+            "train",
+            "--scene",
+            &s(scene),
+            "--out",
+            &s(out),
+            "--mode",
+            "plain",
+            "--downsample",
+            "1",
+            "--iters",
+            "4",
+            "--spiral",
+            "0",
+            "--device",
+            "cpu",
+        ]);
+        a.extend(extra.iter().map(|x| x.to_string()));
+        a
+    };
+    run_ok(&train(&scene, &run, &[]));
+    let ply = run.join("point_cloud.ply");
+    let mut suite = Suite::new(d);
+    let render = |scene: &Path, out: &Path| {
+        args(&[
+            "render",
+            "--ply",
+            &s(&ply),
+            "--scene",
+            &s(scene),
+            "--out",
+            &s(out),
+            "--downsample",
+            "1",
+            "--device",
+            "cpu",
+        ])
+    };
+    for (label, scene, out) in [
+        ("render onto linked photos", &linked, shared.clone()),
+        ("render onto the photos' parent", &linked, d.join("shared")),
+        ("render through an aliased capture", &alias, shared.clone()),
+        (
+            "render into the link itself",
+            &linked,
+            linked.join("images"),
+        ),
+        ("render into the aliased capture", &linked, alias.join("x")),
+    ] {
+        suite.case(label, &render(scene, &out), &["--out"]);
+    }
+    for (label, out) in [
+        ("train onto linked photos", shared.clone()),
+        ("train into the photos' parent", d.join("shared")),
+    ] {
+        suite.case(label, &train(&linked, &out, &[]), &["--out"]);
+    }
+    suite.case(
+        "aberrate onto linked photos",
+        &args(&[
+            "scene",
+            "aberrate",
+            "--scene",
+            &s(&alias),
+            "--psf",
+            &s(&psf),
+            "--out",
+            &s(&shared.join("abr")),
+            "--downsample",
+            "1",
+        ]),
+        &["--out"],
+    );
+    // A run replacing the splats it starts from.
+    suite.case(
+        "--init inside --out",
+        &train(&scene, &run, &["--init", &s(&ply), "--overwrite"]),
+        &["--out", "--init"],
+    );
+    // A start larger than the run's budget.
+    suite.case(
+        "--init above the budget",
+        &train(
+            &scene,
+            &d.join("run2"),
+            &["--init", &s(&ply), "--max-splats", "1"],
+        ),
+        &["--max-splats"],
+    );
+    suite.finish("linked-input");
+}
+
+/// One writer per run folder: while a run trains, a second `train` into the same folder (with
+/// `--overwrite` too) is refused naming the process that holds it, and the lock goes with
+/// the holder, even when the holder is killed.
+#[test]
+fn a_run_folder_has_one_writer() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = llff_scene(d);
+    let run = d.join("run");
+    let train = |iters: &str, extra: &[&str]| {
+        let mut a = args(&[
+            "train",
+            "--scene",
+            &s(&scene),
+            "--out",
+            &s(&run),
+            "--mode",
+            "plain",
+            "--downsample",
+            "1",
+            "--iters",
+            iters,
+            "--spiral",
+            "0",
+            "--device",
+            "cpu",
+        ]);
+        a.extend(extra.iter().map(|x| x.to_string()));
+        a
+    };
+    let mut first = common::cli::metasplat()
+        .args(train("1000000", &[]))
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let lock = run.join(base::lock::LOCK_FILE);
+    let holder = format!("process {}", first.id());
+    let start = std::time::Instant::now();
+    while !std::fs::read_to_string(&lock).is_ok_and(|t| t.contains(&holder)) {
+        assert!(
+            start.elapsed().as_secs() < 120,
+            "the first run never took its folder"
+        );
+        assert!(
+            first.try_wait().unwrap().is_none(),
+            "the first run ended early"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    for extra in [&[][..], &["--overwrite"][..]] {
+        let out = common::cli::metasplat()
+            .args(train("5", extra))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "a second writer ran: {err}");
+        assert!(
+            err.contains(&holder) || err.contains("already holds a run"),
+            "{extra:?}: {err}"
+        );
+        assert_ne!(out.status.code(), Some(101), "{err}");
+    }
+    assert!(first.try_wait().unwrap().is_none(), "the first run ended");
+    first.kill().unwrap();
+    first.wait().unwrap();
+    // The killed holder's lock is gone with it: the folder can be replaced.
+    run_ok(&train("5", &["--overwrite"]));
+    assert!(run.join("point_cloud.ply").is_file());
+    assert!(!lock.exists(), "the lock file stays after the run");
 }

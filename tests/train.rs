@@ -442,7 +442,7 @@ fn bad_input_is_reported_clearly() {
     // An unwritable run folder fails before any training.
     let blocker = f._dir.path().join("a-file");
     std::fs::write(&blocker, b"x").unwrap();
-    let err = metasplat::outputs::prepare_run_dir(&blocker.join("run"))
+    let err = metasplat::outputs::prepare_run_dir(&blocker.join("run"), "train")
         .err()
         .unwrap()
         .to_string();

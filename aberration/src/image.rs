@@ -84,12 +84,17 @@ impl Image {
         if !path.exists() {
             return Err(bad("file not found".into()));
         }
-        let dynimg = image::ImageReader::open(path)
-            .map_err(|e| bad(e.to_string()))?
-            .with_guessed_format()
-            .map_err(|e| bad(e.to_string()))?
-            .decode()
+        let reader = || {
+            image::ImageReader::open(path)
+                .map_err(|e| bad(e.to_string()))?
+                .with_guessed_format()
+                .map_err(|e| bad(e.to_string()))
+        };
+        let (w, h) = reader()?
+            .into_dimensions()
             .map_err(|e| bad(e.to_string()))?;
+        base::limits::check_image_pixels(w, h).map_err(bad)?;
+        let dynimg = reader()?.decode().map_err(|e| bad(e.to_string()))?;
         let rgb = dynimg.to_rgb32f();
         let (w, h) = (rgb.width() as usize, rgb.height() as usize);
         if w == 0 || h == 0 {

@@ -44,10 +44,12 @@ fn is_orphan(name: &str) -> bool {
 /// Removes our orphaned temporary files and staging folders (names starting with
 /// [`TEMP_PREFIX`] whose writer is gone) directly inside `dir`: what a killed run left. Called
 /// whenever a folder is about to be written into; returns what it removed. A folder that
-/// cannot be listed has nothing to clean.
-pub fn remove_orphans(dir: &Path) -> io::Result<Vec<std::path::PathBuf>> {
+/// cannot be listed has nothing to clean, and an entry that cannot be removed (another user's,
+/// in a shared sticky folder like `/tmp`) is not ours to clean: it is left, never a reason to
+/// refuse the write.
+pub fn remove_orphans(dir: &Path) -> Vec<std::path::PathBuf> {
     let Ok(entries) = std::fs::read_dir(dir) else {
-        return Ok(Vec::new());
+        return Vec::new();
     };
     let mut removed = Vec::new();
     for entry in entries.flatten() {
@@ -60,15 +62,19 @@ pub fn remove_orphans(dir: &Path) -> io::Result<Vec<std::path::PathBuf>> {
         }
         let path = entry.path();
         // Never follow a link out of the folder.
-        let kind = entry.file_type()?;
-        if kind.is_dir() {
-            std::fs::remove_dir_all(&path)?;
+        let Ok(kind) = entry.file_type() else {
+            continue;
+        };
+        let gone = if kind.is_dir() {
+            std::fs::remove_dir_all(&path)
         } else {
-            std::fs::remove_file(&path)?;
+            std::fs::remove_file(&path)
+        };
+        if gone.is_ok() {
+            removed.push(path);
         }
-        removed.push(path);
     }
-    Ok(removed)
+    removed
 }
 
 /// Why [`write_atomically_with`] failed: the file system, or the caller's own writer.
@@ -116,10 +122,9 @@ pub fn write_atomically(
         _ => Path::new("."),
     };
     // A killed writer's temporary files in this folder go first, once per folder and process
-    // (a frame sequence would otherwise list its folder once per frame). Errors are not this
-    // write's concern: the folder may be shared and read-only entries are left.
+    // (a frame sequence would otherwise list its folder once per frame).
     if first_write_to(dir) {
-        let _ = remove_orphans(dir);
+        remove_orphans(dir);
     }
     let mut builder = tempfile::Builder::new();
     let prefix = temp_prefix();
@@ -171,7 +176,7 @@ mod tests {
                 std::fs::write(d.join(name), b"x").unwrap();
             }
         }
-        let mut removed = remove_orphans(d).unwrap();
+        let mut removed = remove_orphans(d);
         removed.sort();
         let mut expected: Vec<_> = gone.iter().map(|n| d.join(n)).collect();
         expected.sort();
@@ -179,6 +184,6 @@ mod tests {
         for name in others.iter().chain([&ours.as_str()]) {
             assert!(d.join(name).exists(), "{name} was removed");
         }
-        assert!(remove_orphans(&d.join("missing")).unwrap().is_empty());
+        assert!(remove_orphans(&d.join("missing")).is_empty());
     }
 }

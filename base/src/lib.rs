@@ -7,6 +7,7 @@ pub mod error;
 pub mod hash;
 pub mod isa;
 pub mod limits;
+pub mod lock;
 pub mod metrics;
 pub mod npy;
 pub mod rng;
@@ -18,5 +19,6 @@ pub use atomic::{
     write_bytes_atomically,
 };
 pub use error::BaseError;
+pub use lock::{FolderLock, LockError};
 pub use metrics::{psnr, psnr_rgb, ssim, ssim_planar, ssim_value, sum_pairs};
 pub use rng::{SplitMix64, mix64};

@@ -15,6 +15,23 @@ pub const MAX_MODEL_FILE_BYTES: u64 = 2 << 30;
 /// file's header): 16 MiB.
 pub const MAX_TEXT_FILE_BYTES: u64 = 16 << 20;
 
+/// Most pixels of a photo or image decoded (from its header, before decoding): 64 Mi pixels,
+/// 768 MiB as the float RGB every stage works in. A full-resolution LLFF photo has 12 M.
+pub const MAX_IMAGE_PIXELS: u64 = 1 << 26;
+
+/// Refuses an image whose header claims more than [`MAX_IMAGE_PIXELS`], before a byte of it
+/// is decoded (a few hundred compressed bytes can claim gigabytes).
+pub fn check_image_pixels(width: u32, height: u32) -> Result<(), String> {
+    let pixels = width as u64 * height as u64;
+    if pixels > MAX_IMAGE_PIXELS {
+        return Err(format!(
+            "the image header claims {width}x{height} pixels, more than the {} Mi pixels an image may have",
+            MAX_IMAGE_PIXELS >> 20
+        ));
+    }
+    Ok(())
+}
+
 /// The product of `dims` and then `item_bytes`, `None` on overflow.
 pub fn checked_bytes(dims: &[u64], item_bytes: u64) -> Option<u64> {
     dims.iter()

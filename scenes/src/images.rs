@@ -68,12 +68,15 @@ pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(paths)
 }
 
-/// Reads only the headers, so checking a folder costs no decoding.
+/// Reads only the headers, so checking a folder costs no decoding; a header claiming more
+/// than [`base::limits::MAX_IMAGE_PIXELS`] is refused.
 pub fn image_size(path: &Path) -> Result<(u32, u32)> {
-    image::image_dimensions(path).map_err(|source| SceneError::Image {
+    let (w, h) = image::image_dimensions(path).map_err(|source| SceneError::Image {
         path: path.to_path_buf(),
         source,
-    })
+    })?;
+    base::limits::check_image_pixels(w, h).map_err(|p| SceneError::invalid(path, p))?;
+    Ok((w, h))
 }
 
 /// The common size of all images, or an error naming the first one that differs.
@@ -97,6 +100,7 @@ pub fn common_size(paths: &[PathBuf]) -> Result<(u32, u32)> {
 }
 
 pub fn load_rgb(path: &Path) -> Result<Photo> {
+    image_size(path)?;
     let decoded = image::open(path).map_err(|source| SceneError::Image {
         path: path.to_path_buf(),
         source,

@@ -273,7 +273,7 @@ impl LlffWriter {
         };
         std::fs::create_dir_all(parent).map_err(|e| SceneError::io(parent, e))?;
         // What a killed run left beside its scene goes before this one stages its own.
-        base::remove_orphans(parent).map_err(|e| SceneError::io(parent, e))?;
+        base::remove_orphans(parent);
         let staging = tempfile::Builder::new()
             .prefix(&format!("{}scene-", base::temp_prefix()))
             .tempdir_in(parent)

@@ -321,3 +321,58 @@ fn colmap_capture_opens_with_scaled_intrinsics_and_point_bounds() {
         "{e}"
     );
 }
+
+#[test]
+fn repeated_ids_and_names_and_names_leaving_the_image_folder_are_refused_in_both_formats() {
+    let tmp = tempfile::tempdir().unwrap();
+    for format in [ModelFormat::Binary, ModelFormat::Text] {
+        // Apart: a folder with both prefers the binary files.
+        let dir = &tmp.path().join(format.extension());
+        std::fs::create_dir_all(dir).unwrap();
+        let err = |m: &ColmapModel| {
+            colmap::write_model(dir, m, format).unwrap();
+            colmap::read_model(dir).unwrap_err().to_string()
+        };
+        let mut m = model();
+        m.cameras[1].id = m.cameras[0].id;
+        let e = err(&m);
+        assert!(e.contains("camera id 1 is used"), "{format:?}: {e}");
+        let mut m = model();
+        m.images[2].id = m.images[0].id;
+        let e = err(&m);
+        assert!(e.contains("image id 10 is used"), "{format:?}: {e}");
+        let mut m = model();
+        m.images[1].name = m.images[0].name.clone();
+        let e = err(&m);
+        assert!(
+            e.contains(&format!("image name {:?} is used", m.images[0].name)),
+            "{format:?}: {e}"
+        );
+        for name in ["../img000.png", "sub/../../img000.png", "/tmp/img000.png"] {
+            let mut m = model();
+            m.images[0].name = name.into();
+            let e = err(&m);
+            assert!(
+                e.contains(name) && e.contains("only files inside the capture"),
+                "{format:?}: {e}"
+            );
+        }
+        // Where each repeat is: both lines of a text file, both records of a binary one.
+        let mut m = model();
+        m.images[1].name = m.images[0].name.clone();
+        colmap::write_model(dir, &m, format).unwrap();
+        let e = colmap::read_model(dir).unwrap_err().to_string();
+        match format {
+            ModelFormat::Text => assert!(e.contains("first on line"), "{e}"),
+            ModelFormat::Binary => assert!(e.contains("records 0 and 1"), "{e}"),
+        }
+        // A name with two spaces (and one in a folder) is kept as written.
+        let mut m = model();
+        m.images[0].name = "a  b.png".into();
+        m.images[1].name = "sub/c d.png".into();
+        colmap::write_model(dir, &m, format).unwrap();
+        let back = colmap::read_model(dir).unwrap();
+        assert_eq!(back.images[0].name, "a  b.png", "{format:?}");
+        assert_eq!(back.images[1].name, "sub/c d.png", "{format:?}");
+    }
+}

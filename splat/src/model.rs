@@ -18,6 +18,29 @@ pub const fn sh_rest_count(degree: u32) -> usize {
     ((degree + 1) * (degree + 1) - 1) as usize
 }
 
+/// Bytes one splat of SH degree `degree` takes in memory as [`Gaussians`].
+pub const fn splat_bytes(degree: u32) -> u64 {
+    4 * (3 + 3 + 4 + 1 + 3 * (1 + sh_rest_count(degree) as u64))
+}
+
+/// The most memory a splat file may ask for once read: 4 GiB as [`Gaussians`] (17 M splats
+/// of degree 3, 67 M of degree 0; scenes of a few million are usual).
+pub const MAX_LOADED_BYTES: u64 = 4 << 30;
+
+/// Refuses a splat count (from a header) whose splats would take more than
+/// [`MAX_LOADED_BYTES`], before anything is reserved for them.
+pub fn check_splat_count(n: u64, degree: u32) -> Result<(), String> {
+    let per = splat_bytes(degree.min(MAX_SH_DEGREE));
+    if n.saturating_mul(per) > MAX_LOADED_BYTES {
+        return Err(format!(
+            "{n} splats of SH degree {degree} declared: {} GiB once read, more than the {} GiB a splat file may take",
+            n.saturating_mul(per) >> 30,
+            MAX_LOADED_BYTES >> 30
+        ));
+    }
+    Ok(())
+}
+
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Gaussians {
     pub means: Vec<Vec3>,

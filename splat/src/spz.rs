@@ -25,14 +25,12 @@ use std::path::Path;
 use glam::Vec3;
 
 use crate::error::SplatError;
-use crate::model::{Gaussians, MAX_SH_DEGREE, logit, sh_rest_count, sigmoid};
+use crate::model::{Gaussians, MAX_SH_DEGREE, check_splat_count, logit, sh_rest_count, sigmoid};
 
 const MAGIC: u32 = 0x5053_474e;
 const HEADER: usize = 16;
 const FRACTIONAL_BITS: u8 = 12;
 const COLOR_SCALE: f32 = 0.15;
-/// More than any scene we make, and a bound on what a hostile header can make us allocate.
-const MAX_POINTS: u64 = 50_000_000;
 
 fn to_u8(x: f32) -> u8 {
     x.round().clamp(0.0, 255.0) as u8
@@ -168,6 +166,13 @@ pub fn parse_spz(path: &Path, bytes: &[u8]) -> Result<Gaussians, SplatError> {
     let (rot, sh) = rest.split_at(rot_bytes * n);
     let step = 1.0 / (1u32 << frac) as f32;
     let mut g = Gaussians::new(degree);
+    // The count is proven by the data now: reserve it exactly, not by doubling.
+    g.means.reserve_exact(n);
+    g.log_scales.reserve_exact(n);
+    g.rotations.reserve_exact(n);
+    g.logit_opacities.reserve_exact(n);
+    g.sh_dc.reserve_exact(n);
+    g.sh_rest.reserve_exact(n * rc);
     let mut coeffs = vec![Vec3::ZERO; rc];
     for i in 0..n {
         let p: [f32; 3] = std::array::from_fn(|k| {
@@ -232,16 +237,12 @@ fn check_header(h: &[u8], versions: std::ops::RangeInclusive<u32>) -> Result<Hea
     }
     let n = u32_at(8) as u64;
     let (degree, frac, flags) = (h[12] as u32, h[13], h[14]);
-    if n > MAX_POINTS {
-        return Err(format!(
-            "{n} splats declared, more than the {MAX_POINTS} read"
-        ));
-    }
     if degree > MAX_SH_DEGREE {
         return Err(format!(
             "SH degree {degree} (at most {MAX_SH_DEGREE} is read)"
         ));
     }
+    check_splat_count(n, degree)?;
     if frac > 23 {
         return Err(format!("{frac} fractional bits for 24-bit positions"));
     }
@@ -259,26 +260,67 @@ fn read_gzipped(bytes: &[u8]) -> Result<(Header, Vec<u8>), String> {
         .map_err(|e| format!("not an SPZ file (no gzip stream with a header): {e}"))?;
     let h = check_header(&header, 2..=3)?;
     let expected: usize = stream_sizes(h.0, h.1, h.2).iter().sum();
-    // The declared count does not size memory by itself: deflate expands at most 1032:1, so
-    // no more is reserved than the compressed bytes could hold; a lying count then fails on
-    // the data actually decompressed.
-    let mut body = Vec::with_capacity(expected.min(bytes.len().saturating_mul(1032)));
-    dec.take(expected as u64 + 1)
-        .read_to_end(&mut body)
-        .map_err(|e| format!("corrupt compressed data: {e}"))?;
-    if body.len() != expected {
+    // Deflate expands at most 1032:1, so a count the compressed bytes could never hold fails
+    // before anything is reserved.
+    if expected as u64 > (bytes.len() as u64).saturating_mul(1032) {
+        return Err(format!(
+            "{} splats need {expected} bytes after the header, more than the {} compressed bytes can hold",
+            h.1,
+            bytes.len()
+        ));
+    }
+    let mut body = Vec::new();
+    let got =
+        fill(&mut dec, &mut body, expected).map_err(|e| format!("corrupt compressed data: {e}"))?;
+    if got != expected {
         return Err(format!(
             "{} splats need {expected} bytes after the header, the file has {}{}",
             h.1,
-            body.len().min(expected),
-            if body.len() > expected {
-                " and more"
-            } else {
-                ""
-            }
+            got.min(expected),
+            if got > expected { " and more" } else { "" }
         ));
     }
     Ok((h, body))
+}
+
+/// Appends up to `expected` bytes of `src` to `body` and returns how many came (one more than
+/// `expected` when the stream holds more). Memory grows only as data really arrives, in
+/// pieces of at most a sixteenth of what is expected (and never by doubling), so a count that
+/// lies about a short stream reserves about what the stream holds.
+fn fill(src: &mut impl Read, body: &mut Vec<u8>, expected: usize) -> std::io::Result<usize> {
+    let start = body.len();
+    let piece = (expected / 16).clamp(1 << 16, 1 << 26);
+    let mut got = 0;
+    while got < expected {
+        let want = piece.min(expected - got);
+        body.reserve_exact(want);
+        let at = body.len();
+        body.resize(at + want, 0);
+        let n = read_full(src, &mut body[at..])?;
+        body.truncate(at + n);
+        got += n;
+        if n < want {
+            return Ok(got);
+        }
+    }
+    let mut probe = [0u8; 1];
+    let extra = read_full(src, &mut probe)?;
+    debug_assert_eq!(body.len() - start, got);
+    Ok(got + extra)
+}
+
+/// Reads until `buf` is full or the stream ends; how many bytes came.
+fn read_full(src: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut n = 0;
+    while n < buf.len() {
+        match src.read(&mut buf[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(n)
 }
 
 /// Version 4: a plain header, a table of contents and one ZSTD frame per attribute,
@@ -306,10 +348,7 @@ fn read_v4(bytes: &[u8]) -> Result<(Header, Vec<u8>), String> {
         .checked_add(16 * streams)
         .filter(|&e| toc >= HEADER_V4 && e <= bytes.len())
         .ok_or_else(|| format!("table of contents at byte {toc} lies outside the file"))?;
-    // As for gzip, the reservation is bounded by the data there is (ZSTD's run-length blocks
-    // can expand far more; the vector then grows as the data really decompresses).
-    let total: usize = sizes.iter().sum();
-    let mut body = Vec::with_capacity(total.min(bytes.len().saturating_mul(1032)));
+    let mut body = Vec::new();
     let mut at = data_start;
     for (k, &expected) in sizes.iter().enumerate().take(streams) {
         let entry = &bytes[toc + 16 * k..toc + 16 * k + 16];
@@ -328,16 +367,15 @@ fn read_v4(bytes: &[u8]) -> Result<(Header, Vec<u8>), String> {
             .ok_or_else(|| {
                 format!("stream {k} ({compressed} bytes) runs past the end of the file")
             })?;
-        let before = body.len();
-        let dec = ruzstd::decoding::StreamingDecoder::new(&bytes[at..end])
+        let mut dec = ruzstd::decoding::StreamingDecoder::new(&bytes[at..end])
             .map_err(|e| format!("stream {k} is not ZSTD data: {e}"))?;
-        dec.take(expected as u64 + 1)
-            .read_to_end(&mut body)
+        let got = fill(&mut dec, &mut body, expected)
             .map_err(|e| format!("stream {k} is corrupt: {e}"))?;
-        if body.len() - before != expected {
+        if got != expected {
             return Err(format!(
-                "stream {k} decompresses to {} bytes, not {expected}",
-                body.len() - before
+                "stream {k} decompresses to {}{} bytes, not {expected}",
+                got.min(expected),
+                if got > expected { " or more" } else { "" }
             ));
         }
         at = end;

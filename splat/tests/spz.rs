@@ -172,3 +172,98 @@ fn version_4_reads_as_its_version_3_twin() {
         assert_eq!(a, b, "SH degree {deg}");
     }
 }
+
+mod watch {
+    //! The largest single allocation each thread makes, so that a test can bound what a
+    //! hostile file reserves.
+    use std::alloc::{GlobalAlloc, Layout, System};
+    use std::cell::Cell;
+
+    thread_local! {
+        static LARGEST: Cell<usize> = const { Cell::new(0) };
+    }
+
+    pub struct Watching;
+
+    unsafe impl GlobalAlloc for Watching {
+        unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+            let _ = LARGEST.try_with(|l| l.set(l.get().max(layout.size())));
+            unsafe { System.alloc(layout) }
+        }
+
+        unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+            unsafe { System.dealloc(ptr, layout) }
+        }
+
+        unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+            let _ = LARGEST.try_with(|l| l.set(l.get().max(layout.size())));
+            unsafe { System.alloc_zeroed(layout) }
+        }
+
+        unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+            let _ = LARGEST.try_with(|l| l.set(l.get().max(new_size)));
+            unsafe { System.realloc(ptr, layout, new_size) }
+        }
+    }
+
+    /// The largest allocation on this thread since the last call, resetting it.
+    pub fn largest() -> usize {
+        LARGEST.with(|l| l.replace(0))
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: watch::Watching = watch::Watching;
+
+/// A count within the memory budget over streams that hold a sliver of it (ZSTD expands a
+/// few bytes into megabytes of zeros): refused for the data missing, having reserved about
+/// what the streams hold, not what the header claims.
+#[test]
+fn a_count_far_above_the_data_reserves_what_the_data_holds() {
+    const N: usize = 40_000_000;
+    const HELD: usize = 1 << 20;
+    let sizes = [9 * N, N, 3 * N, 3 * N, 4 * N];
+    let mut out = Vec::new();
+    out.extend(0x5053_474eu32.to_le_bytes());
+    out.extend(4u32.to_le_bytes());
+    out.extend((N as u32).to_le_bytes());
+    out.extend([0u8, 12, 0, 5]);
+    out.extend(32u32.to_le_bytes());
+    out.resize(32, 0);
+    let frame = ruzstd::encoding::compress_to_vec(
+        &vec![0u8; HELD][..],
+        ruzstd::encoding::CompressionLevel::Fastest,
+    );
+    for size in sizes {
+        out.extend((frame.len() as u64).to_le_bytes());
+        out.extend((size as u64).to_le_bytes());
+    }
+    for _ in sizes {
+        out.extend(&frame);
+    }
+    assert!(out.len() < 4 * HELD / 100, "the bomb is small");
+    watch::largest();
+    let err = parse_spz(std::path::Path::new("bomb.spz"), &out)
+        .unwrap_err()
+        .to_string();
+    let largest = watch::largest();
+    assert!(
+        err.contains("bomb.spz") && err.contains(&format!("decompresses to {HELD} bytes")),
+        "{err}"
+    );
+    // The header claims 360 MB for the first stream alone.
+    assert!(
+        largest <= 9 * N / 16 + HELD,
+        "{largest} bytes reserved at once"
+    );
+
+    // Beyond the budget (50 M splats of degree 3 are 11 GiB), nothing is decompressed.
+    let mut over = out.clone();
+    over[8..12].copy_from_slice(&50_000_000u32.to_le_bytes());
+    over[12] = 3;
+    let err = parse_spz(std::path::Path::new("bomb.spz"), &over)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("GiB a splat file may take"), "{err}");
+    assert!(watch::largest() < 1 << 20);
+}

@@ -122,14 +122,14 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
 }
 
 /// Makes (once) the aberrated copy of `scene` under `out`, simulating the PSF grid when none
-/// is given, and returns its path.
+/// is given, and returns its path with the lock that keeps `out` this experiment's alone.
 fn aberrated_capture(
     scene: &std::path::Path,
     out: &std::path::Path,
     psf: Option<&std::path::Path>,
     downsample: u32,
     seed: u64,
-) -> Result<PathBuf> {
+) -> Result<(PathBuf, base::FolderLock)> {
     let mut inputs = vec![("--scene", scene)];
     if let Some(p) = psf {
         inputs.push(("--psf", p));
@@ -149,6 +149,7 @@ fn aberrated_capture(
         aberration::PsfGrid::load_npy(p)?;
     }
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let lock = base::FolderLock::folder(out, "experiment")?;
     let psf_path = match psf {
         Some(p) => p.to_path_buf(),
         None => {
@@ -172,11 +173,11 @@ fn aberrated_capture(
             made.images, made.width, made.height, made.psf_px, made.mean_psnr
         );
     }
-    Ok(aberrated)
+    Ok((aberrated, lock))
 }
 
 fn budget(a: BudgetArgs) -> Result<()> {
-    let aberrated = a.runs.aberrated()?;
+    let (aberrated, _lock) = a.runs.aberrated()?;
     let mut rows = Vec::new();
     for &b in &a.budgets {
         let run_dir = a.runs.out.join(format!("budget_{b}"));
@@ -266,7 +267,7 @@ fn budget(a: BudgetArgs) -> Result<()> {
 
 impl ExperimentRuns {
     /// The aberrated copy of the capture the runs train on (made once under --out).
-    fn aberrated(&self) -> Result<PathBuf> {
+    fn aberrated(&self) -> Result<(PathBuf, base::FolderLock)> {
         aberrated_capture(
             &self.scene,
             &self.out,
@@ -327,7 +328,7 @@ fn near_final(log: &[metasplat::train::LogRow]) -> Option<(u64, f64, f64)> {
 }
 
 fn llff(a: LlffArgs) -> Result<()> {
-    let aberrated = a.runs.aberrated()?;
+    let (aberrated, _lock) = a.runs.aberrated()?;
     let ceiling = if a.runs.ceiling {
         let mut args = a.runs.ceiling_run(a.runs.out.join("run_clean"));
         args.training.eval_every = Some((a.runs.iters / 20).max(1));

@@ -152,7 +152,9 @@ pub fn run(cmd: PsfCommand) -> Result<()> {
 
 /// Simulates with a progress bar over the propagations.
 pub fn simulate(cfg: &SimConfig) -> Result<(PsfGrid, SimReport)> {
-    cfg.validate()?;
+    cfg.validate().context(
+        "the lens flags (--grid, --size, --fft-size, --pitch-um, --sensor-pitch-um, --aperture-um, --focal-um) do not make a simulation",
+    )?;
     let pb = progress::bar(0, "propagating");
     let out = simulate_grid(cfg, &|done, total| {
         pb.set_length(total as u64);

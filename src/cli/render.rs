@@ -51,16 +51,25 @@ pub fn run(a: RenderArgs) -> Result<()> {
     if let Some(s) = &a.scene {
         inputs.push(("--scene", s));
     }
-    metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
+    let mut inputs = metasplat::guard::Inputs::of(&inputs);
+    inputs.refuse("--out", &a.out)?;
+    let capture = match &a.scene {
+        Some(dir) => {
+            let capture = super::open_scene(dir, super::downsample_for(dir, a.downsample))?;
+            // The photos the capture names, wherever its model file says they are.
+            inputs.add_files("a photo of --scene", &capture.image_paths);
+            inputs.refuse("--out", &a.out)?;
+            Some(capture)
+        }
+        None => None,
+    };
     let (device, note) = Device::choose(a.device)?;
     let model = splat::files::read_splats(&a.ply)?;
     if model.is_empty() {
         bail!("{}: the scene has no splats", a.ply.display());
     }
-    let cameras: Vec<(String, splat::Camera)> = match &a.scene {
-        Some(dir) => {
-            let downsample = super::downsample_for(dir, a.downsample);
-            let capture = super::open_scene(dir, downsample)?;
+    let cameras: Vec<(String, splat::Camera)> = match &capture {
+        Some(capture) => {
             let cams = match a.spiral {
                 Some(n) => metasplat::spiral::spiral(&capture.cameras, &capture.bounds, n as usize),
                 None => capture.cameras.clone(),
@@ -85,9 +94,11 @@ pub fn run(a: RenderArgs) -> Result<()> {
     };
     std::fs::create_dir_all(&parent)
         .with_context(|| format!("cannot create {}", parent.display()))?;
+    // One render into --out at a time; the lock sits beside it, so that --out appears only
+    // with its frames.
+    let _lock = base::FolderLock::beside(&a.out, "render")?;
     // A killed render's staging folder is removed before this one stages its own.
-    base::remove_orphans(&parent)
-        .with_context(|| format!("cannot clear old staging folders in {}", parent.display()))?;
+    base::remove_orphans(&parent);
     let staging = tempfile::Builder::new()
         .prefix(&format!("{}frames-", base::temp_prefix()))
         .tempdir_in(&parent)

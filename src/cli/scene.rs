@@ -117,6 +117,9 @@ fn aberrate(a: SceneAberrateArgs) -> Result<()> {
         &[("--scene", &a.scene), ("--psf", &a.psf)],
     )?;
     let capture = super::open_scene(&a.scene, a.downsample)?;
+    let mut inputs = metasplat::guard::Inputs::of(&[("--scene", &a.scene), ("--psf", &a.psf)]);
+    inputs.add_files("a photo of --scene", &capture.image_paths);
+    inputs.refuse("--out", &a.out)?;
     let options = scenes::AberrateOptions {
         mode: a.imaging.mode,
         sensor_px: a.imaging.sensor_px,
@@ -128,6 +131,9 @@ fn aberrate(a: SceneAberrateArgs) -> Result<()> {
             other => anyhow::bail!("--bit-depth must be 8 or 16, not {other}"),
         },
     };
+    // The capture appears by renaming its staging folder into place; the lock beside it keeps
+    // a second maker from doing the work only to fail at the end (or to win a race).
+    let _lock = base::FolderLock::beside(&a.out, "scene aberrate")?;
     let pb = bar(capture.len() as u64, "aberrating");
     let start = Instant::now();
     let report = scenes::make_aberrated(&capture, &a.psf, &a.out, &options, &|| pb.inc(1))

@@ -15,6 +15,18 @@ use crate::psf_grid::PsfGrid;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 
+/// `x` for a message: plainly when of ordinary size, else in scientific notation.
+fn num(x: f64) -> String {
+    if x == 0.0 || (1e-3..1e7).contains(&x.abs()) {
+        format!("{}", (x * 1e4).round() / 1e4)
+    } else {
+        format!("{x:.3e}")
+    }
+}
+
+/// Most memory a simulation may hold at once, far above what the paper's grid needs.
+pub const MAX_WORKING_BYTES: u64 = 4 << 30;
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct SimConfig {
     pub lens: Lens,
@@ -97,10 +109,81 @@ impl SimConfig {
                 self.max_field_deg
             ));
         }
-        if self.wavelengths_nm.iter().any(|w| w.is_nan() || *w <= 0.0) {
+        if self
+            .wavelengths_nm
+            .iter()
+            .any(|w| !w.is_finite() || *w <= 0.0)
+        {
             return bad("wavelengths must be positive".into());
         }
+        if l.aperture_um < 2.0 * l.pitch_um || !l.focal_um.is_finite() {
+            return bad(format!(
+                "an aperture of {} um spans fewer than two {} um meta-atoms: no lens to simulate",
+                num(l.aperture_um),
+                num(l.pitch_um)
+            ));
+        }
+        // The flags are checked together, not one by one: each may be in range while their
+        // product is not (a huge sensor pitch or PSF needs a focal window wider than the
+        // propagation grid; a fine grid of big PSFs makes a file no reader accepts).
+        let reach = self.window_reach();
+        if !(reach.is_finite() && 2.0 * reach + 5.0 <= self.fft_size as f64) {
+            return bad(format!(
+                "a {} px PSF at {} um sensor pixels spans {} samples of the focal plane, more than the {}-sample propagation grid: lower the PSF size or the sensor pitch, or raise the FFT size",
+                self.psf_size,
+                num(self.sensor_pitch_um),
+                num(2.0 * reach),
+                self.fft_size
+            ));
+        }
+        let file = base::limits::checked_bytes(
+            &[
+                self.grid as u64,
+                self.grid as u64,
+                self.psf_size as u64,
+                self.psf_size as u64,
+                3,
+            ],
+            4,
+        );
+        if file.is_none_or(|b| b > base::limits::MAX_NPY_BYTES) {
+            return bad(format!(
+                "a {g}x{g} grid of {k} px PSFs is {} MiB, more than the {} a PSF file may hold",
+                file.map_or(u64::MAX, |b| b >> 20),
+                base::limits::describe_bytes(base::limits::MAX_NPY_BYTES),
+                g = self.grid,
+                k = self.psf_size
+            ));
+        }
+        let work = self.working_bytes();
+        if work > MAX_WORKING_BYTES {
+            return bad(format!(
+                "the simulation would hold {} MiB of focal-plane fields, more than {}: lower the grid, the PSF size or the FFT size",
+                work >> 20,
+                base::limits::describe_bytes(MAX_WORKING_BYTES)
+            ));
+        }
         Ok(())
+    }
+
+    /// Half-width, in propagation samples, of the focal window a rotated PSF needs (with a
+    /// bilinear margin); f64 so that absurd flags give infinity instead of a wrapped index.
+    fn window_reach(&self) -> f64 {
+        (self.psf_size as f64 / 2.0 + 1.0) * self.sensor_pitch_um * 2f64.sqrt() / self.lens.pitch_um
+            + 2.0
+    }
+
+    /// Peak memory of [`simulate_grid`]: a propagation grid (spectrum and transfer function),
+    /// its window rows, and a focal window per distinct field radius and channel.
+    fn working_bytes(&self) -> u64 {
+        let n = self.fft_size as u64;
+        let side = 2 * self.window_half() as u64 + 1;
+        let g = self.grid;
+        let radii = (0..g * g)
+            .map(|gi| self.field_point(gi / g, gi % g).key)
+            .collect::<std::collections::BTreeSet<_>>()
+            .len() as u64;
+        2 * n * n * 16 + side * n * 16 + radii * 3 * side * side * 8
     }
 
     pub fn field_point(&self, i: usize, j: usize) -> FieldPoint {
@@ -122,8 +205,8 @@ impl SimConfig {
 
     /// Half-size of the focal window that covers a rotated PSF with bilinear margin.
     fn window_half(&self) -> usize {
-        let reach = (self.psf_size as f64 / 2.0 + 1.0) * self.sensor_pitch_um * 2f64.sqrt();
-        (reach / self.lens.pitch_um).ceil() as usize + 2
+        // Bounded by the propagation grid once validated.
+        self.window_reach().ceil() as usize
     }
 }
 

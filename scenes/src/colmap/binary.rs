@@ -4,6 +4,7 @@ use std::path::Path;
 
 use glam::DVec3;
 
+use super::first_repeat;
 use super::model::{ColmapCamera, ColmapImage, ColmapPoint, Point2D, TrackElement};
 use crate::atomic;
 use crate::camera::CameraModel;
@@ -135,6 +136,12 @@ pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>> {
         });
     }
     r.end("cameras")?;
+    if let Some((id, a, b)) = first_repeat(cameras.iter().map(|c| c.id).zip(0..)) {
+        return Err(SceneError::invalid(
+            path,
+            format!("camera id {id} is used by records {a} and {b}"),
+        ));
+    }
     Ok(cameras)
 }
 
@@ -185,6 +192,18 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>> {
         });
     }
     r.end("images")?;
+    if let Some((id, a, b)) = first_repeat(images.iter().map(|im| im.id).zip(0..)) {
+        return Err(SceneError::invalid(
+            path,
+            format!("image id {id} is used by records {a} and {b}"),
+        ));
+    }
+    if let Some((name, a, b)) = first_repeat(images.iter().map(|im| im.name.as_str()).zip(0..)) {
+        return Err(SceneError::invalid(
+            path,
+            format!("image name {name:?} is used by records {a} and {b}"),
+        ));
+    }
     Ok(images)
 }
 

@@ -4,7 +4,9 @@ pub mod binary;
 mod model;
 pub mod text;
 
-use std::path::{Path, PathBuf};
+use std::collections::HashMap;
+use std::hash::Hash;
+use std::path::{Component, Path, PathBuf};
 
 pub use model::{
     ColmapCamera, ColmapImage, ColmapModel, ColmapPoint, Intrinsics, Point2D, TrackElement,
@@ -42,6 +44,35 @@ pub fn sparse_dir(scene: &Path) -> Option<PathBuf> {
     [scene.join("sparse").join("0"), scene.join("sparse")]
         .into_iter()
         .find(|d| find_file(d, "cameras").is_some() || find_file(d, "points3D").is_some())
+}
+
+/// The first key that appears twice, with where it appeared first and where again.
+pub(crate) fn first_repeat<K: Eq + Hash, P: Copy>(
+    items: impl IntoIterator<Item = (K, P)>,
+) -> Option<(K, P, P)> {
+    let mut seen = HashMap::new();
+    for (key, at) in items {
+        if let Some(&first) = seen.get(&key) {
+            return Some((key, first, at));
+        }
+        seen.insert(key, at);
+    }
+    None
+}
+
+/// Why an image name cannot name a file inside the capture's image folder: absolute, or
+/// climbing out with `..`. COLMAP names are relative to the image folder.
+fn name_leaves_folder(name: &str) -> Option<&'static str> {
+    for c in Path::new(name).components() {
+        match c {
+            Component::Normal(_) | Component::CurDir => {}
+            Component::ParentDir => return Some("climbs out of the image folder with .."),
+            Component::RootDir | Component::Prefix(_) => {
+                return Some("is an absolute path");
+            }
+        }
+    }
+    None
 }
 
 fn format_of(path: &Path) -> Result<ModelFormat> {
@@ -85,6 +116,15 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>> {
         ModelFormat::Text => text::read_images(path),
     }?;
     for im in &images {
+        if let Some(why) = name_leaves_folder(&im.name) {
+            return Err(SceneError::invalid(
+                path,
+                format!(
+                    "image {} (id {}): the name {why}; names are relative to the capture's image folder, and only files inside the capture are read",
+                    im.name, im.id
+                ),
+            ));
+        }
         let norm = im.qvec.iter().map(|q| q * q).sum::<f64>().sqrt();
         if !(norm.is_finite() && norm >= limits::MIN_QUATERNION_NORM) {
             return Err(SceneError::invalid(

@@ -9,6 +9,7 @@ use std::str::FromStr;
 
 use glam::DVec3;
 
+use super::first_repeat;
 use super::model::{ColmapCamera, ColmapImage, ColmapPoint, Point2D, TrackElement};
 use crate::atomic;
 use crate::camera::CameraModel;
@@ -37,6 +38,7 @@ fn read_lines(path: &Path) -> Result<Vec<(usize, String)>> {
 struct Fields<'a> {
     path: &'a Path,
     line: usize,
+    text: &'a str,
     tokens: Vec<&'a str>,
     next: usize,
 }
@@ -46,6 +48,7 @@ impl<'a> Fields<'a> {
         Fields {
             path,
             line,
+            text,
             tokens: text.split_whitespace().collect(),
             next: 0,
         }
@@ -75,6 +78,16 @@ impl<'a> Fields<'a> {
             .map_err(|_| self.error(format!("cannot parse {what} from {t:?}")))
     }
 
+    /// The rest of the line after the fields read so far, as written (inner spaces kept).
+    fn rest(&self) -> &'a str {
+        let mut s = self.text.trim_start();
+        for _ in 0..self.next {
+            let end = s.find(char::is_whitespace).unwrap_or(s.len());
+            s = s[end..].trim_start();
+        }
+        s
+    }
+
     fn left(&self) -> usize {
         self.tokens.len() - self.next
     }
@@ -89,6 +102,7 @@ impl<'a> Fields<'a> {
 
 pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>> {
     let mut cameras = Vec::new();
+    let mut lines = Vec::new();
     for (line, text) in read_lines(path)? {
         if text.is_empty() {
             continue;
@@ -106,6 +120,7 @@ pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>> {
             .map(|i| f.parse(&format!("parameter {i} of {name}")))
             .collect::<Result<Vec<f64>>>()?;
         f.end()?;
+        lines.push(line);
         cameras.push(ColmapCamera {
             id,
             model,
@@ -114,12 +129,20 @@ pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>> {
             params,
         });
     }
+    if let Some((id, a, b)) = first_repeat(cameras.iter().map(|c| c.id).zip(lines)) {
+        return Err(SceneError::Parse {
+            path: path.to_path_buf(),
+            line: b,
+            problem: format!("camera id {id} is used again (first on line {a})"),
+        });
+    }
     Ok(cameras)
 }
 
 pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>> {
     let lines = read_lines(path)?;
     let mut images = Vec::new();
+    let mut at = Vec::new();
     let mut i = 0;
     while i < lines.len() {
         let (line, text) = &lines[i];
@@ -135,8 +158,9 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>> {
         }
         let tvec = DVec3::new(f.parse("TX")?, f.parse("TY")?, f.parse("TZ")?);
         let camera_id = f.parse("camera id")?;
-        // COLMAP names may not contain spaces, but keep any rest of the line rather than fail.
-        let name = f.tokens[f.next..].join(" ");
+        // COLMAP names may not contain spaces, but keep the rest of the line as written (a
+        // name with two spaces names its own file) rather than fail.
+        let name = f.rest().to_string();
         if name.is_empty() {
             return Err(f.error("missing image name".into()));
         }
@@ -156,6 +180,7 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>> {
                 points2d.push(Point2D { xy, point3d_id });
             }
         }
+        at.push(*line);
         images.push(ColmapImage {
             id,
             qvec,
@@ -164,6 +189,28 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>> {
             name,
             points2d,
         });
+    }
+    let repeat = |problem: String, b: usize| SceneError::Parse {
+        path: path.to_path_buf(),
+        line: b,
+        problem,
+    };
+    if let Some((id, a, b)) = first_repeat(images.iter().map(|im| im.id).zip(at.iter().copied())) {
+        return Err(repeat(
+            format!("image id {id} is used again (first on line {a})"),
+            b,
+        ));
+    }
+    if let Some((name, a, b)) = first_repeat(
+        images
+            .iter()
+            .map(|im| im.name.as_str())
+            .zip(at.iter().copied()),
+    ) {
+        return Err(repeat(
+            format!("image name {name:?} is used again (first on line {a})"),
+            b,
+        ));
     }
     Ok(images)
 }
