@@ -22,7 +22,7 @@ pub fn positive(s: &str) -> Result<f64, String> {
     if v > 0.0 {
         Ok(v)
     } else {
-        Err(format!("{v} must be positive"))
+        Err(format!("{} must be positive", s.trim()))
     }
 }
 
@@ -32,7 +32,7 @@ pub fn non_negative(s: &str) -> Result<f64, String> {
     if v >= 0.0 {
         Ok(v)
     } else {
-        Err(format!("{v} must not be negative"))
+        Err(format!("{} must not be negative", s.trim()))
     }
 }
 
@@ -52,7 +52,7 @@ pub fn weight(s: &str) -> Result<f32, String> {
     if (0.0..=1e6).contains(&v) {
         Ok(v as f32)
     } else {
-        Err(format!("{v} must be in [0, 1e6]"))
+        Err(format!("{} must be in [0, 1e6]", s.trim()))
     }
 }
 
@@ -62,7 +62,7 @@ pub fn field_angle(s: &str) -> Result<f64, String> {
     if v > 0.0 && v <= 89.0 {
         Ok(v)
     } else {
-        Err(format!("{v} must be in (0, 89]"))
+        Err(format!("{} must be in (0, 89]", s.trim()))
     }
 }
 
@@ -78,6 +78,46 @@ pub fn sensor_px(s: &str) -> Result<usize, String> {
         Err(format!("{v} px is outside 8..=65536"))
     }
 }
+
+/// A learning rate: in (0, 1], so that it stays finite and meaningful in f32 (1e308 is finite
+/// in f64 and infinite in f32).
+pub fn learning_rate(s: &str) -> Result<f64, String> {
+    let v = float(s)?;
+    if v > 0.0 && v <= 1.0 {
+        Ok(v)
+    } else {
+        Err(format!("{} must be in (0, 1]", s.trim()))
+    }
+}
+
+/// A Wiener constant (noise-to-signal power ratio): in (0, 1000]; beyond, the filter returns
+/// nothing but the image's mean.
+pub fn wiener_k(s: &str) -> Result<f32, String> {
+    let v = float(s)?;
+    if v > 0.0 && v <= 1000.0 && (v as f32) > 0.0 {
+        Ok(v as f32)
+    } else {
+        Err(format!("{} must be in (0, 1000]", s.trim()))
+    }
+}
+
+/// A validation crop side: 0 (whole images) or at least [`MIN_CROP`] pixels.
+pub fn val_crop(s: &str) -> Result<usize, String> {
+    let v: usize = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}' is not a pixel count"))?;
+    if v == 0 || (MIN_CROP..=MAX_SIDE as usize).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{v} px: use 0 (whole images) or {MIN_CROP} to {MAX_SIDE} px"
+        ))
+    }
+}
+
+/// The smallest validation crop: a few of the network's attention windows.
+pub const MIN_CROP: usize = 16;
 
 /// Held-out view spacing: 0 (none held out) or at least 2 (1 would hold out every view).
 pub fn llffhold(s: &str) -> Result<usize, String> {

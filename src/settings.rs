@@ -203,7 +203,7 @@ pub struct TrainSettings {
     #[arg(long)]
     pub eval_every: Option<u64>,
     /// Checkpoint every N steps (default: 5 times per run).
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub checkpoint_every: Option<u64>,
     /// Start from this splat scene (.ply, .glb or .spz) instead of the capture's points.
     #[arg(long)]

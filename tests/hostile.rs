@@ -597,6 +597,15 @@ fn hostile_captures() {
             npy(&dict("(5, 17)"), &f64s(&r))
         }),
         ("far before near".into(), with(16, 0.5)),
+        // Valid numbers that cannot train: an infinite extent, depths beyond f32.
+        ("one camera at 1e15".into(), {
+            let mut r = rows.clone();
+            r[3] = 1e15;
+            npy(&dict("(5, 17)"), &f64s(&r))
+        }),
+        ("translations 1e200".into(), with(8, 1e200)),
+        ("near 1e-300".into(), with(15, 1e-300)),
+        ("far 1e300".into(), with(16, 1e300)),
         ("negative near".into(), with(15, -1.0)),
         (
             "int64".into(),
@@ -854,6 +863,17 @@ fn hostile_captures() {
             img_txt.replace(&second_name, &first_name),
         ),
         ("image id used twice", img_txt.replacen("\n2 ", "\n1 ", 1)),
+        ("camera at 1e200", {
+            // The translation's first component of the first image line.
+            let line = img_txt
+                .lines()
+                .find(|l| l.starts_with("1 "))
+                .unwrap()
+                .to_string();
+            let mut f: Vec<&str> = line.split_whitespace().collect();
+            f[5] = "1e200";
+            img_txt.replace(&line, &f.join(" "))
+        }),
     ] {
         damage(
             &mut suite,
@@ -1372,6 +1392,31 @@ fn hostile_run_files() {
 
     // Sizes and values from flags, refused before any allocation or output.
     let o = s(&d.join("flagged"));
+    // Two photo folders for `restorer train`.
+    let images = d.join("photos_train");
+    let val = d.join("photos_val");
+    for folder in [&images, &val] {
+        std::fs::create_dir_all(folder).unwrap();
+        std::fs::copy(&photo, folder.join("a.png")).unwrap();
+    }
+    let restorer_train = |extra: &[&str], images: &str, val: &str| {
+        let mut a = args(&[
+            "restorer",
+            "train",
+            "--images",
+            images,
+            "--val",
+            val,
+            "--psf",
+            &s(&psf),
+            "--out",
+            &o,
+            "--steps",
+            "1",
+        ]);
+        a.extend(extra.iter().map(|x| x.to_string()));
+        a
+    };
     let flagged = |flag: &str, value: &str| {
         args(&[
             "train",
@@ -1430,6 +1475,39 @@ fn hostile_run_files() {
         ("--max-splats", flagged("--max-splats", "0")),
         ("--llffhold", flagged("--llffhold", "1")),
         ("--downsample", flagged("--downsample", "0")),
+        ("--checkpoint-every", flagged("--checkpoint-every", "0")),
+        (
+            "--llffhold",
+            args(&["scene", "info", &s(&scene), "--llffhold", "1"]),
+        ),
+        (
+            "--downsample",
+            args(&["scene", "info", &s(&scene), "--downsample", "0"]),
+        ),
+        ("--iters", args(&["demo", "--out", &o, "--iters", "0"])),
+        (
+            "--k",
+            args(&[
+                "deconvolve",
+                "--psf",
+                &s(&psf),
+                "--in",
+                &s(&photo),
+                "--out",
+                &o,
+                "--k",
+                "3e38",
+            ]),
+        ),
+        (
+            "--lr",
+            restorer_train(&["--lr", "1e308"], &s(&images), &s(&val)),
+        ),
+        (
+            "--val-crop",
+            restorer_train(&["--val-crop", "1"], &s(&images), &s(&val)),
+        ),
+        ("--val", restorer_train(&[], &s(&images), &s(&images))),
         (
             "--sensor-px",
             args(&[

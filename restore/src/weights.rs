@@ -10,9 +10,9 @@ use crate::config::RestorerConfig;
 use crate::error::{RestoreError, Result};
 use crate::net::RestorerNet;
 use aberration::PsfGrid;
-use burn::module::Module;
+use burn::module::{Module, ModuleVisitor, Param};
 use burn::store::ModuleRecord;
-use burn::tensor::{Bytes, Device};
+use burn::tensor::{Bytes, Device, Tensor};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -80,9 +80,35 @@ fn bad(path: &Path, message: impl Into<String>) -> RestoreError {
     }
 }
 
+/// How many of the network's parameter tensors hold a NaN or an infinity: weights that can
+/// only restore garbage, whatever their checksum says.
+pub fn non_finite_tensors(net: &RestorerNet) -> usize {
+    struct Count(usize);
+    impl ModuleVisitor for Count {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            if !param.val().is_finite().all().into_scalar::<bool>() {
+                self.0 += 1;
+            }
+        }
+    }
+    let mut count = Count(0);
+    net.visit(&mut count);
+    count.0
+}
+
 /// Writes `net` with its header to `path` (temporary name, then rename); returns the
-/// [`fnv1a`] of the bytes written, the hash a training state records.
+/// [`fnv1a`] of the bytes written, the hash a training state records. Weights with a
+/// non-finite value are refused, not written.
 pub fn save(net: &RestorerNet, header: &Header, path: &Path) -> Result<String> {
+    let bad_tensors = non_finite_tensors(net);
+    if bad_tensors > 0 {
+        return Err(bad(
+            path,
+            format!(
+                "not written: {bad_tensors} weight tensors hold NaN or infinite values (training diverged; lower the learning rate)"
+            ),
+        ));
+    }
     let json = serde_json::to_vec(header).map_err(|e| bad(path, e.to_string()))?;
     let record = net
         .clone()
@@ -218,5 +244,12 @@ fn build(
                 format!("weights do not fit config '{}': {e}", header.config.name),
             )
         })?;
+    let bad_tensors = non_finite_tensors(&net);
+    if bad_tensors > 0 {
+        return Err(bad(
+            path,
+            format!("{bad_tensors} weight tensors hold NaN or infinite values"),
+        ));
+    }
     Ok((net, header))
 }

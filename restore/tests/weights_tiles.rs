@@ -137,6 +137,58 @@ fn a_flipped_byte_or_appended_bytes_are_refused_and_version_1_still_loads() {
     assert_eq!(h.config.name, "tiny");
 }
 
+/// `net` with one weight tensor multiplied by `value` (NaN or infinity).
+fn poisoned(net: RestorerNet, value: f32) -> RestorerNet {
+    use burn::module::{Module, ModuleMapper, Param};
+    struct Poison(usize, f32);
+    impl ModuleMapper for Poison {
+        fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+            self.0 += 1;
+            if self.0 == 3 {
+                let v = self.1;
+                param.map(|t| t.mul_scalar(v))
+            } else {
+                param
+            }
+        }
+    }
+    net.map(&mut Poison(0, value))
+}
+
+#[test]
+fn weights_with_a_non_finite_value_are_neither_written_nor_loaded() {
+    use burn::module::Module;
+    let device = Device::flex();
+    let cfg = RestorerConfig::tiny();
+    let dir = tempfile::tempdir().unwrap();
+    for value in [f32::NAN, f32::INFINITY] {
+        let net = poisoned(RestorerNet::new(&cfg, &device), value);
+        assert_eq!(weights::non_finite_tensors(&net), 1, "{value}");
+        let path = dir.path().join("w.bin");
+        let e = weights::save(&net, &header(&cfg, &psf_a()), &path)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("w.bin") && e.contains("not written"), "{e}");
+        assert!(!path.exists(), "a refused save left a file");
+        // The same weights as a version 1 file (no checksum to refuse them on): refused at
+        // load for what they hold.
+        let json = serde_json::to_vec(&header(&cfg, &psf_a())).unwrap();
+        let record = net.clone().into_record().into_bytes().unwrap();
+        let mut v1 = b"METASPLAT-RESTORER 1\n".to_vec();
+        v1.extend_from_slice(&(json.len() as u64).to_le_bytes());
+        v1.extend_from_slice(&json);
+        v1.extend_from_slice(&record);
+        let e = weights::load_bytes(&v1, &path, &device, Some(&cfg), None)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("NaN or infinite"), "{e}");
+    }
+    // The network unpoisoned loads from the same construction.
+    let net = RestorerNet::new(&cfg, &device);
+    assert_eq!(weights::non_finite_tensors(&net), 0);
+}
+
 /// A local stand-in for the network: 3×3 zero-padded box filter of the first three planes.
 fn box3(x: &Planes) -> Planes {
     let (h, w) = (x.h, x.w);

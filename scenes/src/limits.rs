@@ -10,7 +10,8 @@
 //! | principal point | finite, within one image size of the image |
 //! | distortion | finite, `|k1|, |k2|` ≤ [`MAX_RADIAL_DISTORTION`], `|p1|, |p2|` ≤ [`MAX_TANGENTIAL_DISTORTION`] |
 //! | pose | finite; a COLMAP quaternion of norm at least [`MIN_QUATERNION_NORM`] |
-//! | points (`points3D`) | finite, every coordinate within [`MAX_COORDINATE`] |
+//! | points (`points3D`) and camera positions | finite, every coordinate within [`MAX_COORDINATE`] |
+//! | near/far bounds | `MIN_DEPTH ≤ near < far ≤ MAX_COORDINATE` |
 //! | images against the model | at most [`MAX_DOWNSAMPLE`] times smaller than the poses or cameras say, same aspect within a pixel |
 
 use crate::camera::Distortion;
@@ -29,6 +30,9 @@ pub const MAX_TANGENTIAL_DISTORTION: f64 = 1.0;
 pub const MIN_QUATERNION_NORM: f64 = 1e-6;
 /// Largest magnitude of a point coordinate (squared, it must stay far from overflow).
 pub const MAX_COORDINATE: f64 = 1e8;
+/// Smallest near bound: depths below it make the splat thresholds and the projection
+/// meaningless (and their reciprocals overflow on the way).
+pub const MIN_DEPTH: f64 = 1e-8;
 /// Most times smaller the loaded images may be than the size the poses or cameras record
 /// (LLFF's `images_8` is 8).
 pub const MAX_DOWNSAMPLE: f64 = 64.0;
@@ -123,6 +127,19 @@ pub fn check_point(xyz: [f64; 3]) -> Result<(), String> {
             show(xyz[0]),
             show(xyz[1]),
             show(xyz[2])
+        ))
+    }
+}
+
+/// Checks near/far bounds against [`MIN_DEPTH`] and [`MAX_COORDINATE`].
+pub fn check_bounds(near: f64, far: f64) -> Result<(), String> {
+    if near >= MIN_DEPTH && far > near && far <= MAX_COORDINATE {
+        Ok(())
+    } else {
+        Err(format!(
+            "bounds near {} far {}; they must satisfy {MIN_DEPTH:e} <= near < far <= {MAX_COORDINATE:e}",
+            show(near),
+            show(far)
         ))
     }
 }

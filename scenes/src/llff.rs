@@ -211,12 +211,8 @@ fn validate(pose: &LlffPose) -> std::result::Result<(), String> {
     crate::limits::check_size(pose.width, pose.height)?;
     let (w, h) = (pose.width, pose.height);
     crate::limits::check_intrinsics(w, h, pose.focal, pose.focal, w / 2.0, h / 2.0)?;
-    if !(pose.bounds.near > 0.0 && pose.bounds.far > pose.bounds.near) {
-        return Err(format!(
-            "bounds near {} far {} must satisfy 0 < near < far",
-            pose.bounds.near, pose.bounds.far
-        ));
-    }
+    crate::limits::check_bounds(pose.bounds.near, pose.bounds.far)?;
+    crate::limits::check_point(pose.center.to_array()).map_err(|p| format!("camera {p}"))?;
     Ok(())
 }
 

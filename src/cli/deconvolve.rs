@@ -18,7 +18,7 @@ pub struct DeconvolveArgs {
     pub out: PathBuf,
     /// A single fixed Wiener constant (default: the bank's largest, which improves typical
     /// photos at the paper's noise; the bank's median often makes them worse).
-    #[arg(long, value_parser = metasplat::flags::positive_f32, allow_negative_numbers = true)]
+    #[arg(long, value_parser = metasplat::flags::wiener_k, allow_negative_numbers = true)]
     pub k: Option<f32>,
     /// Also write all 13 adaptive filters of the MAFG bank into this directory.
     #[arg(long)]

@@ -40,14 +40,14 @@ pub struct TrainRestorerArgs {
     pub steps: u64,
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=1024))]
     pub batch: u64,
-    #[arg(long, default_value_t = 3e-4, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 3e-4, value_parser = metasplat::flags::learning_rate, allow_negative_numbers = true)]
     pub lr: f64,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     #[arg(long, default_value_t = 250)]
     pub val_every: usize,
     /// Validate on centred crops of this side during training (whole images: 0).
-    #[arg(long, default_value_t = 128)]
+    #[arg(long, default_value_t = 128, value_parser = metasplat::flags::val_crop)]
     pub val_crop: usize,
     /// Start from these weights (same config and PSF grid) with a new optimizer and schedule.
     #[arg(long, conflicts_with = "resume")]
@@ -224,6 +224,16 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         inputs.push(("--init", i));
     }
     metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
+    // Validation on the training photos would measure memory, not restoration.
+    if let (Ok(i), Ok(v)) = (a.images.canonicalize(), a.val.canonicalize())
+        && (i.starts_with(&v) || v.starts_with(&i))
+    {
+        anyhow::bail!(
+            "--val {} and --images {} hold the same photos: validate on photos the network does not train on",
+            a.val.display(),
+            a.images.display()
+        );
+    }
     let device = a.backend.device()?;
     let cfg = config_from(&a)?;
     let native =

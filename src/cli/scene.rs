@@ -47,7 +47,7 @@ pub struct SceneAberrateArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Read images_N of the source.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
     #[command(flatten)]
     pub imaging: super::aberrate::ImagingArgs,
@@ -61,10 +61,10 @@ pub struct InfoArgs {
     /// Capture directory (LLFF or COLMAP).
     pub dir: PathBuf,
     /// Use images_N.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
-    /// Every N-th image is held out for testing.
-    #[arg(long, default_value_t = 8)]
+    /// Every N-th image is held out for testing (0: none).
+    #[arg(long, default_value_t = 8, value_parser = metasplat::flags::llffhold)]
     pub llffhold: usize,
 }
 

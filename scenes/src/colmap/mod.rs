@@ -143,6 +143,9 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>> {
                 format!("image {}: translation {} is not finite", im.name, im.tvec),
             ));
         }
+        // The camera centre is the rotated translation: as far from the origin.
+        limits::check_point(im.tvec.to_array())
+            .map_err(|p| SceneError::invalid(path, format!("image {}: camera {p}", im.name)))?;
     }
     Ok(images)
 }
