@@ -520,6 +520,8 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
     small_psf(&psf);
     let imgs = d.join("photos");
     photos(&imgs, 3, 96, 80);
+    let val = d.join("photos_val");
+    photos(&val, 2, 96, 80);
     let weights = d.join("w.bin");
     let train_args = [
         "restorer",
@@ -527,7 +529,7 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
         "--images",
         s(&imgs),
         "--val",
-        s(&imgs),
+        s(&val),
         "--psf",
         s(&psf),
         "--config",
