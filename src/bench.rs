@@ -85,6 +85,9 @@ pub fn time_steps(
     // The loop runs on the pool's thread, so the layer is that thread's default there.
     let outcome = pool.install(|| {
         tracing::subscriber::with_default(subscriber, || {
+            // A span first met on a thread without a subscriber (another run in this
+            // process) may have been cached as never enabled: ask every span again.
+            tracing::callsite::rebuild_interest_cache();
             crate::train::train(config, data, device, None, false, &mut |_| {})
         })
     })?;

@@ -79,6 +79,19 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
             ),
         ));
     }
+    // A resume with other settings (or on another capture) is refused before config.json is
+    // replaced. The lock below is not held yet, so the checkpoint is read again by the run.
+    let ckpt = out.join(CHECKPOINT_FILE);
+    if request.resume {
+        let saved = crate::train::checkpoint::load_config(&ckpt)?;
+        let diff = crate::train::config_differences(&config, &saved);
+        if !diff.is_empty() {
+            return Err(TrainError::file(
+                &ckpt,
+                format!("cannot resume with other settings: {}", diff.join("; ")),
+            ));
+        }
+    }
     let lock = outputs::prepare_run_dir(out, "train")
         .map_err(|e| e.context(format!("cannot use {} as the run folder", out.display())))?;
     if request.overwrite {

@@ -906,6 +906,57 @@ fn hostile_captures() {
     ] {
         suite.case("alias", &c, &["--out", "points3D.txt"]);
     }
+    // Two images of one stem (a.png, a.jpg): their renders would share a name.
+    let first = format!("{}.png", capture.cameras[0].name);
+    let last = format!("{}.png", capture.cameras[4].name);
+    let jpg = format!("{}.jpg", capture.cameras[0].name);
+    let decoded = image::open(llff.join("images").join(&first)).unwrap();
+    for scene in [&llff, &colmap_txt] {
+        copy_dir(scene, &work);
+        decoded.save(work.join("images").join(&jpg)).unwrap();
+        if scene == &llff {
+            // Five photos for the five poses.
+            std::fs::remove_file(work.join("images").join(&last)).unwrap();
+        } else {
+            let text = std::fs::read_to_string(work.join("sparse/0/images.txt")).unwrap();
+            std::fs::write(
+                work.join("sparse/0/images.txt"),
+                text.replace(&format!(" {last}"), &format!(" {jpg}")),
+            )
+            .unwrap();
+        }
+        for c in commands(&work) {
+            suite.case("two images of one stem", &c, &[&jpg]);
+        }
+        std::fs::remove_dir_all(&work).unwrap();
+    }
+    // A list naming one run twice.
+    for (flag, extra) in [
+        ("--modes", ["--modes", "plain,plain"]),
+        ("--budgets", ["--budgets", "100,100"]),
+    ] {
+        let sub = if flag == "--modes" { "llff" } else { "budget" };
+        suite.case(
+            "a run named twice",
+            &args(&[
+                "experiment",
+                sub,
+                "--scene",
+                &s(&llff),
+                "--out",
+                &s(&out),
+                "--iters",
+                "3",
+                "--downsample",
+                "1",
+                "--device",
+                "cpu",
+                extra[0],
+                extra[1],
+            ]),
+            &[flag],
+        );
+    }
     suite.finish("capture");
 }
 
@@ -1167,6 +1218,18 @@ fn hostile_run_files() {
         suite.case(label, &train(&copy, &["--resume"]), &["checkpoint.bin"]);
         std::fs::remove_dir_all(&copy).unwrap();
     }
+    // The run resumed on another capture with the same flags: one camera moved.
+    let other = d.join("other_scene");
+    copy_dir(&scene, &other);
+    let poses_path = other.join("poses_bounds.npy");
+    let mut poses = scenes::llff::read_poses_bounds(&poses_path).unwrap();
+    poses[0].center.x += 0.05;
+    scenes::llff::write_poses_bounds(&poses_path, &poses).unwrap();
+    let mut resume_other = train(&run, &["--resume"]);
+    let at = resume_other.iter().position(|a| a == "--scene").unwrap();
+    resume_other[at + 1] = s(&other);
+    suite.case("resume on another capture", &resume_other, &["capture"]);
+    std::fs::remove_dir_all(&other).unwrap();
 
     // Restorer weights: version 2 made from the shipped version 1 file.
     let shipped_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("restore/weights/tiny.bin");

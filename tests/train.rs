@@ -659,31 +659,3 @@ fn sh_bands_are_judged_on_the_loss_training_minimises() {
         "{gain:e} vs {right:e}"
     );
 }
-
-/// `bench step` times the training loop's own step: its spans are all there and add up to
-/// no more than the step the loop counted.
-#[test]
-fn the_step_benchmark_times_the_training_step() {
-    let data = data::load(&fixture().aberrated, Mode::Aware, &options()).unwrap();
-    let cfg = config(Mode::Aware, 3, &data);
-    let t = metasplat::bench::time_steps(&data, &cfg, &Device::Cpu, 1).unwrap();
-    let names: Vec<&str> = t.phases.iter().map(|p| p.0).collect();
-    for want in [
-        "render forward",
-        "PSF blur",
-        "loss",
-        "blur adjoint",
-        "render backward",
-        "Adam",
-        "densification statistics",
-    ] {
-        assert!(names.contains(&want), "no span '{want}' in {names:?}");
-    }
-    let named: f64 = t.phases.iter().map(|p| p.1).sum();
-    assert!(t.phases.iter().all(|p| p.1 > 0.0), "{:?}", t.phases);
-    assert!(
-        named <= t.step * 1.001,
-        "{named} ms of spans in a {} ms step",
-        t.step
-    );
-}

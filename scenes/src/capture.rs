@@ -289,6 +289,7 @@ fn open_llff(root: &Path, options: &OpenOptions) -> Result<Capture> {
             images: image_paths.len(),
         });
     }
+    check_stems(&image_paths)?;
     let (width, height) = images::common_size(&image_paths)?;
     let mut cameras = Vec::with_capacity(poses.len());
     for (row, (pose, path)) in poses.iter().zip(&image_paths).enumerate() {
@@ -348,6 +349,22 @@ fn open_llff(root: &Path, options: &OpenOptions) -> Result<Capture> {
         point_source,
         distortion_source,
     })
+}
+
+/// Renders, clean copies and caches are named by each image's stem, so two images may not
+/// share one (`a.png` and `a.jpg`): refused naming both before anything is written.
+fn check_stems(image_paths: &[PathBuf]) -> Result<()> {
+    let stems = image_paths.iter().map(|p| stem(p)).zip(image_paths);
+    if let Some((name, first, second)) = crate::colmap::first_repeat(stems) {
+        return Err(SceneError::invalid(
+            second,
+            format!(
+                "has the name {name:?} of {} too: the outputs of both would have one name; rename one",
+                first.display()
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// `points3D` from the sparse folder when present (already-read points passed in are used
@@ -476,6 +493,7 @@ fn open_colmap(root: &Path, sparse: &Path, options: &OpenOptions) -> Result<Capt
         cameras.push(camera);
         image_paths.push(path);
     }
+    check_stems(&image_paths)?;
     let downsample = entries
         .first()
         .and_then(|im| model.cameras.iter().find(|c| c.id == im.camera_id))

@@ -176,7 +176,20 @@ fn aberrated_capture(
     Ok((aberrated, lock))
 }
 
+/// Refuses a list flag that names one value twice: both would train into one run folder.
+fn refuse_repeats<T: PartialEq + std::fmt::Display>(flag: &str, values: &[T]) -> Result<()> {
+    for (i, v) in values.iter().enumerate() {
+        if values[..i].contains(v) {
+            anyhow::bail!(
+                "{flag} names {v} twice: each value trains one run into its own folder, so name it once"
+            );
+        }
+    }
+    Ok(())
+}
+
 fn budget(a: BudgetArgs) -> Result<()> {
+    refuse_repeats("--budgets", &a.budgets)?;
     let (aberrated, _lock) = a.runs.aberrated()?;
     let mut rows = Vec::new();
     for &b in &a.budgets {
@@ -328,6 +341,7 @@ fn near_final(log: &[metasplat::train::LogRow]) -> Option<(u64, f64, f64)> {
 }
 
 fn llff(a: LlffArgs) -> Result<()> {
+    refuse_repeats("--modes", &a.modes)?;
     let (aberrated, _lock) = a.runs.aberrated()?;
     let ceiling = if a.runs.ceiling {
         let mut args = a.runs.ceiling_run(a.runs.out.join("run_clean"));

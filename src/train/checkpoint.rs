@@ -180,8 +180,17 @@ impl Reader<'_> {
     }
 }
 
-pub fn load(path: &Path) -> Result<State> {
+/// The run config a checkpoint was saved with, read (with the file's integrity checked)
+/// without decoding the model: enough to refuse a resume with other settings before anything
+/// is written.
+pub fn load_config(path: &Path) -> Result<TrainConfig> {
     let file = std::fs::read(path).map_err(|e| TrainError::io(path, e))?;
+    let (h, _) = header(path, &file)?;
+    Ok(h.config)
+}
+
+/// The checked body of a checkpoint file: its header and a reader placed after it.
+fn header<'a>(path: &'a Path, file: &'a [u8]) -> Result<(Header, Reader<'a>)> {
     let magic = file.get(..MAGIC.len());
     let bytes = if magic == Some(MAGIC) {
         let Some(body_len) = file.len().checked_sub(8) else {
@@ -200,7 +209,7 @@ pub fn load(path: &Path) -> Result<State> {
         }
         body
     } else if magic == Some(MAGIC_V1) {
-        &file[..]
+        file
     } else {
         return Err(TrainError::file(path, "not a metasplat checkpoint"));
     };
@@ -210,6 +219,12 @@ pub fn load(path: &Path) -> Result<State> {
     let json = r.take(len as usize, "the header")?;
     let h: Header = serde_json::from_slice(json)
         .map_err(|e| TrainError::file(path, format!("bad header: {e}")))?;
+    Ok((h, r))
+}
+
+pub fn load(path: &Path) -> Result<State> {
+    let file = std::fs::read(path).map_err(|e| TrainError::io(path, e))?;
+    let (h, mut r) = header(path, &file)?;
     if h.sh_degree > splat::MAX_SH_DEGREE {
         return Err(TrainError::file(
             path,
@@ -228,7 +243,7 @@ pub fn load(path: &Path) -> Result<State> {
         .collect();
     let max_radius = r.f32s(n, "densification statistics")?;
     let seen = r.take(n, "visibility")?.iter().map(|&b| b != 0).collect();
-    if r.at != bytes.len() {
+    if r.at != r.bytes.len() {
         return Err(TrainError::file(
             path,
             "trailing bytes after the checkpoint",

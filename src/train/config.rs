@@ -178,6 +178,55 @@ pub struct TrainConfig {
     /// With a fade, λ holds its value until this step and falls from there.
     #[serde(default)]
     pub lambda_hold_until: u64,
+    /// What the run trains on ([`capture_fingerprint`]), so that `--resume` on another
+    /// capture is refused; None in checkpoints older than the field.
+    #[serde(default)]
+    pub capture: Option<String>,
+}
+
+/// The capture a run trains on, in a sentence ending in a hash of its cameras (names, sizes,
+/// intrinsics, poses), its split and its PSF grid: equal for the same capture, different
+/// as soon as any of them differs.
+pub fn capture_fingerprint(data: &Dataset) -> String {
+    let c = &data.capture;
+    let mut bytes = Vec::new();
+    for camera in &c.cameras {
+        bytes.extend((camera.name.len() as u64).to_le_bytes());
+        bytes.extend(camera.name.as_bytes());
+        bytes.extend(camera.width.to_le_bytes());
+        bytes.extend(camera.height.to_le_bytes());
+        let pose = camera.world_to_camera.to_mat4().to_cols_array();
+        for v in [camera.fx, camera.fy, camera.cx, camera.cy]
+            .iter()
+            .chain(&pose)
+        {
+            bytes.extend(v.to_le_bytes());
+        }
+    }
+    for i in c.split.train.iter().chain(&c.split.test) {
+        bytes.extend((*i as u64).to_le_bytes());
+    }
+    if let Some(model) = &data.imaging {
+        let psf = model.psf();
+        bytes.extend(
+            [psf.grid() as u64, psf.size() as u64]
+                .map(u64::to_le_bytes)
+                .concat(),
+        );
+        bytes.extend(psf.planar().iter().flat_map(|v| v.to_le_bytes()));
+    }
+    format!(
+        "{} views of {}x{}{}, fingerprint {:016x}",
+        c.len(),
+        data.width,
+        data.height,
+        if data.imaging.is_some() {
+            " with a PSF grid"
+        } else {
+            ""
+        },
+        base::hash::fnv1a64(&bytes)
+    )
 }
 
 /// With the Wiener stand-in as `I_ac`, λ holds for this many steps before it fades (to zero by
@@ -326,6 +375,7 @@ impl TrainConfig {
                 LambdaFade::Range(a, _) => a,
                 _ => 0,
             },
+            capture: Some(capture_fingerprint(data)),
             recipe,
         }
     }

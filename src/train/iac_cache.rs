@@ -5,15 +5,16 @@
 //!
 //! An entry is named by a hash of everything that decides its pixels: the restorer's identity
 //! (its config and the hash of its weights, or the Wiener stand-in), the PSF grid it was given,
-//! the image size and the observed pixels, and [`CACHE_VERSION`]. Entries end with a checksum;
-//! one that does not check out is ignored and recomputed.
+//! the image size and the observed pixels, and [`CACHE_VERSION`]. An entry also holds its own
+//! key (an entry copied or renamed onto another view's name belongs to that other view) and
+//! ends with a checksum; one that does not check out is ignored and recomputed.
 
 use std::path::Path;
 
 use aberration::PsfGrid;
 use glam::Vec3;
 
-const MAGIC: &[u8; 16] = b"METASPLAT-IAC 1\n";
+const MAGIC: &[u8; 16] = b"METASPLAT-IAC 2\n";
 /// Part of every key: bump it when restoring changes what it computes for the same inputs.
 pub const CACHE_VERSION: u32 = 1;
 /// The folder a run keeps its cache in.
@@ -66,14 +67,15 @@ fn path(dir: &Path, key: u64) -> std::path::PathBuf {
 /// The cached image for `key`, when there is a whole one of `pixels` pixels.
 pub fn get(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
     let bytes = std::fs::read(path(dir, key)).ok()?;
-    let payload = bytes.len().checked_sub(MAGIC.len() + 8)?;
+    let payload = bytes.len().checked_sub(MAGIC.len() + 16)?;
     if !bytes.starts_with(MAGIC) || payload != 12 * pixels {
         return None;
     }
-    let (body, sum) = bytes[MAGIC.len()..].split_at(payload);
-    if base::hash::fnv1a64(body).to_le_bytes() != sum {
+    let (keyed, sum) = bytes[MAGIC.len()..].split_at(8 + payload);
+    if base::hash::fnv1a64(keyed).to_le_bytes() != sum || keyed[..8] != key.to_le_bytes() {
         return None;
     }
+    let body = &keyed[8..];
     let floats: Vec<f32> = body
         .chunks_exact(4)
         .map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes")))
@@ -92,10 +94,13 @@ pub fn put(dir: &Path, key: u64, image: &[Vec3]) -> std::io::Result<()> {
         .flat_map(|p| p.to_array())
         .flat_map(f32::to_le_bytes)
         .collect();
-    let mut bytes = Vec::with_capacity(MAGIC.len() + body.len() + 8);
+    let mut keyed = Vec::with_capacity(8 + body.len());
+    keyed.extend(key.to_le_bytes());
+    keyed.extend(&body);
+    let mut bytes = Vec::with_capacity(MAGIC.len() + keyed.len() + 8);
     bytes.extend(MAGIC);
-    bytes.extend(&body);
-    bytes.extend(base::hash::fnv1a64(&body).to_le_bytes());
+    bytes.extend(&keyed);
+    bytes.extend(base::hash::fnv1a64(&keyed).to_le_bytes());
     base::atomic::write_bytes_atomically(&path(dir, key), &bytes)
 }
 
@@ -132,5 +137,11 @@ mod tests {
         assert!(get(dir.path(), k, 12).is_none());
         std::fs::write(&p, &good[..good.len() - 1]).unwrap();
         assert!(get(dir.path(), k, 12).is_none());
+        // Another view's entry under this view's name (swapped or copied files) is a miss.
+        std::fs::write(&p, &good).unwrap();
+        let k2 = key("net a", &psf, 4, 3, &other);
+        std::fs::copy(&p, path(dir.path(), k2)).unwrap();
+        assert!(get(dir.path(), k2, 12).is_none());
+        assert_eq!(get(dir.path(), k, 12).unwrap(), image);
     }
 }

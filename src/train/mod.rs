@@ -101,13 +101,15 @@ pub fn view_index(seed: u64, step: u64, n: usize) -> usize {
 }
 
 /// Names the settings that differ between two configs (for `--resume`).
-fn config_differences(a: &TrainConfig, b: &TrainConfig) -> Vec<String> {
+pub fn config_differences(a: &TrainConfig, b: &TrainConfig) -> Vec<String> {
     let (a, b) = (serde_json::to_value(a), serde_json::to_value(b));
     let (Ok(serde_json::Value::Object(a)), Ok(serde_json::Value::Object(b))) = (a, b) else {
         return vec!["config".into()];
     };
     a.iter()
         .filter(|(k, v)| b.get(*k) != Some(*v))
+        // A checkpoint from before the capture was recorded cannot tell.
+        .filter(|(k, _)| !(*k == "capture" && b.get(*k).is_none_or(|c| c.is_null())))
         .map(|(k, v)| {
             format!(
                 "{k} (checkpoint {}, now {v})",
