@@ -26,6 +26,9 @@ pub enum TrainError {
     File { path: PathBuf, problem: String },
     #[error("{0}")]
     Invalid(String),
+    /// Stopped on request (Ctrl-C, SIGTERM) at a safe point; says what was kept.
+    #[error("interrupted: {0}")]
+    Interrupted(String),
     #[error(transparent)]
     Plot(#[from] crate::plot::PlotError),
     /// What was being done when `source` went wrong.

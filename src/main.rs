@@ -10,8 +10,30 @@ use clap::Parser;
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+/// The exit status after an interruption, as shells report a process ended by SIGINT.
+const INTERRUPTED: u8 = 130;
+
+/// Ctrl-C and SIGTERM ask long work to stop at its next safe point
+/// ([`base::interrupt`]); a second one ends the process at once.
+fn handle_signals() {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let flag = base::interrupt::flag();
+    for signal in [SIGINT, SIGTERM] {
+        // Registered first, so it sees the flag as the earlier signal left it.
+        let _ = signal_hook::flag::register_conditional_shutdown(
+            signal,
+            INTERRUPTED as i32,
+            flag.clone(),
+        );
+        let _ = signal_hook::flag::register(signal, flag.clone());
+    }
+}
+
 fn main() -> std::process::ExitCode {
     let args = cli::Cli::parse();
+    if args.stops_when_asked() {
+        handle_signals();
+    }
     match cli::run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
@@ -29,7 +51,11 @@ fn main() -> std::process::ExitCode {
                 message.push_str(&text);
             }
             eprintln!("error: {message}");
-            std::process::ExitCode::FAILURE
+            if base::interrupt::requested() {
+                std::process::ExitCode::from(INTERRUPTED)
+            } else {
+                std::process::ExitCode::FAILURE
+            }
         }
     }
 }

@@ -253,6 +253,13 @@ pub fn render_named(
     let mut written = Vec::with_capacity(cameras.len());
     // A few frames at a time: rendered together, then encoded in parallel.
     for chunk in cameras.chunks(8) {
+        if base::interrupt::requested() {
+            return Err(TrainError::Interrupted(format!(
+                "rendering stopped after {} of {} frames; none was kept",
+                written.len(),
+                cameras.len()
+            )));
+        }
         let cams: Vec<splat::Camera> = chunk.iter().map(|(_, c)| c.clone()).collect();
         let frames = device.render_views(model, &cams, settings)?;
         let paths = chunk

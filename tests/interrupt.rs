@@ -292,3 +292,157 @@ fn a_killed_renders_staging_folder_is_removed_by_the_next_render() {
     assert!(live.exists());
     assert!(d.join("frames/orbit001.png").exists());
 }
+
+/// Sends SIGINT (Ctrl-C) to `pid`.
+fn ctrl_c(pid: u32) {
+    let status = std::process::Command::new("kill")
+        .args(["-INT", &pid.to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success(), "kill -INT failed");
+}
+
+/// Starts `args`, waits until `ready` holds, presses Ctrl-C, and returns the exit status and
+/// stderr; None when the command finished before it was ready (too fast to interrupt).
+fn interrupt_when(args: &[String], ready: &dyn Fn() -> bool) -> Option<(Option<i32>, String)> {
+    let mut child = metasplat()
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while !ready() {
+        if child.try_wait().unwrap().is_some() {
+            return None;
+        }
+        assert!(start.elapsed() < Duration::from_secs(300), "never ready");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    ctrl_c(child.id());
+    let out = child.wait_with_output().unwrap();
+    Some((
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr).into(),
+    ))
+}
+
+/// Our staging entries directly inside `dir`.
+fn staging_in(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(base::atomic::TEMP_PREFIX) || n.ends_with(".lock"))
+        .collect()
+}
+
+#[test]
+fn ctrl_c_stops_training_with_a_checkpoint_of_that_step_and_resume_gives_the_same_result() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("scene");
+    procedural(&scene, 32, 24, 5);
+    // No periodic checkpoint before the end: the one after Ctrl-C is the interruption's own.
+    let args = |run: &Path, extra: &[&str]| {
+        let mut a = train_args(&scene, run, extra);
+        for (flag, value) in [("--iters", "1500"), ("--checkpoint-every", "100000")] {
+            let at = a.iter().position(|x| x == flag).unwrap();
+            a[at + 1] = value.into();
+        }
+        a
+    };
+    let reference = d.join("reference");
+    run_ok(&args(&reference, &[]));
+    let run = d.join("run");
+    // Ready once it trains: the log of its steps is not written yet, the config is.
+    let config = run.join("config.json");
+    let Some((code, err)) = interrupt_when(&args(&run, &[]), &|| config.exists()) else {
+        panic!("the run finished before it could be interrupted");
+    };
+    assert_eq!(code, Some(130), "{err}");
+    assert!(
+        err.contains("interrupted") && err.contains("--resume"),
+        "{err}"
+    );
+    let step = checkpoint_step(&run).expect("no checkpoint after Ctrl-C");
+    assert!(step < 1500, "stopped at {step}");
+    assert!(err.contains(&format!("step {step}")), "{err}");
+    assert_only_complete_files(&run, "after Ctrl-C");
+    assert!(staging_in(&run).is_empty(), "{:?}", staging_in(&run));
+    run_ok(&args(&run, &["--resume"]));
+    assert_eq!(
+        results(&run),
+        results(&reference),
+        "resumed from step {step}"
+    );
+}
+
+#[test]
+fn ctrl_c_during_a_render_or_an_aberration_leaves_nothing_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("scene");
+    procedural(&scene, 160, 120, 40);
+    let run = d.join("run");
+    let mut train = train_args(&scene, &run, &[]);
+    let at = train.iter().position(|x| x == "--iters").unwrap();
+    train[at + 1] = "20".into();
+    run_ok(&train);
+    let out = d.join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    let frames = out.join("frames");
+    let render = [
+        "render",
+        "--ply",
+        &s(&run.join("point_cloud.ply")),
+        "--out",
+        &s(&frames),
+        "--orbit",
+        "5000",
+        "--width",
+        "320",
+        "--height",
+        "240",
+        "--device",
+        "cpu",
+    ]
+    .map(String::from);
+    let staged = || !staging_in(&out).is_empty();
+    let (code, err) = interrupt_when(&render, &staged).expect("the render was too fast");
+    assert_eq!(code, Some(130), "{err}");
+    assert!(err.contains("interrupted"), "{err}");
+    assert!(!frames.exists(), "frames were kept");
+    assert!(staging_in(&out).is_empty(), "{:?}", staging_in(&out));
+
+    let psf = d.join("psf.npy");
+    run_ok(&[
+        "psf",
+        "simulate",
+        "--out",
+        &s(&psf),
+        "--size",
+        "41",
+        "--grid",
+        "3",
+    ]);
+    let abr = out.join("abr");
+    let aberrate = [
+        "scene",
+        "aberrate",
+        "--scene",
+        &s(&scene),
+        "--psf",
+        &s(&psf),
+        "--out",
+        &s(&abr),
+        "--downsample",
+        "1",
+    ]
+    .map(String::from);
+    let (code, err) = interrupt_when(&aberrate, &staged).expect("the aberration was too fast");
+    assert_eq!(code, Some(130), "{err}");
+    assert!(err.contains("interrupted"), "{err}");
+    assert!(!abr.exists(), "a partial capture was kept");
+    assert!(staging_in(&out).is_empty(), "{:?}", staging_in(&out));
+}

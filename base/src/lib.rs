@@ -5,6 +5,7 @@
 pub mod atomic;
 pub mod error;
 pub mod hash;
+pub mod interrupt;
 pub mod isa;
 pub mod limits;
 pub mod lock;

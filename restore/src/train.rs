@@ -302,7 +302,9 @@ pub fn train(
             loss: l,
             lr,
         });
-        let stop = opts.stop_after_steps.is_some_and(|n| step + 1 - first >= n)
+        // A Ctrl-C stops as a time budget does: weights and state saved, resumable.
+        let stop = base::interrupt::requested()
+            || opts.stop_after_steps.is_some_and(|n| step + 1 - first >= n)
             || opts
                 .stop_after_seconds
                 .is_some_and(|t| invocation.elapsed().as_secs_f64() >= t);

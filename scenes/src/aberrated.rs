@@ -248,6 +248,9 @@ pub fn make_aberrated(
     let made: Vec<Result<(Photo, Photo, f64)>> = (0..capture.len())
         .into_par_iter()
         .map(|i| {
+            if base::interrupt::requested() {
+                return Err(SceneError::Interrupted);
+            }
             let clean = capture.load_image(i)?;
             let planar = to_planar(&clean);
             let bad = |e: aberration::AberrationError| {

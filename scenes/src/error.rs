@@ -5,6 +5,9 @@ use std::path::PathBuf;
 /// Everything that can go wrong reading or writing a capture.
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
+    /// Stopped on request (Ctrl-C, SIGTERM): nothing was written.
+    #[error("interrupted: stopped before the capture was complete; nothing was written")]
+    Interrupted,
     #[error("{}: {source}", path.display())]
     Io {
         path: PathBuf,

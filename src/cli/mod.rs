@@ -106,6 +106,23 @@ pub fn decode_all(capture: &scenes::Capture) -> anyhow::Result<()> {
         .with_context(|| format!("cannot open the scene {}", capture.root.display()))
 }
 
+impl Cli {
+    /// Whether the command stops at safe points when asked ([`base::interrupt`]): long work
+    /// that stages its output or checkpoints. Others (the viewer, one image) keep Ctrl-C's
+    /// usual meaning, an immediate end.
+    pub fn stops_when_asked(&self) -> bool {
+        matches!(
+            self.command,
+            Command::Train(_)
+                | Command::Render(_)
+                | Command::Experiment(_)
+                | Command::Demo(_)
+                | Command::Scene(scene::SceneCommand::Aberrate(_))
+                | Command::Restorer(restorer::RestorerCommand::Train(_))
+        )
+    }
+}
+
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Psf(c) => psf::run(c),

@@ -413,6 +413,12 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         a.out.display(),
         restore::train_state::state_path(&a.out).display()
     );
+    if reached < s.steps && base::interrupt::requested() {
+        anyhow::bail!(
+            "interrupted at step {reached} of {}; the weights and the state are saved: continue with the same command and --resume (without --init)",
+            s.steps
+        );
+    }
     if reached < s.steps {
         println!(
             "stopped early (--minutes); continue with the same command and --resume (without --init)"

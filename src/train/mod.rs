@@ -394,6 +394,29 @@ impl<'a> Run<'a> {
         Ok(())
     }
 
+    /// A stop asked for between steps: the state so far goes to the checkpoint (whatever the
+    /// checkpoint cadence), so that `--resume` continues from this very step.
+    fn interrupted<T: SplatTrainer>(&self, t: &mut T, p: &Progress) -> TrainError {
+        let step = p.step;
+        let Some(path) = self.checkpoint_path else {
+            return TrainError::Interrupted(format!("training stopped at step {step}"));
+        };
+        let saved = t
+            .host()
+            .map_err(TrainError::from)
+            .and_then(|(model, adam)| checkpoint::save(path, self.config, p, model, adam));
+        match saved {
+            Ok(()) => TrainError::Interrupted(format!(
+                "training stopped at step {step} of {}; {} holds it: run the same command with --resume to continue",
+                self.config.iters,
+                path.display()
+            )),
+            Err(e) => TrainError::Interrupted(format!(
+                "training stopped at step {step}, and its checkpoint could not be written ({e})"
+            )),
+        }
+    }
+
     /// Steps until the configured count, then the end-of-run pruning and band tests.
     fn train<T: SplatTrainer>(
         &self,
@@ -403,6 +426,9 @@ impl<'a> Run<'a> {
     ) -> Result<(Gaussians, Progress, Vec<ShEvent>, usize)> {
         let mut sh_events = Vec::new();
         while p.step < self.config.iters {
+            if base::interrupt::requested() {
+                return Err(self.interrupted(&mut t, &p));
+            }
             let started = Instant::now();
             let parts = self.step(&mut t, &mut p)?;
             p.step += 1;
