@@ -1065,6 +1065,11 @@ fn hostile_splat_files() {
     }
     variants.push(("SPZ not gzip".into(), "spz", b"NGSP not really".to_vec()));
     variants.push(("SPZ gzip of zeros".into(), "spz", gzip_of_zeros()));
+    variants.push(("SPZ version 3 uncompressed".into(), "spz", {
+        let mut raw = Vec::new();
+        std::io::Read::read_to_end(&mut flate2::read::GzDecoder::new(&spz[..]), &mut raw).unwrap();
+        raw
+    }));
     variants.push(("SPZ declaring 50 million splats".into(), "spz", {
         let mut raw = Vec::new();
         std::io::Read::read_to_end(&mut flate2::read::GzDecoder::new(&spz[..]), &mut raw).unwrap();
@@ -1073,6 +1078,115 @@ fn hostile_splat_files() {
         std::io::Write::write_all(&mut e, &raw).unwrap();
         e.finish().unwrap()
     }));
+    // GLB structure and values, each against the part of the glTF specification it breaks.
+    let (doc, bin) = glb_parts(&glb);
+    // Taken apart and put together again, the file still reads: each case below breaks
+    // only what it names.
+    splat::glb::parse_glb(Path::new("whole.glb"), &glb_from(&doc, &bin)).unwrap();
+    let accessor_of = |doc: &serde_json::Value, attr: &str| {
+        doc["meshes"][0]["primitives"][0]["attributes"][attr]
+            .as_u64()
+            .unwrap() as usize
+    };
+    let ext = "KHR_gaussian_splatting";
+    // The first value of an attribute's accessor set to `v`.
+    let first_value = |attr: &str, v: f32| {
+        let a = accessor_of(&doc, attr);
+        let view = doc["accessors"][a]["bufferView"].as_u64().unwrap() as usize;
+        let at = doc["bufferViews"][view]["byteOffset"].as_u64().unwrap_or(0) as usize
+            + doc["accessors"][a]["byteOffset"].as_u64().unwrap_or(0) as usize;
+        let mut b = bin.clone();
+        b[at..at + 4].copy_from_slice(&v.to_le_bytes());
+        glb_from(&doc, &b)
+    };
+    let edited = |f: &dyn Fn(&mut serde_json::Value)| {
+        let mut d = doc.clone();
+        f(&mut d);
+        glb_from(&d, &bin)
+    };
+    let pos = accessor_of(&doc, "POSITION");
+    let pos_view = doc["accessors"][pos]["bufferView"].as_u64().unwrap() as usize;
+    for (label, bytes) in [
+        ("GLB NaN position", first_value("POSITION", f32::NAN)),
+        (
+            "GLB infinite rotation",
+            first_value(&format!("{ext}:ROTATION"), f32::INFINITY),
+        ),
+        (
+            "GLB NaN opacity",
+            first_value(&format!("{ext}:OPACITY"), f32::NAN),
+        ),
+        (
+            "GLB NaN SH",
+            first_value(&format!("{ext}:SH_DEGREE_0_COEF_0"), f32::NAN),
+        ),
+        ("GLB zero scale", first_value(&format!("{ext}:SCALE"), 0.0)),
+        (
+            "GLB opacity above 1",
+            first_value(&format!("{ext}:OPACITY"), 1.5),
+        ),
+        (
+            "GLB byteOffset that wraps",
+            edited(&|d| d["bufferViews"][pos_view]["byteOffset"] = (u64::MAX - 3).into()),
+        ),
+        (
+            "GLB accessor type VEC2 for POSITION",
+            edited(&|d| d["accessors"][pos]["type"] = "VEC2".into()),
+        ),
+        (
+            "GLB buffer view shorter than its accessor",
+            edited(&|d| d["bufferViews"][pos_view]["byteLength"] = 12.into()),
+        ),
+        (
+            "GLB buffer view without byteLength",
+            edited(&|d| {
+                d["bufferViews"][pos_view]
+                    .as_object_mut()
+                    .unwrap()
+                    .remove("byteLength");
+            }),
+        ),
+        (
+            "GLB sparse accessor",
+            edited(&|d| {
+                d["accessors"][pos]["sparse"] = serde_json::json!({"count": 1,
+                    "indices": {"bufferView": 0, "componentType": 5125},
+                    "values": {"bufferView": 0}})
+            }),
+        ),
+        (
+            "GLB unknown required extension",
+            edited(&|d| {
+                d["extensionsRequired"] = serde_json::json!(["KHR_draco_mesh_compression"])
+            }),
+        ),
+        (
+            "GLB node translation",
+            edited(&|d| d["nodes"][0]["translation"] = serde_json::json!([1.0, 0.0, 0.0])),
+        ),
+        (
+            "GLB parent node scale",
+            edited(&|d| {
+                d["nodes"]
+                    .as_array_mut()
+                    .unwrap()
+                    .push(serde_json::json!({"children": [0], "scale": [2.0, 2.0, 2.0]}))
+            }),
+        ),
+        (
+            "GLB two splat primitives",
+            edited(&|d| {
+                let p = d["meshes"][0]["primitives"][0].clone();
+                d["meshes"][0]["primitives"].as_array_mut().unwrap().push(p);
+            }),
+        ),
+        (
+            "GLB buffer longer than the chunk",
+            edited(&|d| d["buffers"][0]["byteLength"] = (bin.len() + 64).into()),
+        ),
+    ] {
+        variants.push((label.into(), "glb", bytes));
+    }
     for (label, text) in [
         ("glTF cut", gltf[..gltf.len() / 2].to_string()),
         (
@@ -1148,6 +1262,38 @@ fn png_claiming(width: u32, height: u32) -> Vec<u8> {
     png.extend(chunk(b"IDAT", &idat.finish().unwrap()));
     png.extend(chunk(b"IEND", &[]));
     png
+}
+
+/// The JSON document and the binary chunk of a GLB file.
+fn glb_parts(glb: &[u8]) -> (serde_json::Value, Vec<u8>) {
+    let json_len = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+    let doc = serde_json::from_slice(&glb[20..20 + json_len]).unwrap();
+    let bin_at = 20 + json_len;
+    let bin_len = u32::from_le_bytes(glb[bin_at..bin_at + 4].try_into().unwrap()) as usize;
+    (doc, glb[bin_at + 8..bin_at + 8 + bin_len].to_vec())
+}
+
+/// A GLB file of `doc` and `bin`, padded as the container requires.
+fn glb_from(doc: &serde_json::Value, bin: &[u8]) -> Vec<u8> {
+    let mut json = serde_json::to_vec(doc).unwrap();
+    while !json.len().is_multiple_of(4) {
+        json.push(b' ');
+    }
+    let mut bin = bin.to_vec();
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    let total = 12 + 8 + json.len() + 8 + bin.len();
+    let mut out = b"glTF".to_vec();
+    out.extend(2u32.to_le_bytes());
+    out.extend((total as u32).to_le_bytes());
+    out.extend((json.len() as u32).to_le_bytes());
+    out.extend(b"JSON");
+    out.extend(json);
+    out.extend((bin.len() as u32).to_le_bytes());
+    out.extend(b"BIN\0");
+    out.extend(bin);
+    out
 }
 
 /// A gzip stream of 16 zero bytes (one stored block), so the SPZ reader meets a header

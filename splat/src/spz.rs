@@ -254,7 +254,8 @@ fn check_header(h: &[u8], versions: std::ops::RangeInclusive<u32>) -> Result<Hea
 
 /// Versions 2 and 3: one gzip stream, header then the attributes back to back.
 fn read_gzipped(bytes: &[u8]) -> Result<(Header, Vec<u8>), String> {
-    let mut dec = flate2::read::GzDecoder::new(bytes);
+    // Several gzip members concatenated are one valid stream (RFC 1952), as gunzip reads it.
+    let mut dec = flate2::read::MultiGzDecoder::new(bytes);
     let mut header = [0u8; HEADER];
     dec.read_exact(&mut header)
         .map_err(|e| format!("not an SPZ file (no gzip stream with a header): {e}"))?;
@@ -331,6 +332,12 @@ fn read_v4(bytes: &[u8]) -> Result<(Header, Vec<u8>), String> {
         return Err(format!(
             "truncated: {} bytes, less than an SPZ header",
             bytes.len()
+        ));
+    }
+    let version = u32::from_le_bytes(bytes[4..8].try_into().expect("4 bytes"));
+    if (2..=3).contains(&version) {
+        return Err(format!(
+            "an uncompressed SPZ version {version} header: versions 2 and 3 are one gzip stream, and this file is not compressed"
         ));
     }
     let h = check_header(&bytes[..HEADER_V4], 4..=4)?;

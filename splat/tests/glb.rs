@@ -198,4 +198,16 @@ fn gltf_with_an_embedded_buffer_reads_as_the_glb_does() {
     .unwrap();
     let err = splat::glb::read_gltf(&ext).unwrap_err().to_string();
     assert!(err.contains("ext.gltf") && err.contains(".glb"), "{err}");
+    // The other media type the specification names for embedded buffers reads the same.
+    let other = dir.path().join("other.gltf");
+    std::fs::write(
+        &other,
+        text.replacen(
+            "data:application/octet-stream;base64,",
+            "data:application/gltf-buffer;base64,",
+            1,
+        ),
+    )
+    .unwrap();
+    assert_eq!(splat::glb::read_gltf(&other).unwrap(), y);
 }

@@ -267,3 +267,24 @@ fn a_count_far_above_the_data_reserves_what_the_data_holds() {
     assert!(err.contains("GiB a splat file may take"), "{err}");
     assert!(watch::largest() < 1 << 20);
 }
+
+/// A gzip file of several members (what `cat a.gz b.gz` or a streaming writer makes) is one
+/// valid stream: read whole, as gunzip reads it.
+#[test]
+fn a_multi_member_gzip_file_reads_as_one_stream() {
+    use std::io::{Read, Write};
+    let g = random_scene(5, 200, 1, (0.02, 0.3), 1.0);
+    let one = to_spz(&g).unwrap();
+    let mut raw = Vec::new();
+    flate2::read::GzDecoder::new(&one[..])
+        .read_to_end(&mut raw)
+        .unwrap();
+    let mut two = Vec::new();
+    for part in [&raw[..raw.len() / 3], &raw[raw.len() / 3..]] {
+        let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+        e.write_all(part).unwrap();
+        two.extend(e.finish().unwrap());
+    }
+    let p = std::path::Path::new("members.spz");
+    assert_eq!(parse_spz(p, &two).unwrap(), parse_spz(p, &one).unwrap());
+}

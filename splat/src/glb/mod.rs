@@ -20,13 +20,15 @@
 //! extension's attributes (it accepts only glTF's own semantics and `_`-prefixed ones), so the
 //! JSON document is written and read here with `serde_json`.
 
+mod read;
+
 use std::path::Path;
 
 use glam::Vec3;
 use serde_json::{Value, json};
 
 use crate::error::SplatError;
-use crate::model::{Gaussians, MAX_SH_DEGREE, logit, sigmoid};
+use crate::model::{Gaussians, sigmoid};
 use crate::sh::{num_bases, sh_dc_to_rgb};
 
 const EXT: &str = "KHR_gaussian_splatting";
@@ -285,13 +287,17 @@ pub fn read_gltf(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
     let uri = doc["buffers"][0]["uri"]
         .as_str()
         .ok_or_else(|| bad("no buffer URI".into()))?;
-    let data = uri.strip_prefix(DATA_URI).ok_or_else(|| {
-        bad("only buffers embedded as base64 data URIs are read (export a .glb instead)".into())
-    })?;
+    // Both media types the glTF specification names for embedded buffers.
+    let data = [DATA_URI, "data:application/gltf-buffer;base64,"]
+        .iter()
+        .find_map(|prefix| uri.strip_prefix(prefix))
+        .ok_or_else(|| {
+            bad("only buffers embedded as base64 data URIs are read (export a .glb instead)".into())
+        })?;
     let bin = base64::engine::general_purpose::STANDARD
         .decode(data)
         .map_err(|e| bad(format!("bad base64 buffer: {e}")))?;
-    parse_document(path, &doc, &bin)
+    read::parse_document(path, &doc, &bin)
 }
 
 /// Writes `g` as a GLB file (atomically, ordinary permissions).
@@ -338,135 +344,5 @@ pub fn parse_glb(path: &Path, bytes: &[u8]) -> Result<Gaussians, SplatError> {
         .bin
         .as_deref()
         .ok_or_else(|| bad("no binary chunk (external buffers are not read)".into()))?;
-    parse_document(path, &doc, bin)
-}
-
-/// The scene of a glTF document with its buffer 0 in `bin`.
-fn parse_document(path: &Path, doc: &Value, bin: &[u8]) -> Result<Gaussians, SplatError> {
-    let bad = |problem: String| SplatError::Ply {
-        path: path.to_path_buf(),
-        problem,
-    };
-    let prim = doc["meshes"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .flat_map(|m| m["primitives"].as_array().into_iter().flatten())
-        .find(|p| p["extensions"].get(EXT).is_some())
-        .ok_or_else(|| bad(format!("no primitive with {EXT}")))?;
-    let attrs = &prim["attributes"];
-    let read = |name: &str, width: usize| -> Result<Option<Vec<f32>>, SplatError> {
-        let Some(index) = attrs.get(name) else {
-            return Ok(None);
-        };
-        let acc = index
-            .as_u64()
-            .and_then(|i| doc["accessors"].get(i as usize))
-            .ok_or_else(|| bad(format!("{name}: no such accessor")))?;
-        if acc["componentType"].as_u64() != Some(FLOAT) {
-            return Err(bad(format!("{name}: only float attributes are read")));
-        }
-        let count = acc["count"]
-            .as_u64()
-            .ok_or_else(|| bad(format!("{name}: no count")))? as usize;
-        let view = acc["bufferView"]
-            .as_u64()
-            .and_then(|i| doc["bufferViews"].get(i as usize))
-            .ok_or_else(|| {
-                bad(format!(
-                    "{name}: no buffer view (sparse accessors are not read)"
-                ))
-            })?;
-        if view["buffer"].as_u64().unwrap_or(0) != 0 {
-            return Err(bad(format!("{name}: data outside the GLB's own buffer")));
-        }
-        let stride = view["byteStride"].as_u64().unwrap_or(4 * width as u64) as usize;
-        let start = view["byteOffset"].as_u64().unwrap_or(0) as usize
-            + acc["byteOffset"].as_u64().unwrap_or(0) as usize;
-        let end = count
-            .checked_sub(1)
-            .map_or(Some(start), |c| {
-                c.checked_mul(stride)?
-                    .checked_add(start)?
-                    .checked_add(4 * width)
-            })
-            .ok_or_else(|| bad(format!("{name}: {count} values overflow")))?;
-        if stride < 4 * width || end > bin.len() {
-            return Err(bad(format!(
-                "{name}: {count} values of stride {stride} from byte {start} do not fit the {}-byte buffer",
-                bin.len()
-            )));
-        }
-        let mut out = Vec::with_capacity(count * width);
-        for i in 0..count {
-            let at = start + i * stride;
-            for k in 0..width {
-                let b = &bin[at + 4 * k..at + 4 * k + 4];
-                out.push(f32::from_le_bytes(b.try_into().expect("4 bytes")));
-            }
-        }
-        Ok(Some(out))
-    };
-    let need = |name: &str, width: usize| -> Result<Vec<f32>, SplatError> {
-        read(name, width)?.ok_or_else(|| bad(format!("no {name} attribute")))
-    };
-    let pos = need("POSITION", 3)?;
-    let n = pos.len() / 3;
-    let rot = need(&format!("{EXT}:ROTATION"), 4)?;
-    let scale = need(&format!("{EXT}:SCALE"), 3)?;
-    let opacity = need(&format!("{EXT}:OPACITY"), 1)?;
-    let dc = need(&format!("{EXT}:SH_DEGREE_0_COEF_0"), 3)?;
-    for (name, len, width) in [
-        ("ROTATION", rot.len(), 4),
-        ("SCALE", scale.len(), 3),
-        ("OPACITY", opacity.len(), 1),
-        ("SH_DEGREE_0_COEF_0", dc.len(), 3),
-    ] {
-        if len != n * width {
-            return Err(bad(format!(
-                "{EXT}:{name} has {} values, POSITION {n}",
-                len / width
-            )));
-        }
-    }
-    if let Some(s) = scale.iter().find(|s| **s < 0.0 || s.is_nan()) {
-        return Err(bad(format!(
-            "negative scale {s}: this file stores log scales (an earlier draft of {EXT}); \
-             the current text stores linear scales"
-        )));
-    }
-    // The degree: the highest whose every coefficient is present.
-    let mut rest_cols: Vec<Vec<f32>> = Vec::new();
-    let mut degree = 0;
-    'deg: for l in 1..=MAX_SH_DEGREE as usize {
-        let mut cols = Vec::new();
-        for c in 0..2 * l + 1 {
-            match read(&format!("{EXT}:SH_DEGREE_{l}_COEF_{c}"), 3)? {
-                Some(v) if v.len() == 3 * n => cols.push(v),
-                Some(_) => return Err(bad(format!("SH degree {l} has a wrong count"))),
-                None if c == 0 => break 'deg,
-                None => return Err(bad(format!("SH degree {l} is incomplete"))),
-            }
-        }
-        rest_cols.extend(cols);
-        degree = l as u32;
-    }
-    let mut g = Gaussians::new(degree);
-    let mut rest = vec![Vec3::ZERO; rest_cols.len()];
-    for i in 0..n {
-        let v3 = |a: &[f32]| Vec3::new(a[3 * i], a[3 * i + 1], a[3 * i + 2]);
-        for (k, col) in rest_cols.iter().enumerate() {
-            rest[k] = v3(col);
-        }
-        g.push(
-            v3(&pos),
-            v3(&scale).map(f32::ln),
-            [rot[4 * i + 3], rot[4 * i], rot[4 * i + 1], rot[4 * i + 2]],
-            logit(opacity[i].clamp(0.0, 1.0)),
-            v3(&dc),
-            &rest,
-        );
-    }
-    g.validate()?;
-    Ok(half_turn(&g, true))
+    read::parse_document(path, &doc, bin)
 }
