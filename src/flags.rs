@@ -142,9 +142,13 @@ pub fn camera_pose(s: &str) -> Result<[f32; 6], String> {
     let v: [f32; 6] = v
         .try_into()
         .map_err(|_| format!("'{s}' is not six numbers ex,ey,ez,tx,ty,tz"))?;
-    if v.iter().any(|x| !x.is_finite()) || v[..3] == v[3..] {
+    if v.iter()
+        .any(|x| !(x.is_finite() && x.abs() <= splat::files::MAX_POSITION))
+        || v[..3] == v[3..]
+    {
         return Err(format!(
-            "'{s}': finite numbers, and the eye apart from the target"
+            "'{s}': numbers within ±{:e}, and the eye apart from the target",
+            splat::files::MAX_POSITION
         ));
     }
     Ok(v)

@@ -987,6 +987,12 @@ fn hostile_splat_files() {
         b[0..4].copy_from_slice(&f32::NAN.to_le_bytes());
         b
     };
+    // Finite, but squared beyond f32: every projection of it would be infinite.
+    variants.push(("PLY position 3e38".into(), "ply", {
+        let mut b = body.to_vec();
+        b[0..4].copy_from_slice(&3e38f32.to_le_bytes());
+        [header.clone().into_bytes(), b].concat()
+    }));
     variants.extend([
         (
             "vertex count 41".into(),

@@ -38,12 +38,36 @@ impl Format {
 /// Reads a splat scene of any supported format.
 pub fn read_splats(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
     let path = path.as_ref();
-    match Format::of(path)? {
+    let g = match Format::of(path)? {
         Format::Ply => crate::ply::read_ply(path),
         Format::Glb => crate::glb::read_glb(path),
         Format::Gltf => crate::glb::read_gltf(path),
         Format::Spz => crate::spz::read_spz(path),
+    }?;
+    check_positions(path, &g)?;
+    Ok(g)
+}
+
+/// Farthest a splat may lie from the origin on any axis: squared, a coordinate must stay far
+/// from f32's overflow, or every projection of it is infinite.
+pub const MAX_POSITION: f32 = 1e8;
+
+/// Refuses a scene with a splat beyond [`MAX_POSITION`], naming the splat.
+fn check_positions(path: &Path, g: &Gaussians) -> Result<(), SplatError> {
+    if let Some(i) = g
+        .means
+        .iter()
+        .position(|p| !(p.is_finite() && p.abs().max_element() <= MAX_POSITION))
+    {
+        return Err(SplatError::Ply {
+            path: path.to_path_buf(),
+            problem: format!(
+                "splat {i} lies at {}; positions must be finite and within ±{MAX_POSITION:e}",
+                g.means[i]
+            ),
+        });
     }
+    Ok(())
 }
 
 /// [`read_splats`], reporting `(bytes_read, file_len)` while a PLY streams in; the other
@@ -54,7 +78,9 @@ pub fn read_splats_reporting(
 ) -> Result<Gaussians, SplatError> {
     let path = path.as_ref();
     if Format::of(path)? == Format::Ply {
-        return crate::ply::read_ply_reporting(path, progress);
+        let g = crate::ply::read_ply_reporting(path, progress)?;
+        check_positions(path, &g)?;
+        return Ok(g);
     }
     let g = read_splats(path)?;
     let len = std::fs::metadata(path).map_or(0, |m| m.len());
