@@ -659,3 +659,33 @@ fn sh_bands_are_judged_on_the_loss_training_minimises() {
         "{gain:e} vs {right:e}"
     );
 }
+
+/// A resume with other settings names each changed setting once, by its path, with both
+/// values: a sentence, not two copies of the nested settings.
+#[test]
+fn a_refused_resume_names_each_changed_setting_by_its_path() {
+    let data = data::load(&fixture().aberrated, Mode::Plain, &options()).unwrap();
+    let then = config(Mode::Plain, 10, &data);
+    assert!(train::config_differences(&then, &then).is_empty());
+    let mut now = then.clone();
+    now.seed = 7;
+    now.recipe.densify_until += 1;
+    let diff = train::config_differences(&now, &then);
+    assert_eq!(
+        diff,
+        vec![
+            format!(
+                "recipe.densify_until (checkpoint {}, now {})",
+                then.recipe.densify_until, now.recipe.densify_until
+            ),
+            "seed (checkpoint 0, now 7)".to_string(),
+        ]
+    );
+    // A checkpoint written before captures were recorded does not stop a resume.
+    let mut old = then.clone();
+    old.capture = None;
+    assert!(train::config_differences(&then, &old).is_empty());
+    let mut other = then.clone();
+    other.capture = Some("another capture".into());
+    assert_eq!(train::config_differences(&other, &then).len(), 1);
+}

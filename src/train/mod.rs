@@ -100,23 +100,43 @@ pub fn view_index(seed: u64, step: u64, n: usize) -> usize {
     order[(step % n as u64) as usize]
 }
 
-/// Names the settings that differ between two configs (for `--resume`).
+/// Names the settings that differ between two configs (for `--resume`), one leaf each
+/// (`recipe.densify_until (checkpoint 500, now 1000)`), so a refusal reads as a sentence
+/// instead of two copies of a nested setting.
 pub fn config_differences(a: &TrainConfig, b: &TrainConfig) -> Vec<String> {
-    let (a, b) = (serde_json::to_value(a), serde_json::to_value(b));
-    let (Ok(serde_json::Value::Object(a)), Ok(serde_json::Value::Object(b))) = (a, b) else {
+    use serde_json::Value;
+    fn walk(path: &str, now: &Value, then: &Value, out: &mut Vec<String>) {
+        match (now, then) {
+            (Value::Object(a), Value::Object(b)) => {
+                for key in a.keys().chain(b.keys().filter(|k| !a.contains_key(*k))) {
+                    let sub = if path.is_empty() {
+                        key.clone()
+                    } else {
+                        format!("{path}.{key}")
+                    };
+                    let (x, y) = (a.get(key), b.get(key));
+                    // A checkpoint from before the capture was recorded cannot tell.
+                    if sub == "capture" && y.is_none_or(Value::is_null) {
+                        continue;
+                    }
+                    walk(
+                        &sub,
+                        x.unwrap_or(&Value::Null),
+                        y.unwrap_or(&Value::Null),
+                        out,
+                    );
+                }
+            }
+            _ if now != then => out.push(format!("{path} (checkpoint {then}, now {now})")),
+            _ => {}
+        }
+    }
+    let (Ok(a), Ok(b)) = (serde_json::to_value(a), serde_json::to_value(b)) else {
         return vec!["config".into()];
     };
-    a.iter()
-        .filter(|(k, v)| b.get(*k) != Some(*v))
-        // A checkpoint from before the capture was recorded cannot tell.
-        .filter(|(k, _)| !(*k == "capture" && b.get(*k).is_none_or(|c| c.is_null())))
-        .map(|(k, v)| {
-            format!(
-                "{k} (checkpoint {}, now {v})",
-                b.get(k).cloned().unwrap_or_default()
-            )
-        })
-        .collect()
+    let mut out = Vec::new();
+    walk("", &a, &b, &mut out);
+    out
 }
 
 /// Where a run starts: its first model (the capture's points or `--init`, within the budget)
