@@ -444,6 +444,40 @@ fn train_then_render_and_clear_errors() {
     ]);
     assert!(text.contains("to 9 images 48x32"), "{text}");
     assert!(frames.join("view004.png").exists());
+    // The held-out views as INRIA's render.py lays them out, beside their clean images.
+    let split = d.join("split");
+    let text = ok(&[
+        "render",
+        "--ply",
+        s(&run.join("point_cloud.ply")),
+        "--scene",
+        s(&abr),
+        "--out",
+        s(&split),
+        "--downsample",
+        "1",
+        "--split",
+        "test",
+    ]);
+    assert!(text.contains("the clean images"), "{text}");
+    let names = |dir: &std::path::Path| {
+        let mut n: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        n.sort();
+        n
+    };
+    assert_eq!(
+        names(&split.join("renders")),
+        ["view000.png", "view008.png"]
+    );
+    assert_eq!(names(&split.join("gt")), names(&split.join("renders")));
+    for n in names(&split.join("gt")) {
+        let gt = image::open(split.join("gt").join(&n)).unwrap().to_rgb8();
+        let clean = image::open(abr.join("clean").join(&n)).unwrap().to_rgb8();
+        assert_eq!(gt, clean, "{n}");
+    }
 
     // Aware on a clean capture without a PSF; an unwritable run folder; a foreign PSF grid.
     let err = fails(&[
@@ -975,6 +1009,20 @@ fn a_run_folder_is_continued_or_replaced_never_mixed() {
     );
     let config = std::fs::read_to_string(from.join("config.json")).unwrap();
     assert!(config.contains("start.glb"), "{config}");
+    // A checkpoint exports as the model training left at its step.
+    let from_ckpt = d.join("from_checkpoint.ply");
+    let text = ok(&[
+        "export",
+        "--in",
+        s(&run.join("checkpoint.bin")),
+        "--out",
+        s(&from_ckpt),
+    ]);
+    assert!(text.contains("checkpoint at step"), "{text}");
+    let state = metasplat::train::checkpoint::load(&run.join("checkpoint.bin")).unwrap();
+    let exported = splat::files::read_splats(&from_ckpt).unwrap();
+    assert_eq!(exported.len(), state.model.len());
+    assert_eq!(exported.means, state.model.means);
     let err = fails(&[
         "train",
         "--scene",

@@ -7,7 +7,8 @@ use clap::Args;
 
 #[derive(Args)]
 pub struct ExportArgs {
-    /// The scene to convert (.ply, .glb, .gltf or .spz).
+    /// The scene to convert (.ply, .glb, .gltf or .spz), or a run's `checkpoint.bin` (the
+    /// model as training left it at that step).
     #[arg(long = "in", visible_alias = "ply")]
     pub input: PathBuf,
     /// The file to write; its extension (.ply, .glb, .gltf or .spz) picks the format.
@@ -21,7 +22,20 @@ pub struct ExportArgs {
 pub fn run(a: ExportArgs) -> Result<()> {
     splat::files::Format::of(&a.out)?;
     metasplat::guard::refuse_overwrite("--out", &a.out, &[("--in", &a.input)])?;
-    let mut g = splat::files::read_splats(&a.input)?;
+    let is_checkpoint = a
+        .input
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("bin"));
+    let mut g = if is_checkpoint {
+        let state = metasplat::train::checkpoint::load(&a.input)?;
+        println!(
+            "Reading the model of the checkpoint at step {} of {} (before the end-of-run pruning).",
+            state.progress.step, state.config.iters
+        );
+        state.model
+    } else {
+        splat::files::read_splats(&a.input)?
+    };
     if g.is_empty() {
         bail!("{}: the scene has no splats", a.input.display());
     }

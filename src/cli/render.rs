@@ -8,6 +8,15 @@ use metasplat::device::{Device, DeviceChoice};
 use metasplat::outputs::render_named;
 use std::path::PathBuf;
 
+/// Which views `render --split` renders.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum SplitChoice {
+    /// The held-out views (every 8th).
+    Test,
+    /// The training views.
+    Train,
+}
+
 #[derive(Args)]
 pub struct RenderArgs {
     /// Splat scene (.ply in the INRIA layout, .glb or .gltf with KHR_gaussian_splatting, or
@@ -23,6 +32,11 @@ pub struct RenderArgs {
     /// Render N frames of the LLFF spiral instead of the capture's cameras.
     #[arg(long, requires = "scene", value_parser = clap::value_parser!(u32).range(1..=10_000))]
     pub spiral: Option<u32>,
+    /// Render one split of the capture as INRIA's `render.py` lays it out: `renders/` and
+    /// `gt/` (the clean image where the capture has one, else the photo) side by side, one
+    /// name per view, for other tools' metric scripts.
+    #[arg(long, value_enum, requires = "scene", conflicts_with = "spiral")]
+    pub split: Option<SplitChoice>,
     /// Use the capture's images_N (1: images/); default images_8/ when it exists, else the
     /// folder there is.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
@@ -68,11 +82,23 @@ pub fn run(a: RenderArgs) -> Result<()> {
     if model.is_empty() {
         bail!("{}: the scene has no splats", a.ply.display());
     }
+    // The capture's views the split names, by index.
+    let views: Option<Vec<usize>> = match (&capture, a.split) {
+        (Some(c), Some(SplitChoice::Test)) => Some(c.split.test.clone()),
+        (Some(c), Some(SplitChoice::Train)) => Some(c.split.train.clone()),
+        _ => None,
+    };
+    if views.as_ref().is_some_and(|v| v.is_empty()) {
+        bail!("--split: the capture has no views in that split");
+    }
     let cameras: Vec<(String, splat::Camera)> = match &capture {
         Some(capture) => {
-            let cams = match a.spiral {
-                Some(n) => metasplat::spiral::spiral(&capture.cameras, &capture.bounds, n as usize),
-                None => capture.cameras.clone(),
+            let cams = match (a.spiral, &views) {
+                (Some(n), _) => {
+                    metasplat::spiral::spiral(&capture.cameras, &capture.bounds, n as usize)
+                }
+                (None, Some(v)) => v.iter().map(|&i| capture.cameras[i].clone()).collect(),
+                (None, None) => capture.cameras.clone(),
             };
             cams.iter()
                 .map(|c| (c.name.clone(), metasplat::convert::splat_camera(c)))
@@ -103,16 +129,56 @@ pub fn run(a: RenderArgs) -> Result<()> {
         .prefix(&format!("{}frames-", base::temp_prefix()))
         .tempdir_in(&parent)
         .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
-    let staged = render_named(&model, &settings, &cameras, staging.path(), &device)?;
-    std::fs::create_dir_all(&a.out)
-        .with_context(|| format!("cannot create {}", a.out.display()))?;
-    let mut written = Vec::with_capacity(staged.len());
-    for f in &staged {
-        let to = a.out.join(f.file_name().expect("a frame file"));
-        std::fs::rename(f, &to)
+    // With --split, renders/ and gt/ inside --out; else the frames themselves.
+    let (frames_dir, truth_dir) = match (&capture, &views) {
+        (Some(capture), Some(views)) => {
+            let truth = staging.path().join("gt");
+            std::fs::create_dir_all(&truth)
+                .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
+            for &i in views {
+                let source = scenes::aberrated::clean_image_path(capture, i)
+                    .unwrap_or_else(|| capture.image_paths[i].clone());
+                let photo = scenes::images::load_rgb(&source)?;
+                let to = truth.join(format!("{}.png", capture.cameras[i].name));
+                scenes::images::write_png(&to, &photo, scenes::BitDepth::Eight)?;
+            }
+            let renders = staging.path().join("renders");
+            std::fs::create_dir_all(&renders)
+                .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
+            (renders, Some(truth))
+        }
+        _ => (staging.path().to_path_buf(), None),
+    };
+    let staged = render_named(&model, &settings, &cameras, &frames_dir, &device)?;
+    let mut moves: Vec<(PathBuf, PathBuf)> = Vec::new();
+    match &truth_dir {
+        Some(truth) => {
+            for (from, sub) in [(&frames_dir, "renders"), (truth, "gt")] {
+                for e in std::fs::read_dir(from).with_context(|| format!("{}", from.display()))? {
+                    let f = e?.path();
+                    let to = a.out.join(sub).join(f.file_name().expect("a frame file"));
+                    moves.push((f, to));
+                }
+            }
+        }
+        None => {
+            for f in &staged {
+                moves.push((f.clone(), a.out.join(f.file_name().expect("a frame file"))));
+            }
+        }
+    }
+    let mut written = Vec::with_capacity(moves.len());
+    for (from, to) in moves {
+        let dir = to.parent().expect("inside --out");
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        std::fs::rename(&from, &to)
             .with_context(|| format!("cannot move a frame to {}", to.display()))?;
         written.push(to);
     }
+    let written: Vec<PathBuf> = written
+        .into_iter()
+        .filter(|p| truth_dir.is_none() || p.parent().is_some_and(|d| d.ends_with("renders")))
+        .collect();
     println!(
         "{} splats (SH degree {}) rendered to {} images {}x{} in {:.2} s under {}",
         model.len(),
@@ -123,6 +189,18 @@ pub fn run(a: RenderArgs) -> Result<()> {
         start.elapsed().as_secs_f64(),
         a.out.display()
     );
+    if let (Some(capture), Some(_)) = (&capture, &truth_dir) {
+        let truth = if capture.root.join(scenes::aberrated::CLEAN_DIR).is_dir() {
+            "the clean images"
+        } else {
+            "the photos"
+        };
+        println!(
+            "The renders are in {}/renders/ and {truth} beside them in {}/gt/, one name per view.",
+            a.out.display(),
+            a.out.display()
+        );
+    }
     Ok(())
 }
 
