@@ -34,8 +34,27 @@ pub const RUN_FILES: [&str; 8] = [
     "spiral/",
 ];
 
+/// The splats kept after `step` (`--save-at`).
+pub fn snapshot_file(step: u64) -> String {
+    format!("point_cloud_{step}.ply")
+}
+
+/// Whether `name` is a file [`snapshot_file`] names.
+fn is_snapshot(name: &str) -> bool {
+    name.strip_prefix("point_cloud_")
+        .and_then(|r| r.strip_suffix(".ply"))
+        .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+}
+
 /// Removes a previous run's outputs from `dir` (`--overwrite`), and nothing else.
 pub fn clear_run(dir: &Path) -> Result<()> {
+    for entry in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+        let name = entry.file_name();
+        if name.to_str().is_some_and(is_snapshot) {
+            let p = entry.path();
+            std::fs::remove_file(&p).map_err(|e| TrainError::io(&p, e))?;
+        }
+    }
     for f in RUN_FILES {
         let p = dir.join(f.trim_end_matches('/'));
         let r = if f.ends_with('/') {

@@ -65,6 +65,14 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
     inputs.add_files("a photo of --scene", &data.capture.image_paths);
     inputs.refuse("--out", out)?;
     let config = TrainConfig::build(&request.training, request.data.seed, &data);
+    if let Some(&last) = config.save_at.last()
+        && last > config.iters
+    {
+        return Err(TrainError::Invalid(format!(
+            "--save-at {last}: the run has only {} steps",
+            config.iters
+        )));
+    }
     if let Some(g) = &data.initial
         && g.len() > config.max_splats
         && let Some(path) = &request.training.init
@@ -159,13 +167,27 @@ impl PreparedRun {
     pub fn run(&self, on_event: &mut dyn FnMut(Event)) -> Result<(RunSummary, Outcome)> {
         let out = &self.request.out;
         let ckpt = out.join(CHECKPOINT_FILE);
+        // Snapshots (`--save-at`) are kept here; one that cannot be written fails the run
+        // once its other outputs are written.
+        let mut snapshot_failure = None;
+        let mut events = |e: Event| {
+            if let Event::Snapshot { step, model } = &e {
+                let path = out.join(outputs::snapshot_file(*step));
+                if let Err(err) = splat::ply::write_ply(&path, model)
+                    && snapshot_failure.is_none()
+                {
+                    snapshot_failure = Some(TrainError::from(err));
+                }
+            }
+            on_event(e);
+        };
         let outcome = train::train(
             &self.config,
             &self.data,
             &self.device,
             Some(&ckpt),
             self.request.resume,
-            on_event,
+            &mut events,
         )?;
         let summary = outputs::write_run(
             out,
@@ -177,6 +199,9 @@ impl PreparedRun {
         )
         .and_then(|s| outputs::plot_log(out, &outcome.log).map(|_| s))
         .map_err(|e| e.context(format!("cannot write the run folder {}", out.display())))?;
+        if let Some(e) = snapshot_failure {
+            return Err(e.context("cannot keep the splats --save-at asked for"));
+        }
         Ok((summary, outcome))
     }
 }

@@ -150,6 +150,8 @@ pub enum StrategyChoice {
 /// How to train; what is left unset is derived from the capture in [`TrainConfig::build`].
 #[derive(Args, Clone, Debug)]
 pub struct TrainSettings {
+    /// aware (the paper: L_abr + λ·L(render, I_ac)), restored (I_ac only) or plain 3DGS on
+    /// the photos.
     #[arg(long, value_enum, default_value_t = Mode::Aware)]
     pub mode: Mode,
     /// Weight of L(render, I_ac) in aware mode; default 0.75 (the paper's) with a trained
@@ -161,12 +163,14 @@ pub struct TrainSettings {
     /// FROM:TO (held until FROM, zero at TO).
     #[arg(long, default_value_t = LambdaFade::Auto)]
     pub lambda_fade: LambdaFade,
+    /// Training steps.
     #[arg(long, default_value_t = 7000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub iters: u64,
     /// Splat budget; default: one per two pixels of a view, twice that for a capture whose
     /// cameras surround the scene.
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub max_splats: Option<u64>,
+    /// Highest spherical-harmonics degree the splats may use (0 to 3).
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=3))]
     pub max_sh_degree: u32,
     /// Reset opacities as 3DGS does: `auto` (default) when the cameras surround the scene
@@ -205,6 +209,10 @@ pub struct TrainSettings {
     /// Checkpoint every N steps (default: 5 times per run).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub checkpoint_every: Option<u64>,
+    /// Also keep the splats at these steps, as `point_cloud_STEP.ply` in the run folder
+    /// (e.g. 1000,3000; INRIA's `--save_iterations`).
+    #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
+    pub save_at: Vec<u64>,
     /// Start from this splat scene (.ply, .glb or .spz) instead of the capture's points.
     #[arg(long)]
     pub init: Option<PathBuf>,
@@ -279,6 +287,7 @@ pub struct DataOptions {
     /// the Wiener image), `wiener`, or a restorer weights file.
     #[arg(long, default_value = "auto")]
     pub restorer: RestorerChoice,
+    /// Seed of the initial points, the view order and densification.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// A folder of cached `I_ac` images to read (and, for a run, to fill): see

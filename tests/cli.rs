@@ -971,10 +971,22 @@ fn a_run_folder_is_continued_or_replaced_never_mixed() {
         "{err}"
     );
     assert_eq!(std::fs::read(run.join("point_cloud.ply")).unwrap(), first);
-    // --overwrite replaces the run: no stale spiral frames survive.
+    // --save-at keeps the splats along the way; a step past the run's end is refused.
+    let err = fails(&as_str(&train(&["--overwrite", "--save-at", "3,11"])));
+    assert!(
+        err.contains("--save-at 11") && err.contains("10 steps"),
+        "{err}"
+    );
+    let text = ok(&as_str(&train(&["--overwrite", "--save-at", "7,3"])));
+    assert!(text.contains("Step 3: kept the splats"), "{text}");
+    let early = splat::files::read_splats(run.join("point_cloud_3.ply")).unwrap();
+    let later = splat::files::read_splats(run.join("point_cloud_7.ply")).unwrap();
+    assert_ne!(early.means, later.means, "the snapshots are the same model");
+    // --overwrite replaces the run: no stale spiral frames or snapshots survive.
     std::fs::write(run.join("spiral/stale.png"), b"old").unwrap();
     ok(&as_str(&train(&["--overwrite"])));
     assert!(!run.join("spiral/stale.png").exists());
+    assert!(!run.join("point_cloud_3.ply").exists());
     assert!(run.join("point_cloud.ply").exists());
     // Another run starts from this one's splats, in any splat format.
     let glb = d.join("start.glb");

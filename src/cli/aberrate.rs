@@ -11,8 +11,10 @@ pub struct AberrateArgs {
     /// PSF grid .npy (the paper's layout).
     #[arg(long)]
     pub psf: PathBuf,
+    /// The clean photo to blur (PNG or JPEG).
     #[arg(long = "in")]
     pub input: PathBuf,
+    /// Where the aberrated photo goes (PNG).
     #[arg(long)]
     pub out: PathBuf,
     #[command(flatten)]
@@ -25,6 +27,7 @@ pub struct ImagingArgs {
     /// tiled (the paper's patch-wise blur) or blend (seamless).
     #[arg(long, default_value = "tiled")]
     pub mode: BlurMode,
+    /// Seed of the sensor noise: the same seed gives the same bytes.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Blur only, no sensor noise.

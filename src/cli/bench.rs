@@ -23,11 +23,13 @@ pub struct StepArgs {
     /// The capture to train on (an aberrated one for `aware`).
     #[arg(long)]
     pub scene: PathBuf,
+    /// Which loss the timed steps train with.
     #[arg(long, value_enum, default_value_t = Mode::Aware)]
     pub mode: Mode,
     /// A splat scene to start from (e.g. a trained run's PLY); default: the capture's points.
     #[arg(long)]
     pub ply: Option<PathBuf>,
+    /// Training steps timed at each thread count.
     #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=100_000))]
     pub steps: u64,
     /// Thread counts to time, in order.

@@ -9,8 +9,10 @@ use std::path::PathBuf;
 
 #[derive(Args)]
 pub struct DeconvolveArgs {
+    /// The PSF grid (.npy) the photo was blurred with.
     #[arg(long)]
     pub psf: PathBuf,
+    /// The aberrated photo (PNG or JPEG).
     #[arg(long = "in")]
     pub input: PathBuf,
     /// The deconvolved image (one Wiener filter, K from --k or the default).

@@ -27,6 +27,7 @@ pub struct DemoArgs {
     /// Training steps per mode (default 1500; 300 with --quick).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub iters: Option<u64>,
+    /// Seed of the scene, the noise and training.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
 }

@@ -60,15 +60,19 @@ pub struct ExperimentRuns {
     /// The clean capture.
     #[arg(long)]
     pub scene: PathBuf,
+    /// The experiment folder: the aberrated copy, every run, the table and the plot.
     #[arg(long)]
     pub out: PathBuf,
     /// PSF grid; default: simulate the paper's 9x9 grid.
     #[arg(long)]
     pub psf: Option<PathBuf>,
+    /// Training steps of every run.
     #[arg(long, default_value_t = 3000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub iters: u64,
+    /// Use the capture's images_N (1: images/).
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
+    /// Seed of the aberration noise and of every run.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu`.
@@ -98,6 +102,7 @@ pub struct BudgetArgs {
     /// Budgets to train with, in order (`unbounded`: no cap).
     #[arg(long, value_delimiter = ',', default_values_t = [Budget(Some(10_000)), Budget(Some(20_000)), Budget(Some(40_000)), Budget(Some(95_000)), Budget(None)])]
     pub budgets: Vec<Budget>,
+    /// The mode every budget trains.
     #[arg(long, value_enum, default_value_t = Mode::Aware)]
     pub mode: Mode,
 }

@@ -42,15 +42,19 @@ pub struct LensArgs {
     /// PSF side K in pixels.
     #[arg(long, default_value_t = 135, value_parser = clap::value_parser!(u64).range(3..=1023))]
     pub size: u64,
+    /// The lens's phase profile.
     #[arg(long, value_enum, default_value_t = Profile::Neural)]
     pub profile: Profile,
+    /// How the phase changes with wavelength.
     #[arg(long, value_enum, default_value_t = DispersionArg::MetaAtom)]
     pub dispersion: DispersionArg,
     /// Design wavelength (nm) of the hyperbolic profile and of --dispersion scaled.
     #[arg(long, default_value_t = 452.0, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
     pub design_nm: f64,
+    /// Lens aperture diameter (µm).
     #[arg(long, default_value_t = 500.0, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
     pub aperture_um: f64,
+    /// Focal length (µm).
     #[arg(long, default_value_t = 1000.0, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
     pub focal_um: f64,
     /// Meta-atom pitch (µm), also the propagation sampling.
@@ -65,6 +69,7 @@ pub struct LensArgs {
     /// Field angle at the grid corners (degrees).
     #[arg(long, default_value_t = 20.0, value_parser = metasplat::flags::field_angle, allow_negative_numbers = true)]
     pub max_field_deg: f64,
+    /// Sub-samples per pixel side when integrating the focal plane.
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(1..=16))]
     pub supersample: u64,
 }
@@ -116,6 +121,7 @@ pub struct SimulateArgs {
 pub struct ShowArgs {
     /// PSF grid .npy.
     pub psf: PathBuf,
+    /// Where the picture goes (PNG).
     #[arg(long)]
     pub out: PathBuf,
 }

@@ -27,6 +27,7 @@ pub struct RenderArgs {
     /// splats (or --camera).
     #[arg(long)]
     pub scene: Option<PathBuf>,
+    /// The folder the frames go to (made with them, all at once).
     #[arg(long)]
     pub out: PathBuf,
     /// Render N frames of the LLFF spiral instead of the capture's cameras.
@@ -50,6 +51,7 @@ pub struct RenderArgs {
     /// Image size without --scene.
     #[arg(long, default_value_t = 640, value_parser = clap::value_parser!(u32).range(8..=8192))]
     pub width: u32,
+    /// Image height without --scene.
     #[arg(long, default_value_t = 480, value_parser = clap::value_parser!(u32).range(8..=8192))]
     pub height: u32,
     /// Field of view (degrees) across the shorter image side, without --scene.

@@ -29,21 +29,28 @@ pub struct TrainRestorerArgs {
     /// Folder of clean validation photos.
     #[arg(long)]
     pub val: PathBuf,
+    /// The PSF grid (.npy) the training photos are aberrated with on the fly.
     #[arg(long)]
     pub psf: PathBuf,
+    /// Network size: tiny, small or paper.
     #[arg(long, value_enum, default_value_t = Preset::Tiny)]
     pub config: Preset,
     /// Weights file to write (updated at every validation).
     #[arg(long)]
     pub out: PathBuf,
+    /// Optimiser steps.
     #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub steps: u64,
+    /// Crops per step.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=1024))]
     pub batch: u64,
+    /// Peak AdamW learning rate, in (0, 1].
     #[arg(long, default_value_t = 3e-4, value_parser = metasplat::flags::learning_rate, allow_negative_numbers = true)]
     pub lr: f64,
+    /// Seed of the network, the crops and the noise.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Validate (and save weights and state) every N steps; 0: at the end only.
     #[arg(long, default_value_t = 250)]
     pub val_every: usize,
     /// Validate on centred crops of this side during training (whole images: 0).
@@ -171,8 +178,10 @@ pub struct EvalArgs {
 pub struct RestoreArgs {
     #[command(flatten)]
     pub net: Inference,
+    /// The aberrated photo (PNG or JPEG).
     #[arg(long = "in")]
     pub input: PathBuf,
+    /// Where the restored photo goes (PNG).
     #[arg(long)]
     pub out: PathBuf,
     /// Sensor size (px) the grid was made for; default G·K.

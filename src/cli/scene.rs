@@ -19,14 +19,19 @@ pub enum SceneCommand {
 
 #[derive(Args)]
 pub struct ProceduralArgs {
+    /// The capture folder to write; it must not exist.
     #[arg(long)]
     pub out: PathBuf,
+    /// Image width (px).
     #[arg(long, default_value_t = 160, value_parser = clap::value_parser!(u32).range(8..=4096))]
     pub width: u32,
+    /// Image height (px).
     #[arg(long, default_value_t = 120, value_parser = clap::value_parser!(u32).range(8..=4096))]
     pub height: u32,
+    /// Number of cameras.
     #[arg(long, default_value_t = 12, value_parser = clap::value_parser!(u64).range(1..=1000))]
     pub views: u64,
+    /// Seed of the scene's layout and textures.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// An object in the middle seen from cameras all around it (no SfM points), instead of

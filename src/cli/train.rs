@@ -176,6 +176,9 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             last_edit = format!(" | step {step}: {done}");
         }
         Event::Checkpoint { .. } => {}
+        Event::Snapshot { step, .. } => {
+            super::progress::say(&pb, format!("Step {step}: kept the splats (--save-at)."));
+        }
     };
     let (summary, outcome) = prepared.run(&mut on_event)?;
     pb.finish_and_clear();

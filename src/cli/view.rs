@@ -38,11 +38,13 @@ pub struct ViewArgs {
     /// Window size; at a capture camera with --screenshot, the capture's image size.
     #[arg(long, value_parser = clap::value_parser!(u32).range(64..=8192))]
     pub width: Option<u32>,
+    /// Window height (px).
     #[arg(long, value_parser = clap::value_parser!(u32).range(64..=8192))]
     pub height: Option<u32>,
     /// Save a picture of the window after --frames frames, then close it.
     #[arg(long)]
     pub screenshot: Option<PathBuf>,
+    /// With --screenshot: frames to draw before the picture is taken.
     #[arg(long, default_value_t = 3, requires = "screenshot", value_parser = clap::value_parser!(u32).range(1..=10_000))]
     pub frames: u32,
     /// With --screenshot: keep the side panel in the picture.

@@ -182,6 +182,9 @@ pub struct TrainConfig {
     /// capture is refused; None in checkpoints older than the field.
     #[serde(default)]
     pub capture: Option<String>,
+    /// Steps after which the splats are kept as they are then (`--save-at`), ascending.
+    #[serde(default)]
+    pub save_at: Vec<u64>,
 }
 
 /// The capture a run trains on, in a sentence ending in a hash of its cameras (names, sizes,
@@ -376,6 +379,12 @@ impl TrainConfig {
                 _ => 0,
             },
             capture: Some(capture_fingerprint(data)),
+            save_at: {
+                let mut at = settings.save_at.clone();
+                at.sort_unstable();
+                at.dedup();
+                at
+            },
             recipe,
         }
     }

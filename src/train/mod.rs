@@ -76,6 +76,11 @@ pub enum Event<'a> {
     Checkpoint {
         step: u64,
     },
+    /// The splats after a step `--save-at` names, for the caller to keep.
+    Snapshot {
+        step: u64,
+        model: &'a Gaussians,
+    },
 }
 
 pub struct Outcome {
@@ -402,6 +407,10 @@ impl<'a> Run<'a> {
                 splats: model.len(),
                 sh_degree: model.sh_degree,
             });
+        }
+        if config.save_at.binary_search(&step).is_ok() {
+            let (model, _) = t.host()?;
+            on_event(Event::Snapshot { step, model });
         }
         if let Some(path) = self.checkpoint_path
             && config.checkpoint_every > 0
