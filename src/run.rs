@@ -171,6 +171,11 @@ impl PreparedRun {
         // once its other outputs are written.
         let mut snapshot_failure = None;
         let mut events = |e: Event| {
+            // The log file grows with the run, so `tail -f` follows it; only a cache of what
+            // the run writes at its end, so a failure here is not the run's.
+            if let Event::Logged { rows } = &e {
+                let _ = outputs::write_log_csv(&out.join(outputs::LOG_FILE), rows);
+            }
             if let Event::Snapshot { step, model } = &e {
                 let path = out.join(outputs::snapshot_file(*step));
                 if let Err(err) = splat::ply::write_ply(&path, model)

@@ -979,6 +979,13 @@ fn a_run_folder_is_continued_or_replaced_never_mixed() {
     );
     let text = ok(&as_str(&train(&["--overwrite", "--save-at", "7,3"])));
     assert!(text.contains("Step 3: kept the splats"), "{text}");
+    // Away from a terminal each evaluation is a line of the log.
+    assert!(
+        text.contains("Step 10 of 10: loss")
+            && text.contains("held-out")
+            && text.contains("steps/s"),
+        "{text}"
+    );
     let early = splat::files::read_splats(run.join("point_cloud_3.ply")).unwrap();
     let later = splat::files::read_splats(run.join("point_cloud_7.ply")).unwrap();
     assert_ne!(early.means, later.means, "the snapshots are the same model");

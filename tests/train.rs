@@ -689,3 +689,36 @@ fn a_refused_resume_names_each_changed_setting_by_its_path() {
     other.capture = Some("another capture".into());
     assert_eq!(train::config_differences(&other, &then).len(), 1);
 }
+
+/// The log file grows with the run: after each evaluation `train_log.csv` already holds a
+/// row for every evaluation so far (so `tail -f` follows a run away from a terminal).
+#[test]
+fn the_log_file_holds_every_evaluation_while_the_run_trains() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let mut request = metasplat::settings::RunRequest::new(&fixture().aberrated, &out);
+    request.data.downsample = 1;
+    request.training.mode = Mode::Plain;
+    request.training.iters = 30;
+    request.training.eval_every = Some(10);
+    request.spiral = 0;
+    let prepared = metasplat::run::prepare(&request).unwrap();
+    let log = out.join(metasplat::outputs::LOG_FILE);
+    let mut seen = Vec::new();
+    prepared
+        .run(&mut |e| {
+            if let Event::Evaluated { step, .. } = e {
+                seen.push(step);
+            }
+            if let Event::Step { step, .. } = e
+                && step % 10 == 5
+            {
+                // Between evaluations: one row per evaluation so far, and a header.
+                let text = std::fs::read_to_string(&log).unwrap_or_default();
+                let rows = text.lines().count().saturating_sub(1);
+                assert_eq!(rows, seen.len(), "at step {step}: {text}");
+            }
+        })
+        .unwrap();
+    assert_eq!(seen, [10, 20, 30]);
+}

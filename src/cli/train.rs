@@ -139,14 +139,20 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
     let mut last_test = None;
     // Frequent events go into the bar's message; rare ones get a line of their own.
     let mut last_edit = String::new();
+    // Away from a terminal (nohup, a batch queue) the bar is hidden: each evaluation prints a
+    // line instead, so the log can be followed.
+    let lines = pb.is_hidden() && !quiet;
+    let iters = t.iters;
+    let mut last_step = (0u64, 0.0f64, 0.0f64, 0usize, 0.0f64);
     let mut on_event = |e: Event| match e {
         Event::Step {
             step,
             loss,
             splats,
             sh_degree,
-            ..
+            seconds,
         } => {
+            last_step = (step, loss.total as f64, loss.psnr, splats, seconds);
             pb.set_position(step);
             if step % 10 == 0 {
                 let parts = match loss.restored {
@@ -160,7 +166,21 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
                 ));
             }
         }
-        Event::Evaluated { metrics, .. } => last_test = Some(metrics.mean_psnr),
+        Event::Evaluated { step, metrics } => {
+            last_test = Some(metrics.mean_psnr);
+            if lines {
+                let (at, loss, train_db, splats, seconds) = last_step;
+                let rate = if seconds > 0.0 {
+                    at as f64 / seconds
+                } else {
+                    0.0
+                };
+                println!(
+                    "Step {step} of {iters}: loss {loss:.4}, train {train_db:.2} dB, held-out {:.2} dB (SSIM {:.4}), {splats} splats, {rate:.1} steps/s.",
+                    metrics.mean_psnr, metrics.mean_ssim
+                );
+            }
+        }
         // A band that stays is routine; one raised or dropped changes the model.
         Event::Sh {
             step,
@@ -175,7 +195,7 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
         Event::Unseen { step, done } => {
             last_edit = format!(" | step {step}: {done}");
         }
-        Event::Checkpoint { .. } => {}
+        Event::Checkpoint { .. } | Event::Logged { .. } => {}
         Event::Snapshot { step, .. } => {
             super::progress::say(&pb, format!("Step {step}: kept the splats (--save-at)."));
         }

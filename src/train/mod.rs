@@ -76,6 +76,11 @@ pub enum Event<'a> {
     Checkpoint {
         step: u64,
     },
+    /// The run's log so far, after each evaluation added its row (for a log file that can be
+    /// followed while the run trains).
+    Logged {
+        rows: &'a [LogRow],
+    },
     /// The splats after a step `--save-at` names, for the caller to keep.
     Snapshot {
         step: u64,
@@ -407,6 +412,7 @@ impl<'a> Run<'a> {
                 splats: model.len(),
                 sh_degree: model.sh_degree,
             });
+            on_event(Event::Logged { rows: &p.log });
         }
         if config.save_at.binary_search(&step).is_ok() {
             let (model, _) = t.host()?;
