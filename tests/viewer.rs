@@ -460,3 +460,43 @@ fn a_run_being_followed_shows_its_newest_model() {
     assert!(watch.check().unwrap().is_err());
     assert!(watch.check().is_none());
 }
+
+/// One spelling for a splat file everywhere (`--in`, as `render` and `export` take it), and a
+/// run folder given as the file is followed as `--run` follows it: the same picture each way.
+#[test]
+fn a_run_folder_or_in_opens_as_the_file_does() {
+    let Some(display) = display() else {
+        return;
+    };
+    let f = fixture();
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    std::fs::create_dir_all(&run).unwrap();
+    std::fs::copy(&f.ply, run.join(metasplat::outputs::PLY_FILE)).unwrap();
+    let model = ground_truth(3);
+    let (c, _) = splat::camera::scene_bounds(&model.means).unwrap();
+    let pose = format!(
+        "{},{},{},{},{},{}",
+        c.x,
+        c.y - 1.0,
+        c.z - 4.0,
+        c.x,
+        c.y,
+        c.z
+    );
+    let shot = |name: &str, how: &[&str]| {
+        let path = dir.path().join(name);
+        let mut args = vec!["view"];
+        args.extend(how);
+        args.extend(["--camera", &pose, "--width", "160", "--height", "120"]);
+        args.extend(["--screenshot", path.to_str().unwrap()]);
+        succeed(&args, &display);
+        read_png(&path)
+    };
+    let ply = f.ply.to_str().unwrap();
+    let r = run.to_str().unwrap();
+    let by_file = shot("file.png", &[ply]);
+    assert_eq!(shot("in.png", &["--in", ply]), by_file);
+    assert_eq!(shot("folder.png", &[r]), shot("run.png", &["--run", r]));
+    assert!(psnr(&shot("folder2.png", &[r]), &by_file) >= 40.0);
+}

@@ -9,7 +9,7 @@ use clap::Args;
 pub struct ExportArgs {
     /// The scene to convert (.ply, .glb, .gltf or .spz), or a run's `checkpoint.bin` (the
     /// model as training left it at that step).
-    #[arg(long = "in", visible_alias = "ply")]
+    #[arg(long = "in", visible_aliases = ["ply", "scene-file"])]
     pub input: PathBuf,
     /// The file to write; its extension (.ply, .glb, .gltf or .spz) picks the format.
     #[arg(long)]

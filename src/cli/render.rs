@@ -21,7 +21,7 @@ pub enum SplitChoice {
 pub struct RenderArgs {
     /// Splat scene (.ply in the INRIA layout, .glb or .gltf with KHR_gaussian_splatting, or
     /// .spz).
-    #[arg(long, visible_alias = "scene-file")]
+    #[arg(long = "in", visible_aliases = ["ply", "scene-file"])]
     pub ply: PathBuf,
     /// Capture whose cameras (or spiral) to render from; without it, an orbit around the
     /// splats (or --camera).
@@ -63,7 +63,7 @@ pub struct RenderArgs {
 }
 
 pub fn run(a: RenderArgs) -> Result<()> {
-    let mut inputs = vec![("--ply", a.ply.as_path())];
+    let mut inputs = vec![("--in", a.ply.as_path())];
     if let Some(s) = &a.scene {
         inputs.push(("--scene", s));
     }

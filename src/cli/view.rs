@@ -10,8 +10,13 @@ use std::path::PathBuf;
 
 #[derive(Args)]
 pub struct ViewArgs {
-    /// Splat scene (.ply, .glb/.gltf or .spz). With --run and no file: the run's newest model.
+    /// Splat scene (.ply, .glb/.gltf or .spz), or a run folder (as --run). With --run and no
+    /// file: the run's newest model.
+    #[arg(conflicts_with = "input")]
     pub file: Option<PathBuf>,
+    /// The splat scene, spelt as `render` and `export` spell it.
+    #[arg(long = "in", visible_aliases = ["ply", "scene-file"])]
+    pub input: Option<PathBuf>,
     /// Capture whose cameras to jump between and whose photos, PSF model and restorer the
     /// comparison mode shows.
     #[arg(long)]
@@ -55,7 +60,21 @@ pub struct ViewArgs {
     pub compare: bool,
 }
 
-pub fn run(a: ViewArgs) -> Result<()> {
+pub fn run(mut a: ViewArgs) -> Result<()> {
+    if a.file.is_none() {
+        a.file = a.input.take();
+    }
+    // A run folder given as the file is followed, as --run does.
+    if let Some(dir) = a.file.as_ref().filter(|f| f.is_dir()) {
+        if let Some(run) = &a.run {
+            bail!(
+                "{} is a run folder and --run names {}: give the run once",
+                dir.display(),
+                run.display()
+            );
+        }
+        a.run = a.file.take();
+    }
     if let Some(shot) = &a.screenshot {
         let mut inputs = Vec::new();
         if let Some(f) = &a.file {
