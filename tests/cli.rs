@@ -1481,3 +1481,24 @@ fn an_experiment_resumes_where_it_stopped() {
     assert_eq!(std::fs::read(run.join("point_cloud.ply")).unwrap(), ply);
     assert!(out.join("table.md").exists());
 }
+
+/// Completion scripts for each shell and the man page come from the commands themselves:
+/// every subcommand and a deep flag are in them.
+#[test]
+fn completions_and_the_man_page_name_every_command() {
+    for shell in ["bash", "zsh", "fish", "elvish", "powershell"] {
+        let script = ok(&["completions", shell]);
+        for word in ["metasplat", "train", "render", "experiment", "save-at"] {
+            assert!(script.contains(word), "{shell}: no {word}");
+        }
+    }
+    let page = ok(&["man"]);
+    assert!(
+        page.contains(".TH metasplat 1"),
+        "{}",
+        &page[..200.min(page.len())]
+    );
+    assert!(page.contains("train") && page.contains("restorer"));
+    let err = fails(&["completions", "tcsh"]);
+    assert!(err.contains("tcsh"), "{err}");
+}

@@ -11,6 +11,7 @@ mod psf;
 mod render;
 mod restorer;
 mod scene;
+mod shell;
 mod train;
 mod view;
 
@@ -61,6 +62,10 @@ enum Command {
     /// Built-in demo: simulate the default PSF grid, render and aberrate a procedural scene, and
     /// train plain and aberration-aware 3DGS on it.
     Demo(demo::DemoArgs),
+    /// Print a completion script for a shell.
+    Completions(shell::CompletionsArgs),
+    /// Print the man page.
+    Man,
 }
 
 /// Opens a capture at `images_{downsample}` (every 8th image held out), naming it on failure.
@@ -138,6 +143,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Restorer(c) => restorer::run(c),
         Command::Restore(a) => restorer::run_restore(a),
         Command::Demo(a) => demo::run(a),
+        Command::Completions(a) => shell::completions(a),
+        Command::Man => shell::man(),
     }
 }
 
