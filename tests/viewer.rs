@@ -500,3 +500,47 @@ fn a_run_folder_or_in_opens_as_the_file_does() {
     assert_eq!(shot("folder.png", &[r]), shot("run.png", &["--run", r]));
     assert!(psnr(&shot("folder2.png", &[r]), &by_file) >= 40.0);
 }
+
+/// With a capture and no camera asked for, the window opens at the first held-out capture
+/// camera (at its size), and `--compare` needs no `--at`.
+#[test]
+fn with_a_capture_the_window_opens_at_its_first_held_out_camera() {
+    let Some(display) = display() else {
+        return;
+    };
+    let f = fixture();
+    let dir = tempfile::tempdir().unwrap();
+    let cap = scenes::open(
+        &f.aberrated,
+        &scenes::OpenOptions {
+            resolution: scenes::Resolution::Downsample(1),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let first = &cap.cameras[cap.split.test[0]];
+    let ply = f.ply.to_str().unwrap();
+    let scene = f.aberrated.to_str().unwrap();
+    let common = [
+        "--scene",
+        scene,
+        "--downsample",
+        "1",
+        "--restorer",
+        "wiener",
+    ];
+    let shot = |name: &str, extra: &[&str]| {
+        let path = dir.path().join(name);
+        let mut args = vec!["view", ply];
+        args.extend(common);
+        args.extend(extra);
+        args.extend(["--screenshot", path.to_str().unwrap()]);
+        succeed(&args, &display);
+        read_png(&path)
+    };
+    let default = shot("default.png", &[]);
+    assert_eq!(default.dimensions(), (first.width, first.height));
+    assert_eq!(shot("at.png", &["--at", &first.name]), default);
+    let compared = shot("compare.png", &["--compare"]);
+    assert_eq!(compared.dimensions(), (first.width, first.height));
+}

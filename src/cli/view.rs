@@ -55,8 +55,8 @@ pub struct ViewArgs {
     /// With --screenshot: keep the side panel in the picture.
     #[arg(long, requires = "screenshot")]
     pub with_panel: bool,
-    /// Open in comparison mode (needs --scene and --at).
-    #[arg(long, requires = "at")]
+    /// Open in comparison mode (needs --scene; at --at, or the first held-out camera).
+    #[arg(long, requires = "scene", conflicts_with = "camera")]
     pub compare: bool,
 }
 
@@ -92,7 +92,15 @@ pub fn run(mut a: ViewArgs) -> Result<()> {
     let (model, source) = match (&a.file, watch.as_mut()) {
         (Some(f), _) => (super::progress::read_splats(f)?, f.display().to_string()),
         (None, Some(w)) => match w.check() {
-            Some(Ok((g, what))) => (g, what),
+            Some(Ok((g, what))) => {
+                // "Showing step 300 of the run (…) from RUN/checkpoint.bin." names the source
+                // in a sentence of its own.
+                println!("{what}");
+                let from = what
+                    .rsplit_once(" from ")
+                    .map_or(what.clone(), |(_, f)| f.trim_end_matches('.').to_string());
+                (g, from)
+            }
             Some(Err(e)) => bail!(e),
             None => bail!(
                 "--run {}: the run has no checkpoint or PLY yet; wait for its first checkpoint",
@@ -154,6 +162,10 @@ pub fn run(mut a: ViewArgs) -> Result<()> {
             eye: Vec3::new(c[0], c[1], c[2]),
             target: Vec3::new(c[3], c[4], c[5]),
         },
+        // With a capture, at its first held-out camera: where the comparison means most.
+        (None, None) if !captures.is_empty() => {
+            viewer::Start::Capture(captures.iter().position(|c| c.held_out).unwrap_or(0))
+        }
         (None, None) => viewer::Start::Framing,
     };
     let default_size = match (&start, &a.screenshot) {
