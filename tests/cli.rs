@@ -1502,3 +1502,76 @@ fn completions_and_the_man_page_name_every_command() {
     let err = fails(&["completions", "tcsh"]);
     assert!(err.contains("tcsh"), "{err}");
 }
+
+/// A capture in nerfstudio's transforms.json trains, reports and aberrates as the same
+/// capture in LLFF's layout does.
+#[test]
+fn a_transforms_json_capture_trains_and_aberrates() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let llff = d.join("llff");
+    procedural(&llff, 32, 24, 5);
+    let capture = scenes::open(
+        &llff,
+        &scenes::OpenOptions {
+            resolution: scenes::Resolution::Downsample(1),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let ns = d.join("ns");
+    std::fs::create_dir_all(ns.join("images")).unwrap();
+    let mut frames = Vec::new();
+    for (c, p) in capture.cameras.iter().zip(&capture.image_paths) {
+        let name = p.file_name().unwrap().to_str().unwrap();
+        std::fs::copy(p, ns.join("images").join(name)).unwrap();
+        let c2w = c.camera_to_world();
+        let r = c2w.rotation;
+        let (x, y, z, t) = (r.x_axis, -r.y_axis, -r.z_axis, c2w.translation);
+        frames.push(serde_json::json!({
+            "file_path": format!("images/{name}"),
+            "transform_matrix": [[x.x, y.x, z.x, t.x], [x.y, y.y, z.y, t.y], [x.z, y.z, z.z, t.z], [0, 0, 0, 1]],
+        }));
+    }
+    let c = &capture.cameras[0];
+    let doc = serde_json::json!({"fl_x": c.fx, "fl_y": c.fy, "cx": c.cx, "cy": c.cy,
+        "w": c.width, "h": c.height, "frames": frames});
+    std::fs::write(ns.join("transforms.json"), doc.to_string()).unwrap();
+    let info = ok(&["scene", "info", s(&ns), "--downsample", "1"]);
+    assert!(info.contains("nerfstudio"), "{info}");
+    let run = d.join("run");
+    ok(&[
+        "train",
+        "--scene",
+        s(&ns),
+        "--out",
+        s(&run),
+        "--mode",
+        "plain",
+        "--downsample",
+        "1",
+        "--iters",
+        "5",
+        "--spiral",
+        "2",
+        "--device",
+        "cpu",
+    ]);
+    assert!(run.join("point_cloud.ply").is_file() && run.join("spiral").is_dir());
+    let psf = d.join("psf.npy");
+    small_psf(&psf);
+    let abr = d.join("abr");
+    ok(&[
+        "scene",
+        "aberrate",
+        "--scene",
+        s(&ns),
+        "--psf",
+        s(&psf),
+        "--out",
+        s(&abr),
+        "--downsample",
+        "1",
+    ]);
+    assert!(abr.join("poses_bounds.npy").is_file());
+}

@@ -18,6 +18,7 @@ use crate::error::{Result, SceneError};
 use crate::images::{self, Photo};
 use crate::limits;
 use crate::llff::{self, POSES_BOUNDS};
+use crate::nerfstudio;
 use crate::points::{self, Normalization, PointCloud};
 use crate::split::{self, Split};
 use crate::summary::SceneSummary;
@@ -64,6 +65,8 @@ impl Default for OpenOptions {
 pub enum CaptureFormat {
     Llff,
     Colmap(ModelFormat),
+    /// nerfstudio's `transforms.json`.
+    Nerfstudio,
 }
 
 /// Where the initial point cloud came from.
@@ -183,9 +186,10 @@ pub fn open(dir: &Path, options: &OpenOptions) -> Result<Capture> {
         Some(sparse) if colmap::find_file(&sparse, "images").is_some() => {
             open_colmap(dir, &sparse, options)
         }
+        _ if dir.join(nerfstudio::TRANSFORMS).is_file() => open_transforms(dir, options),
         _ => Err(SceneError::invalid(
             dir,
-            "not a capture: no poses_bounds.npy and no sparse/0/{cameras,images}.{bin,txt}",
+            "not a capture: no poses_bounds.npy, no sparse/0/{cameras,images}.{bin,txt} and no transforms.json",
         )),
     }
 }
@@ -342,6 +346,48 @@ fn open_llff(root: &Path, options: &OpenOptions) -> Result<Capture> {
         image_dir,
         split: split::split(cameras.len(), options.llffhold),
         downsample: poses[0].width / width as f64,
+        image_paths,
+        cameras,
+        bounds,
+        points,
+        point_source,
+        distortion_source,
+    })
+}
+
+fn open_transforms(root: &Path, options: &OpenOptions) -> Result<Capture> {
+    let downsample = match options.resolution {
+        Resolution::Downsample(n) => n,
+        Resolution::TargetWidth(_) => {
+            let dir = choose_image_dir(root, options.resolution)?;
+            dir.file_name()
+                .and_then(|n| n.to_str())
+                .and_then(|n| n.strip_prefix("images_"))
+                .and_then(|n| n.parse().ok())
+                .unwrap_or(1)
+        }
+    };
+    let mut frames = nerfstudio::read_frames(root, downsample)?;
+    frames.sort_by(|a, b| {
+        let name = |f: &nerfstudio::Frame| f.path.file_name().map(|n| n.to_os_string());
+        name(a).cmp(&name(b))
+    });
+    let image_paths: Vec<PathBuf> = frames.iter().map(|f| f.path.clone()).collect();
+    check_stems(&image_paths)?;
+    images::common_size(&image_paths)?;
+    let cameras: Vec<Camera> = frames.into_iter().map(|f| f.camera).collect();
+    let bounds = nerfstudio::rig_bounds(&cameras);
+    let (points, point_source) = initial_points(None, None, &cameras, &bounds, options)?;
+    let distortion_source = cameras
+        .iter()
+        .any(|c| c.distortion.is_some())
+        .then(|| root.join(nerfstudio::TRANSFORMS));
+    Ok(Capture {
+        root: root.to_path_buf(),
+        format: CaptureFormat::Nerfstudio,
+        image_dir: root.join(llff::image_folder_name(downsample)),
+        split: split::split(cameras.len(), options.llffhold),
+        downsample: downsample as f64,
         image_paths,
         cameras,
         bounds,

@@ -15,6 +15,7 @@ pub mod error;
 pub mod images;
 pub mod limits;
 pub mod llff;
+pub mod nerfstudio;
 pub mod points;
 pub mod split;
 pub mod summary;

@@ -80,6 +80,7 @@ impl fmt::Display for SceneSummary {
             CaptureFormat::Llff => "LLFF (poses_bounds.npy)",
             CaptureFormat::Colmap(ModelFormat::Binary) => "COLMAP sparse model, binary",
             CaptureFormat::Colmap(ModelFormat::Text) => "COLMAP sparse model, text",
+            CaptureFormat::Nerfstudio => "nerfstudio (transforms.json; bounds from the camera rig)",
         };
         writeln!(f, "scene       {}", self.root.display())?;
         writeln!(f, "format      {format}")?;

@@ -1,0 +1,199 @@
+//! nerfstudio's `transforms.json` (what `ns-process-data`, Polycam, Record3D and many capture
+//! apps write): shared or per-frame pinhole intrinsics (`fl_x`, `fl_y`, `cx`, `cy`, `w`, `h`,
+//! OpenCV's `k1 k2 p1 p2` kept for reporting as COLMAP's are), and per frame a `file_path`
+//! relative to the file and a camera-to-world `transform_matrix` in nerfstudio's (OpenGL)
+//! convention: x right, y up, the camera looking down its −z. Ours is OpenCV's (y down,
+//! looking down +z), so the camera's y and z axes flip.
+//!
+//! Resolution: a frame's `images/NAME` is read from `images_N/NAME` at downsample N, and the
+//! intrinsics are scaled to the size the photo has. `file_path`s that leave the capture's
+//! folder (`..`, absolute paths) are refused, as COLMAP image names are.
+//!
+//! Bounds: the format has no near/far and `ply_file_path`'s points are not read here, so
+//! each camera's bounds come from the rig: with `r` the largest distance of a camera from the
+//! cameras' centroid, near is `r / 100` and far `4 r` (`r` 1 for a single camera), wide
+//! enough for a ring around an object or a forward-facing sweep; the initial points are then
+//! random in the frusta.
+
+use std::path::{Component, Path, PathBuf};
+
+use glam::{DMat3, DVec3};
+use serde_json::Value;
+
+use crate::camera::{Bounds, Camera, CameraModel, Distortion, Rigid};
+use crate::error::{Result, SceneError};
+use crate::images;
+use crate::limits;
+
+/// The file's name in a capture folder.
+pub const TRANSFORMS: &str = "transforms.json";
+
+/// One frame: its photo and its camera at the photo's size.
+pub struct Frame {
+    pub path: PathBuf,
+    pub camera: Camera,
+}
+
+/// A number of the frame, else of the file (nerfstudio allows both), else `default`.
+fn number(frame: &Value, doc: &Value, key: &str) -> Option<f64> {
+    frame[key].as_f64().or_else(|| doc[key].as_f64())
+}
+
+/// The photo file a frame names at `downsample` (1: as written).
+fn frame_path(root: &Path, file: &str, downsample: u32) -> std::result::Result<PathBuf, String> {
+    let rel = Path::new(file);
+    if rel
+        .components()
+        .any(|c| !matches!(c, Component::Normal(_) | Component::CurDir))
+    {
+        return Err(format!(
+            "file_path {file:?} leaves the capture's folder (absolute or with ..); only files inside it are read"
+        ));
+    }
+    let mut parts = rel
+        .components()
+        .filter(|c| matches!(c, Component::Normal(_)));
+    let first = parts
+        .next()
+        .map(|c| c.as_os_str().to_string_lossy().into_owned());
+    Ok(match (downsample, first.as_deref()) {
+        (1, _) | (_, None) => root.join(rel),
+        (n, Some("images")) => {
+            let mut p = root.join(format!("images_{n}"));
+            p.extend(parts);
+            p
+        }
+        (n, Some(_)) => {
+            return Err(format!(
+                "file_path {file:?} is not under images/, so there is no images_{n}/ copy of it"
+            ));
+        }
+    })
+}
+
+/// Reads `root/transforms.json`: each frame's photo path (at `downsample`) and camera, in the
+/// order of the file. Errors name the file, the frame and the problem.
+pub fn read_frames(root: &Path, downsample: u32) -> Result<Vec<Frame>> {
+    let path = root.join(TRANSFORMS);
+    SceneError::check_file_size(&path, base::limits::MAX_TEXT_FILE_BYTES)?;
+    let text = std::fs::read_to_string(&path).map_err(|e| SceneError::io(&path, e))?;
+    let doc: Value = serde_json::from_str(&text)
+        .map_err(|e| SceneError::invalid(&path, format!("not JSON: {e}")))?;
+    let Some(frames) = doc["frames"].as_array().filter(|f| !f.is_empty()) else {
+        return Err(SceneError::invalid(&path, "no frames"));
+    };
+    if let Some(model) = doc["camera_model"].as_str()
+        && model != "OPENCV"
+        && model != "PINHOLE"
+    {
+        return Err(SceneError::UnknownCameraModel {
+            path: path.clone(),
+            model: format!("{model} (camera_model; OPENCV and PINHOLE are read)"),
+        });
+    }
+    let mut out = Vec::with_capacity(frames.len());
+    for (i, frame) in frames.iter().enumerate() {
+        let bad = |problem: String| SceneError::invalid(&path, format!("frame {i}: {problem}"));
+        let file = frame["file_path"]
+            .as_str()
+            .ok_or_else(|| bad("no file_path".into()))?;
+        let photo = frame_path(root, file, downsample).map_err(bad)?;
+        if !photo.is_file() {
+            return Err(SceneError::NotFound {
+                path: photo,
+                what: format!("photo of frame {i} in {}", path.display()),
+            });
+        }
+        let need = |key: &str| number(frame, &doc, key).ok_or_else(|| bad(format!("no {key}")));
+        let (w, h) = (need("w")?, need("h")?);
+        let (fx, fy, cx, cy) = (need("fl_x")?, need("fl_y")?, need("cx")?, need("cy")?);
+        limits::check_size(w, h).map_err(bad)?;
+        limits::check_intrinsics(w, h, fx, fy, cx, cy).map_err(bad)?;
+        let k = |key: &str| number(frame, &doc, key).unwrap_or(0.0);
+        let distortion = Distortion {
+            model: CameraModel::OpenCv,
+            k1: k("k1"),
+            k2: k("k2"),
+            p1: k("p1"),
+            p2: k("p2"),
+        };
+        limits::check_distortion(&distortion).map_err(bad)?;
+        let m = frame["transform_matrix"]
+            .as_array()
+            .filter(|rows| rows.len() >= 3)
+            .ok_or_else(|| bad("no 4x4 transform_matrix".into()))?;
+        let mut c2w = [[0.0f64; 4]; 3];
+        for (r, row) in m.iter().take(3).enumerate() {
+            let row = row
+                .as_array()
+                .filter(|v| v.len() == 4)
+                .ok_or_else(|| bad(format!("transform_matrix row {r} is not 4 numbers")))?;
+            for (c, v) in row.iter().enumerate() {
+                c2w[r][c] = v.as_f64().filter(|v| v.is_finite()).ok_or_else(|| {
+                    bad(format!("transform_matrix[{r}][{c}] is not a finite number"))
+                })?;
+            }
+        }
+        // Columns: the camera's x, y, z axes in the world, then its centre.
+        let axis = |c: usize| DVec3::new(c2w[0][c], c2w[1][c], c2w[2][c]);
+        let rotation = DMat3::from_cols(axis(0), -axis(1), -axis(2));
+        let gram = rotation.transpose() * rotation - DMat3::IDENTITY;
+        if gram.to_cols_array().iter().any(|v| v.abs() > 1e-3) || rotation.determinant() < 0.0 {
+            return Err(bad(
+                "transform_matrix's rotation is not a rotation (not orthonormal or mirrored)"
+                    .into(),
+            ));
+        }
+        let centre = axis(3);
+        limits::check_point(centre.to_array()).map_err(|p| bad(format!("camera {p}")))?;
+        let (pw, ph) = images::image_size(&photo)?;
+        let (sx, sy) = (pw as f64 / w, ph as f64 / h);
+        limits::check_downsample((w, h), (pw, ph)).map_err(bad)?;
+        let name = photo
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        out.push(Frame {
+            path: photo,
+            camera: Camera {
+                name,
+                width: pw,
+                height: ph,
+                fx: fx * sx,
+                fy: fy * sy,
+                cx: cx * sx,
+                cy: cy * sy,
+                world_to_camera: Rigid {
+                    rotation,
+                    translation: centre,
+                }
+                .inverse(),
+                distortion: (distortion.k1, distortion.k2, distortion.p1, distortion.p2)
+                    .ne(&(0.0, 0.0, 0.0, 0.0))
+                    .then_some(distortion),
+            },
+        });
+    }
+    Ok(out)
+}
+
+/// Near/far bounds for cameras without scene points (see the module docs).
+pub fn rig_bounds(cameras: &[Camera]) -> Vec<Bounds> {
+    let centres: Vec<DVec3> = cameras
+        .iter()
+        .map(|c| c.camera_to_world().translation)
+        .collect();
+    let centroid = centres.iter().copied().sum::<DVec3>() / centres.len().max(1) as f64;
+    let r = centres
+        .iter()
+        .map(|c| c.distance(centroid))
+        .fold(0.0, f64::max);
+    let r = if r > 0.0 { r } else { 1.0 };
+    vec![
+        Bounds {
+            near: r / 100.0,
+            far: 4.0 * r,
+        };
+        cameras.len()
+    ]
+}

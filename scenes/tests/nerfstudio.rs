@@ -1,0 +1,168 @@
+//! nerfstudio's transforms.json: the cameras of a capture written in nerfstudio's convention
+//! (OpenGL axes, camera-to-world, shared intrinsics) read back as the same cameras, at full
+//! and at reduced resolution; names that leave the capture and broken matrices refused.
+
+mod common;
+
+use std::path::Path;
+
+use scenes::{BitDepth, CaptureFormat, OpenOptions, Resolution};
+use serde_json::json;
+
+/// Writes `dir` as ns-process-data would: `images/` (and `images_2/` at half size) and
+/// `transforms.json` for `cameras`.
+fn write_capture(dir: &Path, cameras: &[scenes::Camera], extra: serde_json::Value) {
+    std::fs::create_dir_all(dir.join("images")).unwrap();
+    std::fs::create_dir_all(dir.join("images_2")).unwrap();
+    let mut frames = Vec::new();
+    for (k, c) in cameras.iter().enumerate() {
+        let name = format!("{}.png", c.name);
+        scenes::images::write_png(
+            &dir.join("images").join(&name),
+            &common::pattern(c.width, c.height, k),
+            BitDepth::Eight,
+        )
+        .unwrap();
+        scenes::images::write_png(
+            &dir.join("images_2").join(&name),
+            &common::pattern(c.width / 2, c.height / 2, k),
+            BitDepth::Eight,
+        )
+        .unwrap();
+        // OpenCV camera-to-world with the camera's y and z axes flipped: OpenGL's.
+        let c2w = c.camera_to_world();
+        let r = c2w.rotation;
+        let (x, y, z, t) = (r.x_axis, -r.y_axis, -r.z_axis, c2w.translation);
+        frames.push(json!({
+            "file_path": format!("images/{name}"),
+            "transform_matrix": [
+                [x.x, y.x, z.x, t.x],
+                [x.y, y.y, z.y, t.y],
+                [x.z, y.z, z.z, t.z],
+                [0.0, 0.0, 0.0, 1.0],
+            ],
+        }));
+    }
+    let c = &cameras[0];
+    let mut doc = json!({
+        "camera_model": "OPENCV",
+        "fl_x": c.fx, "fl_y": c.fy, "cx": c.cx, "cy": c.cy,
+        "w": c.width, "h": c.height,
+        "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
+        "frames": frames,
+    });
+    if let (Some(d), Some(e)) = (doc.as_object_mut(), extra.as_object()) {
+        for (k, v) in e {
+            d.insert(k.clone(), v.clone());
+        }
+    }
+    std::fs::write(dir.join("transforms.json"), doc.to_string()).unwrap();
+}
+
+fn open(dir: &Path, downsample: u32) -> scenes::Result<scenes::Capture> {
+    scenes::open(
+        dir,
+        &OpenOptions {
+            resolution: Resolution::Downsample(downsample),
+            ..OpenOptions::default()
+        },
+    )
+}
+
+#[test]
+fn a_capture_written_as_transforms_json_reads_back_as_the_same_cameras() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("ns");
+    let (cameras, _) = common::arc_cameras(6, 80, 60, 3);
+    write_capture(&dir, &cameras, json!({}));
+    let capture = open(&dir, 1).unwrap();
+    assert_eq!(capture.format, CaptureFormat::Nerfstudio);
+    assert_eq!(capture.len(), cameras.len());
+    for (a, b) in capture.cameras.iter().zip(&cameras) {
+        assert_eq!(
+            (a.name.as_str(), a.width, a.height),
+            (b.name.as_str(), b.width, b.height)
+        );
+        assert_eq!((a.fx, a.fy, a.cx, a.cy), (b.fx, b.fy, b.cx, b.cy));
+        let (p, q) = (a.world_to_camera.to_mat4(), b.world_to_camera.to_mat4());
+        let worst = (p - q)
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |m, v| m.max(v.abs()));
+        assert!(worst < 1e-9, "{}: poses differ by {worst}", a.name);
+        assert!(a.distortion.is_none());
+    }
+    // Each camera sees the rig's centre in front of it, within its bounds.
+    for (c, b) in capture.cameras.iter().zip(&capture.bounds) {
+        assert!(b.near > 0.0 && b.far > b.near);
+        let centre = capture
+            .cameras
+            .iter()
+            .map(|c| c.camera_to_world().translation)
+            .sum::<glam::DVec3>()
+            / capture.len() as f64;
+        let depth = c.project(centre).map(|p| p.depth).unwrap_or(-1.0);
+        assert!(depth > b.near && depth < b.far, "{}: depth {depth}", c.name);
+    }
+    // images_2/: the same cameras at half the size.
+    let half = open(&dir, 2).unwrap();
+    for (a, b) in half.cameras.iter().zip(&cameras) {
+        assert_eq!((a.width, a.height), (b.width / 2, b.height / 2));
+        assert!((a.fx - b.fx / 2.0).abs() < 1e-12 && (a.cy - b.cy / 2.0).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn transforms_json_that_lies_is_refused_naming_the_frame() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (cameras, _) = common::arc_cameras(3, 40, 30, 5);
+    let case = |name: &str, edit: &dyn Fn(&mut serde_json::Value)| {
+        let dir = tmp.path().join(name);
+        write_capture(&dir, &cameras, json!({}));
+        let path = dir.join("transforms.json");
+        let mut doc: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        edit(&mut doc);
+        std::fs::write(&path, doc.to_string()).unwrap();
+        open(&dir, 1)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default()
+    };
+    let e = case("outside", &|d| {
+        d["frames"][1]["file_path"] = "../x.png".into()
+    });
+    assert!(
+        e.contains("frame 1") && e.contains("leaves the capture"),
+        "{e}"
+    );
+    let e = case("missing", &|d| {
+        d["frames"][0]["file_path"] = "images/none.png".into()
+    });
+    assert!(e.contains("none.png"), "{e}");
+    let e = case("mirror", &|d| {
+        d["frames"][2]["transform_matrix"][0][0] =
+            json!(-d["frames"][2]["transform_matrix"][0][0].as_f64().unwrap());
+        d["frames"][2]["transform_matrix"][1][0] =
+            json!(-d["frames"][2]["transform_matrix"][1][0].as_f64().unwrap());
+        d["frames"][2]["transform_matrix"][2][0] =
+            json!(-d["frames"][2]["transform_matrix"][2][0].as_f64().unwrap());
+    });
+    assert!(e.contains("frame 2") && e.contains("mirrored"), "{e}");
+    let e = case("nan", &|d| {
+        d["frames"][0]["transform_matrix"][1][3] = json!("nan")
+    });
+    assert!(e.contains("frame 0") && e.contains("finite"), "{e}");
+    let e = case("fisheye", &|d| d["camera_model"] = "OPENCV_FISHEYE".into());
+    assert!(e.contains("OPENCV_FISHEYE"), "{e}");
+    let e = case("no focal", &|d| {
+        d.as_object_mut().unwrap().remove("fl_x");
+    });
+    assert!(e.contains("fl_x"), "{e}");
+    // Distortion is kept, for reporting, as COLMAP's is.
+    let dir = tmp.path().join("distorted");
+    write_capture(&dir, &cameras, json!({"k1": 0.02}));
+    let c = open(&dir, 1).unwrap();
+    assert_eq!(c.cameras[0].distortion.unwrap().k1, 0.02);
+    assert!(c.distortion_source.unwrap().ends_with("transforms.json"));
+}
