@@ -274,7 +274,8 @@ impl std::str::FromStr for RestorerChoice {
 /// How a capture is read for training (the defaults are the command line's).
 #[derive(clap::Args, Clone, Debug)]
 pub struct DataOptions {
-    /// Use images_N (1: images/).
+    /// Use images_N/ (1: images/); a capture without it has its images/ shrunk N times at
+    /// load by the area filter.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
     /// Every N-th view is held out for evaluation (0: none).

@@ -117,6 +117,9 @@ pub struct Capture {
     pub downsample: f64,
     /// The COLMAP cameras file the cameras' distortion came from, if any.
     pub distortion_source: Option<PathBuf>,
+    /// How many times smaller than its file each photo is loaded (1: as it is): a downsample
+    /// whose `images_N/` the capture lacks is made from `images/` at load.
+    pub shrink: u32,
 }
 
 impl Capture {
@@ -137,7 +140,10 @@ impl Capture {
                 format!("image index {index} out of range 0..{}", self.len()),
             ));
         };
-        let image = images::load_rgb(path)?;
+        let mut image = images::load_rgb(path)?;
+        if self.shrink > 1 {
+            image = image.shrunk(self.shrink);
+        }
         if (image.width, image.height) != (camera.width, camera.height) {
             return Err(SceneError::invalid(
                 path,
@@ -229,6 +235,31 @@ pub fn image_downsamples(root: &Path) -> Vec<u32> {
     found
 }
 
+/// The image folder to read and how many times to shrink its photos at load: `images_N/`
+/// as it is when the capture has it, else `images/` shrunk `N` times.
+fn image_source(root: &Path, resolution: Resolution) -> Result<(PathBuf, u32)> {
+    if let Resolution::Downsample(n) = resolution
+        && n > 1
+        && !root.join(llff::image_folder_name(n)).is_dir()
+        && root.join("images").is_dir()
+    {
+        return Ok((root.join("images"), n));
+    }
+    Ok((choose_image_dir(root, resolution)?, 1))
+}
+
+/// `(w, h)` of a photo shrunk `n` times, refused when nothing would be left.
+fn shrunk_size(path: &Path, (w, h): (u32, u32), n: u32) -> Result<(u32, u32)> {
+    let (sw, sh) = (w / n.max(1), h / n.max(1));
+    if sw == 0 || sh == 0 {
+        return Err(SceneError::invalid(
+            path,
+            format!("{w}x{h} px shrunk {n} times leaves no pixel: use a smaller --downsample"),
+        ));
+    }
+    Ok((sw, sh))
+}
+
 fn choose_image_dir(root: &Path, resolution: Resolution) -> Result<PathBuf> {
     let available = || {
         let names: Vec<String> = image_folders(root)
@@ -283,7 +314,7 @@ fn stem(path: &Path) -> String {
 fn open_llff(root: &Path, options: &OpenOptions) -> Result<Capture> {
     let poses_path = root.join(POSES_BOUNDS);
     let poses = llff::read_poses_bounds(&poses_path)?;
-    let image_dir = choose_image_dir(root, options.resolution)?;
+    let (image_dir, shrink) = image_source(root, options.resolution)?;
     let image_paths = images::list_images(&image_dir)?;
     if image_paths.len() != poses.len() {
         return Err(SceneError::CountMismatch {
@@ -294,7 +325,7 @@ fn open_llff(root: &Path, options: &OpenOptions) -> Result<Capture> {
         });
     }
     check_stems(&image_paths)?;
-    let (width, height) = images::common_size(&image_paths)?;
+    let (width, height) = shrunk_size(&image_paths[0], images::common_size(&image_paths)?, shrink)?;
     let mut cameras = Vec::with_capacity(poses.len());
     for (row, (pose, path)) in poses.iter().zip(&image_paths).enumerate() {
         limits::check_downsample((pose.width, pose.height), (width, height)).map_err(|p| {
@@ -352,6 +383,7 @@ fn open_llff(root: &Path, options: &OpenOptions) -> Result<Capture> {
         points,
         point_source,
         distortion_source,
+        shrink,
     })
 }
 
@@ -367,7 +399,22 @@ fn open_transforms(root: &Path, options: &OpenOptions) -> Result<Capture> {
                 .unwrap_or(1)
         }
     };
-    let mut frames = nerfstudio::read_frames(root, downsample)?;
+    // Without images_N/, the photos of images/ shrunk at load.
+    let shrink = if downsample > 1
+        && !root.join(llff::image_folder_name(downsample)).is_dir()
+        && root.join("images").is_dir()
+    {
+        downsample
+    } else {
+        1
+    };
+    let mut frames = nerfstudio::read_frames(root, if shrink > 1 { 1 } else { downsample })?;
+    for f in &mut frames {
+        let (w, h) = shrunk_size(&f.path, (f.camera.width, f.camera.height), shrink)?;
+        if shrink > 1 {
+            f.camera = f.camera.resized(w, h);
+        }
+    }
     frames.sort_by(|a, b| {
         let name = |f: &nerfstudio::Frame| f.path.file_name().map(|n| n.to_os_string());
         name(a).cmp(&name(b))
@@ -385,7 +432,11 @@ fn open_transforms(root: &Path, options: &OpenOptions) -> Result<Capture> {
     Ok(Capture {
         root: root.to_path_buf(),
         format: CaptureFormat::Nerfstudio,
-        image_dir: root.join(llff::image_folder_name(downsample)),
+        image_dir: root.join(llff::image_folder_name(if shrink > 1 {
+            1
+        } else {
+            downsample
+        })),
         split: split::split(cameras.len(), options.llffhold),
         downsample: downsample as f64,
         image_paths,
@@ -394,6 +445,7 @@ fn open_transforms(root: &Path, options: &OpenOptions) -> Result<Capture> {
         points,
         point_source,
         distortion_source,
+        shrink,
     })
 }
 
@@ -476,7 +528,7 @@ fn open_colmap(root: &Path, sparse: &Path, options: &OpenOptions) -> Result<Capt
             "model has no registered images",
         ));
     }
-    let image_dir = choose_image_dir(root, options.resolution)?;
+    let (image_dir, shrink) = image_source(root, options.resolution)?;
     let mut entries: Vec<_> = model.images.iter().collect();
     entries.sort_by(|a, b| a.name.as_bytes().cmp(b.name.as_bytes()));
 
@@ -504,7 +556,7 @@ fn open_colmap(root: &Path, sparse: &Path, options: &OpenOptions) -> Result<Capt
                 what: format!("image listed in {}", images_path.display()),
             });
         }
-        let (w, h) = images::image_size(&path)?;
+        let (w, h) = shrunk_size(&path, images::image_size(&path)?, shrink)?;
         let full = image.camera(model_camera);
         limits::check_downsample((full.width as f64, full.height as f64), (w, h)).map_err(|p| {
             SceneError::invalid(
@@ -564,6 +616,7 @@ fn open_colmap(root: &Path, sparse: &Path, options: &OpenOptions) -> Result<Capt
         points,
         point_source,
         distortion_source,
+        shrink,
     })
 }
 

@@ -24,6 +24,35 @@ impl Photo {
         let i = (y as usize * self.width as usize + x as usize) * 3;
         [self.data[i], self.data[i + 1], self.data[i + 2]]
     }
+
+    /// `n` times smaller on each side by the area filter (each pixel the mean of an `n × n`
+    /// block), as LLFF's `images_N/` are made; a remainder of fewer than `n` rows or columns
+    /// is dropped, as integer division sizes them.
+    pub fn shrunk(&self, n: u32) -> Photo {
+        let n = n.max(1);
+        let (w, h) = (self.width / n, self.height / n);
+        let mut data = Vec::with_capacity(w as usize * h as usize * 3);
+        let scale = 1.0 / (n * n) as f32;
+        for y in 0..h {
+            for x in 0..w {
+                let mut sum = [0.0f32; 3];
+                for dy in 0..n {
+                    for dx in 0..n {
+                        let p = self.pixel(x * n + dx, y * n + dy);
+                        for c in 0..3 {
+                            sum[c] += p[c];
+                        }
+                    }
+                }
+                data.extend(sum.map(|v| v * scale));
+            }
+        }
+        Photo {
+            width: w,
+            height: h,
+            data,
+        }
+    }
 }
 
 /// Sample depth of written PNGs.

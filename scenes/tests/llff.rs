@@ -301,10 +301,13 @@ fn bad_llff_input_names_the_file() {
         "{e}"
     );
 
-    // Missing downsample folder lists what exists.
-    let e = scenes::open(&empty, &options(4)).unwrap_err();
+    // A missing downsample folder, with no images/ to shrink, lists what exists.
+    let only2 = tmp.path().join("only2");
+    small_scene(&only2);
+    std::fs::rename(only2.join("images"), only2.join("images_2")).unwrap();
+    let e = scenes::open(&only2, &options(4)).unwrap_err();
     assert!(
-        e.to_string().contains("images_4") && e.to_string().contains("available: images"),
+        e.to_string().contains("images_4") && e.to_string().contains("available: images_2"),
         "{e}"
     );
 

@@ -69,7 +69,7 @@ pub struct ExperimentRuns {
     /// Training steps of every run.
     #[arg(long, default_value_t = 3000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub iters: u64,
-    /// Use the capture's images_N (1: images/).
+    /// Use the capture's images_N/ (1: images/), else its images/ shrunk N times at load.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
     /// Seed of the aberration noise and of every run.

@@ -138,9 +138,10 @@ pub fn run(a: RenderArgs) -> Result<()> {
             std::fs::create_dir_all(&truth)
                 .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
             for &i in views {
-                let source = scenes::aberrated::clean_image_path(capture, i)
-                    .unwrap_or_else(|| capture.image_paths[i].clone());
-                let photo = scenes::images::load_rgb(&source)?;
+                let photo = match scenes::aberrated::load_clean_image(capture, i)? {
+                    Some(clean) => clean,
+                    None => capture.load_image(i)?,
+                };
                 let to = truth.join(format!("{}.png", capture.cameras[i].name));
                 scenes::images::write_png(&to, &photo, scenes::BitDepth::Eight)?;
             }

@@ -51,7 +51,7 @@ pub struct SceneAberrateArgs {
     /// Destination; must not exist.
     #[arg(long)]
     pub out: PathBuf,
-    /// Read images_N of the source.
+    /// Read images_N/ of the source, else its images/ shrunk N times at load.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
     #[command(flatten)]
@@ -65,7 +65,7 @@ pub struct SceneAberrateArgs {
 pub struct InfoArgs {
     /// Capture directory (LLFF or COLMAP).
     pub dir: PathBuf,
-    /// Use images_N.
+    /// Use images_N/, else images/ shrunk N times at load.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
     /// Every N-th image is held out for testing (0: none).
