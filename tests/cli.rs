@@ -1539,8 +1539,16 @@ fn a_transforms_json_capture_trains_and_aberrates() {
     std::fs::write(ns.join("transforms.json"), doc.to_string()).unwrap();
     let info = ok(&["scene", "info", s(&ns), "--downsample", "1"]);
     assert!(info.contains("nerfstudio"), "{info}");
+    // Masks beside the photos, half of each view kept.
+    std::fs::create_dir_all(ns.join("masks")).unwrap();
+    for p in &capture.image_paths {
+        let stem = p.file_stem().unwrap().to_str().unwrap();
+        image::GrayImage::from_fn(32, 24, |x, _| image::Luma([if x < 16 { 0 } else { 255 }]))
+            .save(ns.join("masks").join(format!("{stem}.png")))
+            .unwrap();
+    }
     let run = d.join("run");
-    ok(&[
+    let text = ok(&[
         "train",
         "--scene",
         s(&ns),
@@ -1557,6 +1565,7 @@ fn a_transforms_json_capture_trains_and_aberrates() {
         "--device",
         "cpu",
     ]);
+    assert!(text.contains("masks: 4 of 4 training views"), "{text}");
     assert!(run.join("point_cloud.ply").is_file() && run.join("spiral").is_dir());
     let psf = d.join("psf.npy");
     small_psf(&psf);

@@ -23,6 +23,9 @@ use crate::points::{self, Normalization, PointCloud};
 use crate::split::{self, Split};
 use crate::summary::SceneSummary;
 
+/// The folder of per-image loss masks (white = keep), beside the image folders.
+pub const MASK_DIR: &str = "masks";
+
 /// Which image folder to read.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Resolution {
@@ -154,6 +157,56 @@ impl Capture {
             ));
         }
         Ok(image)
+    }
+
+    /// The loss mask of image `index` (1 keeps a pixel, 0 leaves it out of the loss), at the
+    /// camera's size: `masks/<stem>.png` (or `.jpg`; grey, white = keep) when the capture has a
+    /// `masks/` folder, else the photo's own alpha channel, else None (every pixel counts).
+    pub fn load_mask(&self, index: usize) -> Result<Option<Vec<f32>>> {
+        let (Some(path), Some(camera)) = (self.image_paths.get(index), self.cameras.get(index))
+        else {
+            return Ok(None);
+        };
+        let folder = self.root.join(MASK_DIR);
+        let decoded = if folder.is_dir() {
+            let stem = stem(path);
+            let Some(mask) = ["png", "jpg", "jpeg"]
+                .iter()
+                .map(|e| folder.join(format!("{stem}.{e}")))
+                .find(|p| p.is_file())
+            else {
+                return Err(SceneError::NotFound {
+                    path: folder.join(format!("{stem}.png")),
+                    what: format!(
+                        "mask of {} (the capture has a masks/ folder)",
+                        path.display()
+                    ),
+                });
+            };
+            images::load_grey(&mask)?.map(|m| (mask, m))
+        } else {
+            images::load_alpha(path)?.map(|m| (path.clone(), m))
+        };
+        let Some((source, mut mask)) = decoded else {
+            return Ok(None);
+        };
+        // A mask at the file's size goes through the photo's own shrink.
+        if self.shrink > 1
+            && (mask.width / self.shrink, mask.height / self.shrink)
+                == (camera.width, camera.height)
+        {
+            mask = mask.shrunk(self.shrink);
+        }
+        if (mask.width, mask.height) != (camera.width, camera.height) {
+            return Err(SceneError::invalid(
+                &source,
+                format!(
+                    "mask is {}x{}, its image {}x{}",
+                    mask.width, mask.height, camera.width, camera.height
+                ),
+            ));
+        }
+        Ok(Some(mask.data.chunks_exact(3).map(|p| p[0]).collect()))
     }
 
     /// Decodes several images in parallel, in the order given.

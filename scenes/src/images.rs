@@ -142,6 +142,41 @@ pub fn load_rgb(path: &Path) -> Result<Photo> {
     })
 }
 
+/// A grey image (a mask) as a [`Photo`] with three equal channels (a colour image's
+/// luminance); always `Some`, so that it reads like [`load_alpha`].
+pub fn load_grey(path: &Path) -> Result<Option<Photo>> {
+    image_size(path)?;
+    let decoded = image::open(path).map_err(|source| SceneError::Image {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let grey = decoded.to_luma32f();
+    Ok(Some(Photo {
+        width: grey.width(),
+        height: grey.height(),
+        data: grey.into_raw().into_iter().flat_map(|v| [v; 3]).collect(),
+    }))
+}
+
+/// The alpha channel of a photo as a [`Photo`] of three equal channels, None when the photo
+/// has no alpha.
+pub fn load_alpha(path: &Path) -> Result<Option<Photo>> {
+    image_size(path)?;
+    let decoded = image::open(path).map_err(|source| SceneError::Image {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    if !decoded.color().has_alpha() {
+        return Ok(None);
+    }
+    let rgba = decoded.to_rgba32f();
+    Ok(Some(Photo {
+        width: rgba.width(),
+        height: rgba.height(),
+        data: rgba.pixels().flat_map(|p| [p.0[3]; 3]).collect(),
+    }))
+}
+
 /// Writes a PNG under a temporary name and renames it; samples are clamped to `[0, 1]` and
 /// rounded to the nearest code.
 pub fn write_png(path: &Path, image: &Photo, depth: BitDepth) -> Result<()> {

@@ -76,3 +76,57 @@ fn images_n_missing_is_made_from_images_by_the_area_filter() {
         .to_string();
     assert!(e.contains("images_64") || e.contains("no pixel"), "{e}");
 }
+
+#[test]
+fn masks_come_from_the_masks_folder_else_from_the_photos_alpha() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("llff");
+    let (cameras, bounds) = common::arc_cameras(3, 20, 10, 4);
+    let photos: Vec<_> = (0..3).map(|k| common::pattern(20, 10, k)).collect();
+    scenes::write_llff(&dir, &cameras, &bounds, &photos, 1, BitDepth::Eight).unwrap();
+    let capture = open(&dir, 1).unwrap();
+    // No masks: every pixel counts.
+    assert!(capture.load_mask(0).unwrap().is_none());
+    // A masks/ folder: white keeps, black leaves out.
+    std::fs::create_dir_all(dir.join("masks")).unwrap();
+    for (k, p) in capture.image_paths.iter().enumerate() {
+        let stem = p.file_stem().unwrap().to_str().unwrap();
+        image::GrayImage::from_fn(20, 10, |x, _| {
+            image::Luma([if x < 5 + k as u32 { 0 } else { 255 }])
+        })
+        .save(dir.join("masks").join(format!("{stem}.png")))
+        .unwrap();
+    }
+    let m = capture.load_mask(1).unwrap().unwrap();
+    assert_eq!(m.len(), 200);
+    assert_eq!((m[0], m[5], m[6], m[19]), (0.0, 0.0, 1.0, 1.0));
+    // At half size the mask shrinks with its photo (the area filter: a blended edge).
+    let half = open(&dir, 2).unwrap();
+    let m2 = half.load_mask(0).unwrap().unwrap();
+    assert_eq!(m2.len(), 50);
+    assert_eq!((m2[1], m2[2], m2[3]), (0.0, 0.5, 1.0));
+    // A mask of the wrong size is refused naming it; a missing one too.
+    let first = capture.image_paths[0]
+        .file_stem()
+        .unwrap()
+        .to_str()
+        .unwrap()
+        .to_string();
+    image::GrayImage::new(7, 7)
+        .save(dir.join("masks").join(format!("{first}.png")))
+        .unwrap();
+    let e = capture.load_mask(0).unwrap_err().to_string();
+    assert!(e.contains(&first) && e.contains("7x7"), "{e}");
+    std::fs::remove_file(dir.join("masks").join(format!("{first}.png"))).unwrap();
+    let e = capture.load_mask(0).unwrap_err().to_string();
+    assert!(e.contains("masks"), "{e}");
+    // Without masks/, an alpha channel is the mask.
+    std::fs::remove_dir_all(dir.join("masks")).unwrap();
+    image::RgbaImage::from_fn(20, 10, |x, _| {
+        image::Rgba([90, 90, 90, if x < 10 { 0 } else { 255 }])
+    })
+    .save(&capture.image_paths[2])
+    .unwrap();
+    let m = capture.load_mask(2).unwrap().unwrap();
+    assert_eq!((m[9], m[10]), (0.0, 1.0));
+}

@@ -111,6 +111,13 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
                 }
             }
         }
+        let masked = data.train.iter().filter(|v| v.mask.is_some()).count();
+        if masked > 0 {
+            println!(
+                "masks: {masked} of {} training views leave pixels out of the loss (held-out views are scored whole)",
+                data.train.len()
+            );
+        }
         match data.evaluated_against() {
             Some(Against::Photos) if data.imaging.is_some() => println!(
                 "no clean images: held-out views are compared with their photos, which are aberrated, so the PSNR counts the blur too"

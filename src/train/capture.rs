@@ -92,6 +92,9 @@ pub struct View {
     pub restored: Option<Vec<Vec3>>,
     /// Ground truth from the capture's `clean/` folder, when it has one.
     pub clean: Option<Vec<Vec3>>,
+    /// Per-pixel weight in the loss (1 keeps, 0 leaves out), from the capture's `masks/` or
+    /// the photo's alpha; None: every pixel counts.
+    pub mask: Option<Vec<f32>>,
 }
 
 /// A capture with its imaging model and its source of `I_ac`.
@@ -171,12 +174,14 @@ impl CaptureModel {
     pub fn view(&self, i: usize) -> Result<View> {
         let observed = rgb_to_pixels(&self.capture.load_image(i)?);
         let clean = aberrated::load_clean_image(&self.capture, i)?.map(|c| rgb_to_pixels(&c));
+        let mask = self.capture.load_mask(i)?;
         Ok(View {
             name: self.capture.cameras[i].name.clone(),
             camera: splat_camera(&self.capture.cameras[i]),
             observed,
             restored: None,
             clean,
+            mask,
         })
     }
 

@@ -34,16 +34,49 @@ pub struct Objective<'a> {
     pub height: u32,
 }
 
+/// `image` with the pixels a mask leaves out taken from `target` (a soft mask blends), so they
+/// add nothing to the loss: `m·image + (1 − m)·target`. Its gradient with respect to `image`
+/// is the mask itself, which [`Objective`] multiplies in.
+pub fn composite(image: &[Vec3], target: &[Vec3], mask: &[f32]) -> Vec<Vec3> {
+    image
+        .iter()
+        .zip(target)
+        .zip(mask)
+        .map(|((i, t), m)| *i * *m + *t * (1.0 - *m))
+        .collect()
+}
+
 impl Objective<'_> {
-    fn term(&self, image: &[Vec3], target: &[Vec3]) -> Result<(f32, Vec<Vec3>, f64)> {
-        let (v, g) = self.term_without_psnr(image, target)?;
-        Ok((v, g, base::psnr_rgb(image, target)?))
+    fn term(
+        &self,
+        image: &[Vec3],
+        target: &[Vec3],
+        mask: Option<&[f32]>,
+    ) -> Result<(f32, Vec<Vec3>, f64)> {
+        let (v, g) = self.term_without_psnr(image, target, mask)?;
+        let psnr = match mask {
+            Some(m) => base::psnr_rgb(&composite(image, target, m), target)?,
+            None => base::psnr_rgb(image, target)?,
+        };
+        Ok((v, g, psnr))
     }
 
-    /// The loss and its gradient, for a term whose PSNR nothing reports.
-    fn term_without_psnr(&self, image: &[Vec3], target: &[Vec3]) -> Result<(f32, Vec<Vec3>)> {
-        let l = photometric_loss(image, target, self.width, self.height, self.dssim_weight)?;
-        Ok((l.value, l.grad))
+    /// The loss and its gradient, for a term whose PSNR nothing reports; masked pixels (see
+    /// [`composite`]) neither count nor get a gradient.
+    fn term_without_psnr(
+        &self,
+        image: &[Vec3],
+        target: &[Vec3],
+        mask: Option<&[f32]>,
+    ) -> Result<(f32, Vec<Vec3>)> {
+        let Some(m) = mask else {
+            let l = photometric_loss(image, target, self.width, self.height, self.dssim_weight)?;
+            return Ok((l.value, l.grad));
+        };
+        let shown = composite(image, target, m);
+        let l = photometric_loss(&shown, target, self.width, self.height, self.dssim_weight)?;
+        let grad = l.grad.iter().zip(m).map(|(g, w)| *g * *w).collect();
+        Ok((l.value, grad))
     }
 
     fn blur(&self) -> Result<&ImagingModel> {
@@ -63,7 +96,16 @@ impl Objective<'_> {
     /// The loss alone (what the SH-band probes read): the same value as [`Self::evaluate`]'s
     /// total, without the SSIM backward or the blur's adjoint.
     pub fn value(&self, rendered: &[Vec3], view: &View) -> Result<f32> {
+        let mask = view.mask.as_deref();
         let term = |image: &[Vec3], target: &[Vec3]| -> Result<f32> {
+            let shown;
+            let image = match mask {
+                Some(m) => {
+                    shown = composite(image, target, m);
+                    &shown
+                }
+                None => image,
+            };
             Ok(splat::loss::photometric_value(
                 image,
                 target,
@@ -106,8 +148,8 @@ impl Objective<'_> {
                     Mode::Plain => view.observed.as_slice(),
                     _ => restored()?,
                 };
-                let (v, g, p) =
-                    tracing::info_span!("loss").in_scope(|| self.term(rendered, target))?;
+                let (v, g, p) = tracing::info_span!("loss")
+                    .in_scope(|| self.term(rendered, target, view.mask.as_deref()))?;
                 Ok((
                     LossParts {
                         total: v,
@@ -121,14 +163,14 @@ impl Objective<'_> {
             Mode::Aware => {
                 let blurred =
                     tracing::info_span!("PSF blur").in_scope(|| self.as_observed(rendered))?;
-                let (v_abr, g_blurred, p) =
-                    tracing::info_span!("loss").in_scope(|| self.term(&blurred, &view.observed))?;
+                let (v_abr, g_blurred, p) = tracing::info_span!("loss")
+                    .in_scope(|| self.term(&blurred, &view.observed, view.mask.as_deref()))?;
                 let g_abr = tracing::info_span!("blur adjoint").in_scope(|| -> Result<_> {
                     Ok(self.blur()?.plan().adjoint_pixels(&g_blurred)?)
                 })?;
                 let (v_ac, g_ac) = tracing::info_span!("loss").in_scope(|| {
                     if self.lambda != 0.0 {
-                        self.term_without_psnr(rendered, restored()?)
+                        self.term_without_psnr(rendered, restored()?, view.mask.as_deref())
                     } else {
                         Ok((0.0, vec![Vec3::ZERO; rendered.len()]))
                     }
