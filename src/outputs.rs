@@ -223,7 +223,11 @@ pub fn write_run(
         Some(m) if m.against == crate::train::eval::Against::Clean => {
             let mut sum = 0.0;
             for v in &data.test {
-                sum += base::psnr_rgb(&v.observed, v.clean.as_deref().unwrap_or(&v.observed))?;
+                // Against::Clean: every held-out view has its clean image.
+                let clean = v.clean.as_deref().ok_or_else(|| {
+                    TrainError::Invalid(format!("held-out view {} has no clean image", v.name))
+                })?;
+                sum += base::psnr_rgb(&v.observed, clean)?;
             }
             Some(sum / data.test.len() as f64)
         }

@@ -1930,6 +1930,33 @@ fn a_run_folder_has_one_writer() {
         );
         assert_ne!(out.status.code(), Some(101), "{err}");
     }
+    // Nor does a render put frames into the folder while the run writes it.
+    let ply = d.join("start.ply");
+    splat::ply::write_ply(&ply, &splat::synthetic::random_box_scene(3, 40, 1)).unwrap();
+    let out = common::cli::metasplat()
+        .args(args(&[
+            "render",
+            "--in",
+            &s(&ply),
+            "--out",
+            &s(&run),
+            "--orbit",
+            "2",
+            "--width",
+            "32",
+            "--height",
+            "24",
+            "--device",
+            "cpu",
+        ]))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains(&holder), "{err}");
+    assert!(
+        !run.join("orbit000.png").exists(),
+        "a frame landed in the run folder"
+    );
     assert!(first.try_wait().unwrap().is_none(), "the first run ended");
     first.kill().unwrap();
     first.wait().unwrap();

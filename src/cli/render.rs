@@ -125,6 +125,13 @@ pub fn run(a: RenderArgs) -> Result<()> {
     // One render into --out at a time; the lock sits beside it, so that --out appears only
     // with its frames.
     let _lock = base::FolderLock::beside(&a.out, "render")?;
+    // Into a folder that exists, also the lock a training run there holds: no frames land
+    // in a run folder while the run writes it.
+    let _folder_lock = if a.out.is_dir() {
+        Some(base::FolderLock::folder(&a.out, "render")?)
+    } else {
+        None
+    };
     // A killed render's staging folder is removed before this one stages its own.
     base::remove_orphans(&parent);
     let staging = tempfile::Builder::new()

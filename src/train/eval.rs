@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use splat::{Gaussians, RenderSettings};
 
 use crate::device::Device;
-use crate::error::Result;
+use crate::error::{Result, TrainError};
 use crate::train::data::View;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -90,7 +90,10 @@ pub fn evaluate(
         .map(|(v, out)| {
             let image = out.color;
             let target = match against {
-                Against::Clean => v.clean.as_deref().unwrap_or(&v.observed),
+                // `reference` says Clean only when every view has its clean image.
+                Against::Clean => v.clean.as_deref().ok_or_else(|| {
+                    TrainError::Invalid(format!("held-out view {} has no clean image", v.name))
+                })?,
                 Against::Photos => &v.observed,
             };
             let (p, s) = compare(&image, target, v.camera.width, v.camera.height)?;
