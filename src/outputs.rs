@@ -299,19 +299,36 @@ pub fn render_named(
     Ok(written)
 }
 
-/// The PSNR-vs-time picture, when there are test PSNRs to plot.
-pub fn plot_log(dir: &Path, log: &[LogRow]) -> Result<()> {
+/// What the PSNR-vs-time picture draws: the held-out PSNR at each evaluation and, when the
+/// capture has clean images, the aberrated input's PSNR as a flat line over the same time,
+/// the level training must beat. Empty when nothing was evaluated.
+pub fn log_series(log: &[LogRow], observed_psnr: Option<f64>) -> Vec<crate::plot::Series> {
     let points: Vec<(f64, f64)> = log
         .iter()
         .filter_map(|r| r.test_psnr.map(|p| (r.seconds, p)))
         .collect();
-    if points.is_empty() {
-        return Ok(());
-    }
-    let series = [crate::plot::Series {
+    let Some(&(last, _)) = points.last() else {
+        return Vec::new();
+    };
+    let mut series = vec![crate::plot::Series {
         name: "held-out PSNR".into(),
         points,
     }];
+    if let Some(p) = observed_psnr.filter(|p| p.is_finite()) {
+        series.push(crate::plot::Series {
+            name: "the aberrated input".into(),
+            points: vec![(0.0, p), (last, p)],
+        });
+    }
+    series
+}
+
+/// The PSNR-vs-time picture, when there are test PSNRs to plot.
+pub fn plot_log(dir: &Path, log: &[LogRow], observed_psnr: Option<f64>) -> Result<()> {
+    let series = log_series(log, observed_psnr);
+    if series.is_empty() {
+        return Ok(());
+    }
     crate::plot::line_plot(
         &dir.join(PSNR_PLOT),
         "held-out PSNR vs training time",
@@ -320,4 +337,39 @@ pub fn plot_log(dir: &Path, log: &[LogRow]) -> Result<()> {
         &series,
     )?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(step: u64, seconds: f64, test: Option<f64>) -> LogRow {
+        LogRow {
+            step,
+            seconds,
+            loss: 0.1,
+            train_psnr: 20.0,
+            test_psnr: test,
+            test_ssim: test.map(|_| 0.5),
+            splats: 10,
+            sh_degree: 0,
+        }
+    }
+
+    #[test]
+    fn the_plot_shows_the_inputs_psnr_as_a_line_over_the_run() {
+        let log = [
+            row(10, 1.5, Some(18.0)),
+            row(15, 2.0, None),
+            row(20, 3.0, Some(21.0)),
+        ];
+        let s = log_series(&log, Some(19.5));
+        assert_eq!(s.len(), 2);
+        assert_eq!(s[0].points, [(1.5, 18.0), (3.0, 21.0)]);
+        assert_eq!(s[1].points, [(0.0, 19.5), (3.0, 19.5)]);
+        // Without clean images (no input PSNR) or without evaluations: what there is.
+        assert_eq!(log_series(&log, None).len(), 1);
+        assert_eq!(log_series(&log, Some(f64::NAN)).len(), 1);
+        assert!(log_series(&[row(5, 1.0, None)], Some(19.5)).is_empty());
+    }
 }

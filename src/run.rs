@@ -202,7 +202,7 @@ impl PreparedRun {
             self.request.spiral as usize,
             &self.device,
         )
-        .and_then(|s| outputs::plot_log(out, &outcome.log).map(|_| s))
+        .and_then(|s| outputs::plot_log(out, &outcome.log, s.observed_psnr).map(|_| s))
         .map_err(|e| e.context(format!("cannot write the run folder {}", out.display())))?;
         if let Some(e) = snapshot_failure {
             return Err(e.context("cannot keep the splats --save-at asked for"));
