@@ -4,50 +4,16 @@
 //! (the inputs are a few kB; the readers check sizes against the file and `base::limits`
 //! before reserving, so a lying header must not size an allocation).
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 /// The largest single allocation a parse of these small inputs may make.
 const MAX_ALLOCATION: usize = 64 << 20;
 
-thread_local! {
-    /// The largest allocation this thread made since the last [`largest_allocation`].
-    static LARGEST: Cell<usize> = const { Cell::new(0) };
-}
-
-/// The system allocator, noting each thread's largest request.
-struct Watching;
-
-unsafe impl GlobalAlloc for Watching {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let _ = LARGEST.try_with(|l| l.set(l.get().max(layout.size())));
-        unsafe { System.alloc(layout) }
-    }
-
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-
-    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        let _ = LARGEST.try_with(|l| l.set(l.get().max(layout.size())));
-        unsafe { System.alloc_zeroed(layout) }
-    }
-
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        let _ = LARGEST.try_with(|l| l.set(l.get().max(new_size)));
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
-static ALLOCATOR: Watching = Watching;
+static ALLOCATOR: base::alloc_watch::Watching = base::alloc_watch::Watching;
 
-/// The largest allocation on this thread since the last call, resetting it.
-fn largest_allocation() -> usize {
-    LARGEST.with(|l| l.replace(0))
-}
+use base::alloc_watch::largest as largest_allocation;
 
 use proptest::prelude::*;
 

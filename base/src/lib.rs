@@ -2,6 +2,8 @@
 //! SSIM with its gradient), the one way an output file is written, and the seeded mixer behind
 //! every reproducible random choice. It knows nothing of splats, optics or networks.
 
+#[doc(hidden)]
+pub mod alloc_watch;
 pub mod atomic;
 pub mod error;
 pub mod hash;

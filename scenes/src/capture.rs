@@ -183,7 +183,8 @@ impl Capture {
                     ),
                 });
             };
-            images::load_grey(&mask)?.map(|m| (mask, m))
+            let grey = images::load_grey(&mask)?;
+            Some((mask, grey))
         } else {
             images::load_alpha(path)?.map(|m| (path.clone(), m))
         };
@@ -272,17 +273,20 @@ fn image_folders(root: &Path) -> Vec<PathBuf> {
     folders
 }
 
+/// The downsample an image folder holds: 1 for `images/`, N for `images_N/`.
+fn folder_downsample(dir: &Path) -> Option<u32> {
+    let name = dir.file_name()?.to_str()?;
+    match name.strip_prefix("images_") {
+        Some(n) => n.parse().ok(),
+        None => (name == "images").then_some(1),
+    }
+}
+
 /// The downsample factors a capture has image folders for (1 for `images/`), ascending.
 pub fn image_downsamples(root: &Path) -> Vec<u32> {
     let mut found: Vec<u32> = image_folders(root)
         .iter()
-        .filter_map(|p| {
-            let name = p.file_name()?.to_str()?;
-            match name.strip_prefix("images_") {
-                Some(n) => n.parse().ok(),
-                None => Some(1),
-            }
-        })
+        .filter_map(|p| folder_downsample(p))
         .collect();
     found.sort_unstable();
     found
@@ -441,30 +445,19 @@ fn open_llff(root: &Path, options: &OpenOptions) -> Result<Capture> {
 }
 
 fn open_transforms(root: &Path, options: &OpenOptions) -> Result<Capture> {
-    let downsample = match options.resolution {
-        Resolution::Downsample(n) => n,
-        Resolution::TargetWidth(_) => {
-            let dir = choose_image_dir(root, options.resolution)?;
-            dir.file_name()
-                .and_then(|n| n.to_str())
-                .and_then(|n| n.strip_prefix("images_"))
-                .and_then(|n| n.parse().ok())
-                .unwrap_or(1)
+    // Frames name their photos wherever they are at full size (not always under images/);
+    // a downsample reads images_N/, or images/ shrunk, as the other layouts do.
+    let (folder, shrink) = match options.resolution {
+        Resolution::Downsample(1) => (1, 1),
+        resolution => {
+            let (dir, shrink) = image_source(root, resolution)?;
+            (folder_downsample(&dir).unwrap_or(1), shrink)
         }
     };
-    // Without images_N/, the photos of images/ shrunk at load.
-    let shrink = if downsample > 1
-        && !root.join(llff::image_folder_name(downsample)).is_dir()
-        && root.join("images").is_dir()
-    {
-        downsample
-    } else {
-        1
-    };
-    let mut frames = nerfstudio::read_frames(root, if shrink > 1 { 1 } else { downsample })?;
-    for f in &mut frames {
-        let (w, h) = shrunk_size(&f.path, (f.camera.width, f.camera.height), shrink)?;
-        if shrink > 1 {
+    let mut frames = nerfstudio::read_frames(root, folder)?;
+    if shrink > 1 {
+        for f in &mut frames {
+            let (w, h) = shrunk_size(&f.path, (f.camera.width, f.camera.height), shrink)?;
             f.camera = f.camera.resized(w, h);
         }
     }
@@ -485,13 +478,9 @@ fn open_transforms(root: &Path, options: &OpenOptions) -> Result<Capture> {
     Ok(Capture {
         root: root.to_path_buf(),
         format: CaptureFormat::Nerfstudio,
-        image_dir: root.join(llff::image_folder_name(if shrink > 1 {
-            1
-        } else {
-            downsample
-        })),
+        image_dir: root.join(llff::image_folder_name(folder)),
         split: split::split(cameras.len(), options.llffhold),
-        downsample: downsample as f64,
+        downsample: (folder * shrink) as f64,
         image_paths,
         cameras,
         bounds,

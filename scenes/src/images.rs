@@ -143,19 +143,19 @@ pub fn load_rgb(path: &Path) -> Result<Photo> {
 }
 
 /// A grey image (a mask) as a [`Photo`] with three equal channels (a colour image's
-/// luminance); always `Some`, so that it reads like [`load_alpha`].
-pub fn load_grey(path: &Path) -> Result<Option<Photo>> {
+/// luminance).
+pub fn load_grey(path: &Path) -> Result<Photo> {
     image_size(path)?;
     let decoded = image::open(path).map_err(|source| SceneError::Image {
         path: path.to_path_buf(),
         source,
     })?;
     let grey = decoded.to_luma32f();
-    Ok(Some(Photo {
+    Ok(Photo {
         width: grey.width(),
         height: grey.height(),
         data: grey.into_raw().into_iter().flat_map(|v| [v; 3]).collect(),
-    }))
+    })
 }
 
 /// The alpha channel of a photo as a [`Photo`] of three equal channels, None when the photo

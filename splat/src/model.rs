@@ -76,6 +76,18 @@ impl Gaussians {
         }
     }
 
+    /// Room for `n` more splats in every parameter, reserved exactly (readers call it once
+    /// a count is proven by the data, so nothing grows by doubling from an untrusted count).
+    pub fn reserve_exact(&mut self, n: usize) {
+        let rc = self.rest_count();
+        self.means.reserve_exact(n);
+        self.log_scales.reserve_exact(n);
+        self.rotations.reserve_exact(n);
+        self.logit_opacities.reserve_exact(n);
+        self.sh_dc.reserve_exact(n);
+        self.sh_rest.reserve_exact(n * rc);
+    }
+
     pub fn len(&self) -> usize {
         self.means.len()
     }

@@ -495,12 +495,7 @@ fn parse_reader<R: BufRead>(
         2 * nprops as u64
     };
     let cap = have.map_or(0, |h| (h / min_row).min(n as u64) as usize);
-    g.means.reserve(cap);
-    g.log_scales.reserve(cap);
-    g.rotations.reserve(cap);
-    g.logit_opacities.reserve(cap);
-    g.sh_dc.reserve(cap);
-    g.sh_rest.reserve(cap * k);
+    g.reserve_exact(cap);
     let parser = Parser::<Row>::new();
     let first_line = reader.line();
     let mut line = String::new();

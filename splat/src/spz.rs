@@ -166,13 +166,8 @@ pub fn parse_spz(path: &Path, bytes: &[u8]) -> Result<Gaussians, SplatError> {
     let (rot, sh) = rest.split_at(rot_bytes * n);
     let step = 1.0 / (1u32 << frac) as f32;
     let mut g = Gaussians::new(degree);
-    // The count is proven by the data now: reserve it exactly, not by doubling.
-    g.means.reserve_exact(n);
-    g.log_scales.reserve_exact(n);
-    g.rotations.reserve_exact(n);
-    g.logit_opacities.reserve_exact(n);
-    g.sh_dc.reserve_exact(n);
-    g.sh_rest.reserve_exact(n * rc);
+    // The count is proven by the data now.
+    g.reserve_exact(n);
     let mut coeffs = vec![Vec3::ZERO; rc];
     for i in 0..n {
         let p: [f32; 3] = std::array::from_fn(|k| {

@@ -173,47 +173,8 @@ fn version_4_reads_as_its_version_3_twin() {
     }
 }
 
-mod watch {
-    //! The largest single allocation each thread makes, so that a test can bound what a
-    //! hostile file reserves.
-    use std::alloc::{GlobalAlloc, Layout, System};
-    use std::cell::Cell;
-
-    thread_local! {
-        static LARGEST: Cell<usize> = const { Cell::new(0) };
-    }
-
-    pub struct Watching;
-
-    unsafe impl GlobalAlloc for Watching {
-        unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-            let _ = LARGEST.try_with(|l| l.set(l.get().max(layout.size())));
-            unsafe { System.alloc(layout) }
-        }
-
-        unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-            unsafe { System.dealloc(ptr, layout) }
-        }
-
-        unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-            let _ = LARGEST.try_with(|l| l.set(l.get().max(layout.size())));
-            unsafe { System.alloc_zeroed(layout) }
-        }
-
-        unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-            let _ = LARGEST.try_with(|l| l.set(l.get().max(new_size)));
-            unsafe { System.realloc(ptr, layout, new_size) }
-        }
-    }
-
-    /// The largest allocation on this thread since the last call, resetting it.
-    pub fn largest() -> usize {
-        LARGEST.with(|l| l.replace(0))
-    }
-}
-
 #[global_allocator]
-static ALLOCATOR: watch::Watching = watch::Watching;
+static ALLOCATOR: base::alloc_watch::Watching = base::alloc_watch::Watching;
 
 /// A count within the memory budget over streams that hold a sliver of it (ZSTD expands a
 /// few bytes into megabytes of zeros): refused for the data missing, having reserved about
@@ -242,11 +203,11 @@ fn a_count_far_above_the_data_reserves_what_the_data_holds() {
         out.extend(&frame);
     }
     assert!(out.len() < 4 * HELD / 100, "the bomb is small");
-    watch::largest();
+    base::alloc_watch::largest();
     let err = parse_spz(std::path::Path::new("bomb.spz"), &out)
         .unwrap_err()
         .to_string();
-    let largest = watch::largest();
+    let largest = base::alloc_watch::largest();
     assert!(
         err.contains("bomb.spz") && err.contains(&format!("decompresses to {HELD} bytes")),
         "{err}"
@@ -265,7 +226,7 @@ fn a_count_far_above_the_data_reserves_what_the_data_holds() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("GiB a splat file may take"), "{err}");
-    assert!(watch::largest() < 1 << 20);
+    assert!(base::alloc_watch::largest() < 1 << 20);
 }
 
 /// A gzip file of several members (what `cat a.gz b.gz` or a streaming writer makes) is one

@@ -160,40 +160,38 @@ pub fn run(a: RenderArgs) -> Result<()> {
         _ => (staging.path().to_path_buf(), None),
     };
     let staged = render_named(&model, &settings, &cameras, &frames_dir, &device)?;
-    let mut moves: Vec<(PathBuf, PathBuf)> = Vec::new();
-    match &truth_dir {
-        Some(truth) => {
-            for (from, sub) in [(&frames_dir, "renders"), (truth, "gt")] {
-                for e in std::fs::read_dir(from).with_context(|| format!("{}", from.display()))? {
-                    let f = e?.path();
-                    let to = a.out.join(sub).join(f.file_name().expect("a frame file"));
-                    moves.push((f, to));
-                }
-            }
-        }
-        None => {
-            for f in &staged {
-                moves.push((f.clone(), a.out.join(f.file_name().expect("a frame file"))));
-            }
+    // The frames into --out (or its renders/ beside gt/), then their ground truth.
+    let frames_to = match truth_dir {
+        Some(_) => a.out.join("renders"),
+        None => a.out.clone(),
+    };
+    let mut moves: Vec<(PathBuf, PathBuf)> = staged
+        .iter()
+        .map(|f| {
+            (
+                f.clone(),
+                frames_to.join(f.file_name().expect("a frame file")),
+            )
+        })
+        .collect();
+    if let Some(truth) = &truth_dir {
+        for e in std::fs::read_dir(truth).with_context(|| format!("{}", truth.display()))? {
+            let f = e?.path();
+            let to = a.out.join("gt").join(f.file_name().expect("a frame file"));
+            moves.push((f, to));
         }
     }
-    let mut written = Vec::with_capacity(moves.len());
     for (from, to) in moves {
         let dir = to.parent().expect("inside --out");
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
         std::fs::rename(&from, &to)
             .with_context(|| format!("cannot move a frame to {}", to.display()))?;
-        written.push(to);
     }
-    let written: Vec<PathBuf> = written
-        .into_iter()
-        .filter(|p| truth_dir.is_none() || p.parent().is_some_and(|d| d.ends_with("renders")))
-        .collect();
     println!(
         "{} splats (SH degree {}) rendered to {} images {}x{} in {:.2} s under {}",
         model.len(),
         model.sh_degree,
-        written.len(),
+        staged.len(),
         cameras.first().map_or(0, |c| c.1.width),
         cameras.first().map_or(0, |c| c.1.height),
         start.elapsed().as_secs_f64(),
