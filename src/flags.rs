@@ -143,12 +143,12 @@ pub fn camera_pose(s: &str) -> Result<[f32; 6], String> {
         .try_into()
         .map_err(|_| format!("'{s}' is not six numbers ex,ey,ez,tx,ty,tz"))?;
     if v.iter()
-        .any(|x| !(x.is_finite() && x.abs() <= splat::files::MAX_POSITION))
+        .any(|x| !(x.is_finite() && x.abs() <= splat::formats::files::MAX_POSITION))
         || v[..3] == v[3..]
     {
         return Err(format!(
             "'{s}': numbers within ±{:e}, and the eye apart from the target",
-            splat::files::MAX_POSITION
+            splat::formats::files::MAX_POSITION
         ));
     }
     Ok(v)

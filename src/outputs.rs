@@ -166,7 +166,7 @@ pub fn write_run(
     device: &Device,
 ) -> Result<RunSummary> {
     let model = &outcome.model;
-    splat::ply::write_ply(dir.join(PLY_FILE), model)?;
+    splat::formats::ply::write_ply(dir.join(PLY_FILE), model)?;
     write_log_csv(&dir.join(LOG_FILE), &outcome.log)?;
     let metrics = eval::evaluate(model, &data.test, &outcome.settings, device)?;
     let not_evaluated = metrics

@@ -54,7 +54,7 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
     let mut data = data::load(&request.scene, request.training.mode, &data_options)
         .map_err(|e| e.context(format!("cannot load the scene {}", request.scene.display())))?;
     if let Some(path) = &request.training.init {
-        let g = splat::files::read_splats(path)
+        let g = splat::formats::files::read_splats(path)
             .map_err(|e| TrainError::from(e).context(format!("--init {}", path.display())))?;
         if g.is_empty() {
             return Err(TrainError::file(path, "--init: the scene has no splats"));
@@ -178,7 +178,7 @@ impl PreparedRun {
             }
             if let Event::Snapshot { step, model } = &e {
                 let path = out.join(outputs::snapshot_file(*step));
-                if let Err(err) = splat::ply::write_ply(&path, model)
+                if let Err(err) = splat::formats::ply::write_ply(&path, model)
                     && snapshot_failure.is_none()
                 {
                     snapshot_failure = Some(TrainError::from(err));

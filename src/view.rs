@@ -158,7 +158,7 @@ impl RunWatch {
                 })
                 .map_err(|e| e.to_string())
         } else {
-            splat::files::read_splats(&path)
+            splat::formats::files::read_splats(&path)
                 .map(|g| {
                     let what = format!(
                         "Showing the finished run ({} splats) from {}.",

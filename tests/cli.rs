@@ -784,7 +784,7 @@ fn outputs_that_alias_inputs_are_refused_and_inputs_survive() {
     procedural(&scene, 32, 24, 5);
     let photo = scene.join("images/view000.png");
     let ply = d.join("model.ply");
-    splat::ply::write_ply(&ply, &splat::synthetic::random_box_scene(1, 50, 0)).unwrap();
+    splat::formats::ply::write_ply(&ply, &splat::synthetic::random_box_scene(1, 50, 0)).unwrap();
     let weights = Path::new(env!("CARGO_MANIFEST_DIR")).join("restore/weights/tiny.bin");
     let before = snapshot(d);
     let images = scene.join("images");
@@ -986,8 +986,8 @@ fn a_run_folder_is_continued_or_replaced_never_mixed() {
             && text.contains("steps/s"),
         "{text}"
     );
-    let early = splat::files::read_splats(run.join("point_cloud_3.ply")).unwrap();
-    let later = splat::files::read_splats(run.join("point_cloud_7.ply")).unwrap();
+    let early = splat::formats::files::read_splats(run.join("point_cloud_3.ply")).unwrap();
+    let later = splat::formats::files::read_splats(run.join("point_cloud_7.ply")).unwrap();
     assert_ne!(early.means, later.means, "the snapshots are the same model");
     // --overwrite replaces the run: no stale spiral frames or snapshots survive.
     std::fs::write(run.join("spiral/stale.png"), b"old").unwrap();
@@ -1039,7 +1039,7 @@ fn a_run_folder_is_continued_or_replaced_never_mixed() {
     ]);
     assert!(text.contains("checkpoint at step"), "{text}");
     let state = metasplat::train::checkpoint::load(&run.join("checkpoint.bin")).unwrap();
-    let exported = splat::files::read_splats(&from_ckpt).unwrap();
+    let exported = splat::formats::files::read_splats(&from_ckpt).unwrap();
     assert_eq!(exported.len(), state.model.len());
     assert_eq!(exported.means, state.model.means);
     let err = fails(&[
@@ -1164,7 +1164,7 @@ fn render_without_a_capture_frames_the_splats() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let ply = d.join("model.glb");
-    splat::glb::write_glb(&ply, &splat::synthetic::random_box_scene(2, 2000, 1)).unwrap();
+    splat::formats::glb::write_glb(&ply, &splat::synthetic::random_box_scene(2, 2000, 1)).unwrap();
     let out = d.join("orbit");
     let text = ok(&[
         "render",
@@ -1339,7 +1339,7 @@ fn render_finds_the_image_folder_a_capture_has() {
     procedural(&scene, 48, 32, 3);
     assert!(scene.join("images").is_dir() && !scene.join("images_8").exists());
     let ply = d.join("truth.ply");
-    splat::ply::write_ply(&ply, &metasplat::procedural::ground_truth(0)).unwrap();
+    splat::formats::ply::write_ply(&ply, &metasplat::procedural::ground_truth(0)).unwrap();
     let frames = d.join("frames");
     let text = ok(&[
         "render",

@@ -219,7 +219,7 @@ fn valid() -> &'static Valid {
 
         let g = splat::synthetic::random_box_scene(2, 12, 1);
         let ply = d.join("g.ply");
-        splat::ply::write_ply(&ply, &g).unwrap();
+        splat::formats::ply::write_ply(&ply, &g).unwrap();
         let record = serde_json::json!({
             "psf": "psf.npy", "mode": "tiled", "sensor_px": null,
             "noise_gaussian_sigma": 0.01, "noise_poisson_scale": 0.0, "seed": 0,
@@ -238,9 +238,9 @@ fn valid() -> &'static Valid {
             checkpoint: read(&ckpt),
             weights,
             ply: read(&ply),
-            glb: splat::glb::to_glb(&g).unwrap(),
-            gltf: splat::glb::to_gltf(&g).unwrap().into_bytes(),
-            spz: splat::spz::to_spz(&g).unwrap(),
+            glb: splat::formats::glb::to_glb(&g).unwrap(),
+            gltf: splat::formats::glb::to_gltf(&g).unwrap().into_bytes(),
+            spz: splat::formats::spz::to_spz(&g).unwrap(),
             dir,
         }
     })
@@ -301,17 +301,17 @@ fn parse_unwatched(kind: &str, bytes: &[u8]) {
             let _ = restore::weights::parse(bytes, Path::new("w.bin"));
         }
         "ply" => {
-            let _ = splat::ply::parse_ply(Path::new("f.ply"), bytes);
+            let _ = splat::formats::ply::parse_ply(Path::new("f.ply"), bytes);
         }
         "glb" => {
-            let _ = splat::glb::parse_glb(Path::new("f.glb"), bytes);
+            let _ = splat::formats::glb::parse_glb(Path::new("f.glb"), bytes);
         }
         "gltf" => {
             let (_d, p) = file("f.gltf", bytes);
-            let _ = splat::glb::read_gltf(&p);
+            let _ = splat::formats::glb::read_gltf(&p);
         }
         "spz" => {
-            let _ = splat::spz::parse_spz(Path::new("f.spz"), bytes);
+            let _ = splat::formats::spz::parse_spz(Path::new("f.spz"), bytes);
         }
         other => panic!("no parser {other}"),
     }
@@ -383,10 +383,10 @@ fn the_valid_files_parse() {
             }
             "checkpoint" => metasplat::train::checkpoint::load(&p).is_ok(),
             "weights" => restore::weights::parse(bytes, &p).is_ok(),
-            "ply" => splat::ply::parse_ply(&p, bytes).is_ok(),
-            "glb" => splat::glb::parse_glb(&p, bytes).is_ok(),
-            "gltf" => splat::glb::read_gltf(&p).is_ok(),
-            "spz" => splat::spz::parse_spz(&p, bytes).is_ok(),
+            "ply" => splat::formats::ply::parse_ply(&p, bytes).is_ok(),
+            "glb" => splat::formats::glb::parse_glb(&p, bytes).is_ok(),
+            "gltf" => splat::formats::glb::read_gltf(&p).is_ok(),
+            "spz" => splat::formats::spz::parse_spz(&p, bytes).is_ok(),
             other => panic!("no parser {other}"),
         };
         assert!(ok, "the valid {kind} does not parse");
@@ -397,7 +397,7 @@ fn the_valid_files_parse() {
 fn a_lying_size_does_not_size_an_allocation() {
     // An SPZ header declaring 50 million splats of degree 3 in a few hundred bytes.
     let g = splat::synthetic::random_box_scene(2, 12, 3);
-    let spz = splat::spz::to_spz(&g).unwrap();
+    let spz = splat::formats::spz::to_spz(&g).unwrap();
     let mut raw = Vec::new();
     std::io::Read::read_to_end(&mut flate2_decode(&spz), &mut raw).unwrap();
     raw[8..12].copy_from_slice(&50_000_000u32.to_le_bytes());

@@ -966,11 +966,11 @@ fn hostile_splat_files() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let g = splat::synthetic::random_box_scene(3, 40, 1);
-    splat::ply::write_ply(d.join("good.ply"), &g).unwrap();
+    splat::formats::ply::write_ply(d.join("good.ply"), &g).unwrap();
     let ply = std::fs::read(d.join("good.ply")).unwrap();
-    let glb = splat::glb::to_glb(&g).unwrap();
-    let spz = splat::spz::to_spz(&g).unwrap();
-    let gltf = splat::glb::to_gltf(&g).unwrap();
+    let glb = splat::formats::glb::to_glb(&g).unwrap();
+    let spz = splat::formats::spz::to_spz(&g).unwrap();
+    let gltf = splat::formats::glb::to_gltf(&g).unwrap();
     let out = d.join("out");
     let mut suite = Suite::new(d);
     let header_end = ply.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
@@ -1088,7 +1088,7 @@ fn hostile_splat_files() {
     let (doc, bin) = glb_parts(&glb);
     // Taken apart and put together again, the file still reads: each case below breaks
     // only what it names.
-    splat::glb::parse_glb(Path::new("whole.glb"), &glb_from(&doc, &bin)).unwrap();
+    splat::formats::glb::parse_glb(Path::new("whole.glb"), &glb_from(&doc, &bin)).unwrap();
     let accessor_of = |doc: &serde_json::Value, attr: &str| {
         doc["meshes"][0]["primitives"][0]["attributes"][attr]
             .as_u64()
@@ -1932,7 +1932,7 @@ fn a_run_folder_has_one_writer() {
     }
     // Nor does a render put frames into the folder while the run writes it.
     let ply = d.join("start.ply");
-    splat::ply::write_ply(&ply, &splat::synthetic::random_box_scene(3, 40, 1)).unwrap();
+    splat::formats::ply::write_ply(&ply, &splat::synthetic::random_box_scene(3, 40, 1)).unwrap();
     let out = common::cli::metasplat()
         .args(args(&[
             "render",

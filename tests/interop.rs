@@ -79,7 +79,7 @@ fn our_glb_passes_the_khronos_validator() {
     let Some(tools) = tools() else { return };
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("scene.glb");
-    splat::glb::write_glb(&path, &scene()).unwrap();
+    splat::formats::glb::write_glb(&path, &scene()).unwrap();
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/tools/validate-glb.js");
     let out = Command::new("node")
         .arg(&script)
@@ -96,7 +96,7 @@ fn our_glb_passes_the_khronos_validator() {
     assert!(report.contains("\"errors\":0"), "{report}");
     // The same document as .gltf text with its buffer embedded.
     let text = dir.path().join("scene.gltf");
-    splat::glb::write_gltf(&text, &scene()).unwrap();
+    splat::formats::glb::write_gltf(&text, &scene()).unwrap();
     let out = Command::new("node")
         .arg(&script)
         .arg(&text)
@@ -116,11 +116,11 @@ fn splat_transform_and_we_agree_on_ply_and_glb() {
     let dir = tempfile::tempdir().unwrap();
     let g = scene();
     let ours = dir.path().join("ours.ply");
-    splat::ply::write_ply(&ours, &g).unwrap();
+    splat::formats::ply::write_ply(&ours, &g).unwrap();
     // Its GLB of our PLY, read by us: the same scene, so the frame conventions agree.
     let its_glb = dir.path().join("its.glb");
     splat_transform(&tools, &ours, &its_glb);
-    let from_glb = splat::glb::read_glb(&its_glb).unwrap();
+    let from_glb = splat::formats::glb::read_glb(&its_glb).unwrap();
     assert_eq!(from_glb.len(), g.len());
     let p = psnr(&g, &from_glb);
     eprintln!("splat-transform's GLB of our PLY, rendered by us: {p:.1} dB");
@@ -128,12 +128,12 @@ fn splat_transform_and_we_agree_on_ply_and_glb() {
     // Its PLY of our PLY.
     let its_ply = dir.path().join("its.ply");
     splat_transform(&tools, &ours, &its_ply);
-    let p = psnr(&g, &splat::ply::read_ply(&its_ply).unwrap());
+    let p = psnr(&g, &splat::formats::ply::read_ply(&its_ply).unwrap());
     assert!(p >= 50.0, "{p} dB");
     // Our GLB, read back by us after its round trip through our PLY writer: exact scene.
     let our_glb = dir.path().join("ours.glb");
-    splat::glb::write_glb(&our_glb, &g).unwrap();
-    let p = psnr(&g, &splat::glb::read_glb(&our_glb).unwrap());
+    splat::formats::glb::write_glb(&our_glb, &g).unwrap();
+    let p = psnr(&g, &splat::formats::glb::read_glb(&our_glb).unwrap());
     assert!(p >= 60.0, "{p} dB");
 }
 
@@ -143,13 +143,13 @@ fn splat_transform_and_we_agree_on_spz() {
     let dir = tempfile::tempdir().unwrap();
     let g = scene();
     let ours_ply = dir.path().join("ours.ply");
-    splat::ply::write_ply(&ours_ply, &g).unwrap();
+    splat::formats::ply::write_ply(&ours_ply, &g).unwrap();
     // It reads our SPZ: its PLY of it matches our scene within SPZ's quantisation.
     let ours_spz = dir.path().join("ours.spz");
-    splat::spz::write_spz(&ours_spz, &g).unwrap();
+    splat::formats::spz::write_spz(&ours_spz, &g).unwrap();
     let its_ply = dir.path().join("its.ply");
     splat_transform(&tools, &ours_spz, &its_ply);
-    let p = psnr(&g, &splat::ply::read_ply(&its_ply).unwrap());
+    let p = psnr(&g, &splat::formats::ply::read_ply(&its_ply).unwrap());
     eprintln!("our SPZ through splat-transform: {p:.1} dB");
     assert!(p >= 38.0, "{p} dB");
     // We read its SPZ of our PLY, in version 3 (gzip) and its default version 4 (ZSTD).
@@ -172,13 +172,16 @@ fn splat_transform_and_we_agree_on_spz() {
             version == "3",
             "v{version}: gzip or not"
         );
-        let theirs = splat::spz::read_spz(&its_spz).unwrap();
+        let theirs = splat::formats::spz::read_spz(&its_spz).unwrap();
         assert_eq!(theirs.len(), g.len());
         // Its own decoding of its file is the reference for our reader; against the original
         // scene its SPZ loses more than ours (it quantises SH to 5 and 4 bits, we keep 8).
         let its_decoding = dir.path().join(format!("its_decoding_v{version}.ply"));
         splat_transform(&tools, &its_spz, &its_decoding);
-        let same = psnr(&splat::ply::read_ply(&its_decoding).unwrap(), &theirs);
+        let same = psnr(
+            &splat::formats::ply::read_ply(&its_decoding).unwrap(),
+            &theirs,
+        );
         let lossy = psnr(&g, &theirs);
         eprintln!(
             "splat-transform's SPZ v{version} read by us: {same:.1} dB against its own reading, {lossy:.1} dB against the scene"
@@ -251,7 +254,7 @@ fn a_web_viewer_shows_our_files() {
         .color;
     for ext in ["ply", "spz"] {
         let file = dir.path().join(format!("scene.{ext}"));
-        splat::files::write_splats(&file, &g).unwrap();
+        splat::formats::files::write_splats(&file, &g).unwrap();
         let shot = dir.path().join(format!("spark_{ext}.png"));
         let pose: Vec<String> = [eye, center]
             .iter()

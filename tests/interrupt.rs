@@ -90,7 +90,7 @@ fn assert_only_complete_files(run: &Path, when: &str) {
                     .unwrap_or_else(|e| panic!("{when}: {name} is incomplete: {e}"));
             }
             "point_cloud.ply" => {
-                splat::ply::read_ply(&p)
+                splat::formats::ply::read_ply(&p)
                     .unwrap_or_else(|e| panic!("{when}: {name} is incomplete: {e}"));
             }
             "train_log.csv" | "psnr_vs_time.png" | "test" | "spiral" => {}
@@ -261,7 +261,7 @@ fn a_killed_renders_staging_folder_is_removed_by_the_next_render() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let ply = d.join("model.ply");
-    splat::ply::write_ply(&ply, &splat::synthetic::random_box_scene(1, 60, 0)).unwrap();
+    splat::formats::ply::write_ply(&ply, &splat::synthetic::random_box_scene(1, 60, 0)).unwrap();
     let orphan = d.join(".metasplat-4294967290-frames-abcdef");
     std::fs::create_dir_all(&orphan).unwrap();
     std::fs::write(orphan.join("orbit000.png"), b"half a frame").unwrap();

@@ -40,7 +40,7 @@ fn fixture() -> &'static Fixture {
         };
         let (_, aberrated, _) = common::aberrated_procedural(dir.path(), &o);
         let ply = dir.path().join("truth.ply");
-        splat::ply::write_ply(&ply, &ground_truth(o.seed)).unwrap();
+        splat::formats::ply::write_ply(&ply, &ground_truth(o.seed)).unwrap();
         Fixture {
             _dir: dir,
             aberrated,
@@ -170,7 +170,7 @@ fn bad_viewer_arguments_are_refused_before_a_window_opens() {
         assert!(err.contains(says), "{args:?} should mention {says}: {err}");
     }
     // The scene file was not touched by the refused screenshot.
-    assert!(splat::files::read_splats(&f.ply).is_ok());
+    assert!(splat::formats::files::read_splats(&f.ply).is_ok());
 }
 
 /// An X display for the window tests: the environment's, or an Xvfb started for the test.
@@ -441,7 +441,7 @@ fn a_run_being_followed_shows_its_newest_model() {
     assert!(watch.check().is_none());
     let ply = dir.path().join(metasplat::outputs::PLY_FILE);
     let g = ground_truth(3);
-    splat::ply::write_ply(&ply, &g).unwrap();
+    splat::formats::ply::write_ply(&ply, &g).unwrap();
     let (first, what) = watch.check().unwrap().unwrap();
     assert_eq!(first.len(), g.len());
     assert!(what.contains("finished run"), "{what}");
@@ -450,7 +450,7 @@ fn a_run_being_followed_shows_its_newest_model() {
     // A newer file replaces it (a later mtime; file systems may round to a second).
     std::thread::sleep(std::time::Duration::from_millis(1100));
     let other = metasplat::procedural::ground_truth_around(0);
-    splat::ply::write_ply(&ply, &other).unwrap();
+    splat::formats::ply::write_ply(&ply, &other).unwrap();
     let (second, _) = watch.check().unwrap().unwrap();
     assert_eq!(second.len(), other.len());
     assert_ne!(other.len(), g.len());

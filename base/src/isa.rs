@@ -5,7 +5,7 @@
 //! so the choice changes speed only.
 //!
 //! [`simd_builds!`](crate::simd_builds) compiles a plain loop once per build and dispatches on
-//! [`Isa::chosen`]; hand-written intrinsics (`splat::blocks`) match on it themselves.
+//! [`Isa::chosen`]; hand-written intrinsics (`splat::cpu::blend`) match on it themselves.
 
 /// The builds of the kernels, all giving the same bits.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -9,7 +9,7 @@ use std::hint::black_box;
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use glam::Vec3;
-use splat::ply::{read_ply, write_ply};
+use splat::formats::ply::{read_ply, write_ply};
 use splat::synthetic::{benchmark_camera, random_box_scene};
 use splat::{Gaussians, RenderSettings, render, render_backward, render_for_backward};
 

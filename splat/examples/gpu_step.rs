@@ -141,7 +141,7 @@ fn export(
     let write = |name: &str, bytes: &[u8]| {
         base::write_atomically(&dir.join(name), |w| std::io::Write::write_all(w, bytes))
     };
-    splat::ply::write_ply(dir.join("scene.ply"), g).map_err(std::io::Error::other)?;
+    splat::formats::ply::write_ply(dir.join("scene.ply"), g).map_err(std::io::Error::other)?;
     let r = cam.rotation;
     let t = cam.translation;
     // Row-major world-to-camera matrix.

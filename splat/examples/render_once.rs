@@ -13,7 +13,8 @@ use std::time::Instant;
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
-use splat::render::{Kernels, render_for_backward_with};
+use splat::BlendKernels;
+use splat::cpu::render::render_for_backward_with;
 use splat::synthetic::{benchmark_camera, random_box_scene};
 use splat::{RenderSettings, render_backward};
 
@@ -37,13 +38,13 @@ fn main() {
     let backward = args.get(2).is_some_and(|s| s == "backward");
     let repeats: u32 = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(1).max(1);
     let kernels = if args.get(4).is_some_and(|s| s == "scalar") {
-        Kernels::Scalar
+        BlendKernels::Scalar
     } else {
-        Kernels::Blocks
+        BlendKernels::Lanes
     };
     let (g, cam) = match ply {
         Some(path) => {
-            let g = splat::ply::read_ply(path).expect("PLY");
+            let g = splat::formats::ply::read_ply(path).expect("PLY");
             let mut cam = benchmark_camera();
             if let Some(f) = args.get(5).and_then(|s| s.parse::<f32>().ok()) {
                 (cam.fx, cam.fy) = (f, f);

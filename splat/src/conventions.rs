@@ -1,7 +1,7 @@
 //! The numbers every implementation of the rasterizer must share, in one place: the CPU kernels
 //! use them, and the GPU kernels and any port must use the same values to agree with the
-//! CPU reference. The rules they take part in are documented in `project`, `tiles` and
-//! `raster`, and in the crate README.
+//! CPU reference. The rules they take part in are documented in `cpu::project`, `cpu::tiles` and
+//! `reference::scalar_blend`, and in the crate README.
 
 /// Low-pass added to the screen-space covariance diagonal (pixels²).
 pub const COV2D_BLUR: f32 = 0.3;

@@ -5,10 +5,10 @@
 
 use glam::Vec3;
 
+use crate::cpu::project::quat_to_rotmat;
+use crate::cpu::render::{Gradients, RenderOutput};
 use crate::error::SplatError;
 use crate::model::{Gaussians, logit, sigmoid};
-use crate::project::quat_to_rotmat;
-use crate::render::{Gradients, RenderOutput};
 use base::SplitMix64;
 
 /// A per-Gaussian mask must have the model's length.

@@ -12,10 +12,10 @@
 
 use glam::{Mat3, Vec3};
 
+use crate::cpu::project::quat_to_rotmat;
 use crate::densify::check_mask;
 use crate::error::SplatError;
 use crate::model::{Gaussians, logit, sigmoid};
-use crate::project::quat_to_rotmat;
 use base::SplitMix64;
 
 /// Most copies one Gaussian is split into by a single move (the paper's table stops here).

@@ -8,9 +8,9 @@
 use glam::Vec3;
 
 use crate::camera::Camera;
+use crate::cpu::render::{self, ForwardState, Gradients, RenderOutput, RenderSettings};
 use crate::error::SplatError;
 use crate::model::Gaussians;
-use crate::render::{self, ForwardState, Gradients, RenderOutput, RenderSettings};
 
 /// Loss gradients with respect to the images of one forward pass, row-major like them.
 #[derive(Clone, Copy, Debug)]

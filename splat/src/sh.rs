@@ -19,7 +19,7 @@ use std::ops::Mul;
 
 use glam::Vec3;
 
-use crate::lanes::Lane;
+use crate::cpu::lanes::Lane;
 
 pub const SH_C0: f32 = 0.282_094_8;
 pub const SH_C1: f32 = 0.488_602_52;

@@ -9,11 +9,11 @@
 //! is tested against it.
 
 use crate::camera::Camera;
+use crate::cpu::render::{ForwardState, Gradients, RenderOutput, RenderSettings};
 use crate::error::SplatError;
 use crate::model::{Gaussians, sigmoid};
 use crate::optim::{Adam, LearningRates};
 use crate::rasterizer::{CpuRasterizer, PixelGradients, Rasterizer};
-use crate::render::{ForwardState, Gradients, RenderOutput, RenderSettings};
 
 /// What one step leaves on the host.
 #[derive(Clone, Debug, Default)]

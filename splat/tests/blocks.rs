@@ -6,7 +6,8 @@ mod common;
 
 use common::{random_scene, test_camera};
 use glam::Vec3;
-use splat::render::{Kernels, render_for_backward_with};
+use splat::BlendKernels;
+use splat::cpu::render::render_for_backward_with;
 use splat::{RenderSettings, render_backward};
 
 fn max_rel(a: &[f32], b: &[f32]) -> f32 {
@@ -31,8 +32,8 @@ fn blocks_match_the_scalar_kernels() {
             background: Vec3::new(0.1, 0.2, 0.3),
             antialiased: false,
         };
-        let (fast, fs) = render_for_backward_with(&g, &cam, &s, Kernels::Blocks).unwrap();
-        let (slow, ss) = render_for_backward_with(&g, &cam, &s, Kernels::Scalar).unwrap();
+        let (fast, fs) = render_for_backward_with(&g, &cam, &s, BlendKernels::Lanes).unwrap();
+        let (slow, ss) = render_for_backward_with(&g, &cam, &s, BlendKernels::Scalar).unwrap();
         // The same decisions (a pair whose α sits within the exponential's error of 1/255
         // could flip; none does here) and images within the exponential's error.
         assert_eq!(fast.num_blended, slow.num_blended, "seed {seed}");
@@ -82,7 +83,7 @@ fn blocks_give_the_same_bits_for_any_thread_count() {
             .build()
             .unwrap()
             .install(|| {
-                let (o, st) = render_for_backward_with(&g, &cam, &s, Kernels::Blocks).unwrap();
+                let (o, st) = render_for_backward_with(&g, &cam, &s, BlendKernels::Lanes).unwrap();
                 let gr = render_backward(&g, &st, &v, None, None).unwrap();
                 (o.color, gr.params.packed())
             })

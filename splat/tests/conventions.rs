@@ -2,7 +2,7 @@
 
 use glam::{Mat3, Vec3};
 use splat::conventions::TILE_SIZE;
-use splat::project::quat_to_rotmat;
+use splat::cpu::project::quat_to_rotmat;
 use splat::{Camera, Gaussians, RenderSettings, render};
 
 fn dot_scene(points: &[Vec3]) -> Gaussians {

@@ -5,7 +5,7 @@ mod common;
 
 use common::{random_scene, test_camera};
 use glam::{Mat3, Vec3};
-use splat::glb::{half_turn, parse_glb, read_glb, to_glb, write_glb};
+use splat::formats::glb::{half_turn, parse_glb, read_glb, to_glb, write_glb};
 use splat::{Camera, RenderSettings, render};
 
 fn psnr(a: &[Vec3], b: &[Vec3]) -> f64 {
@@ -180,8 +180,11 @@ fn gltf_with_an_embedded_buffer_reads_as_the_glb_does() {
     let g = random_scene(9, 120, 2, (0.02, 0.3), 1.0);
     let (a, b) = (dir.path().join("s.glb"), dir.path().join("s.gltf"));
     write_glb(&a, &g).unwrap();
-    splat::glb::write_gltf(&b, &g).unwrap();
-    let (x, y) = (read_glb(&a).unwrap(), splat::glb::read_gltf(&b).unwrap());
+    splat::formats::glb::write_gltf(&b, &g).unwrap();
+    let (x, y) = (
+        read_glb(&a).unwrap(),
+        splat::formats::glb::read_gltf(&b).unwrap(),
+    );
     assert_eq!(x.means, y.means);
     assert_eq!(x.log_scales, y.log_scales);
     assert_eq!(x.rotations, y.rotations);
@@ -196,7 +199,9 @@ fn gltf_with_an_embedded_buffer_reads_as_the_glb_does() {
         text.replacen("data:application/octet-stream;base64,", "x.bin#", 1),
     )
     .unwrap();
-    let err = splat::glb::read_gltf(&ext).unwrap_err().to_string();
+    let err = splat::formats::glb::read_gltf(&ext)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("ext.gltf") && err.contains(".glb"), "{err}");
     // The other media type the specification names for embedded buffers reads the same.
     let other = dir.path().join("other.gltf");
@@ -209,5 +214,5 @@ fn gltf_with_an_embedded_buffer_reads_as_the_glb_does() {
         ),
     )
     .unwrap();
-    assert_eq!(splat::glb::read_gltf(&other).unwrap(), y);
+    assert_eq!(splat::formats::glb::read_gltf(&other).unwrap(), y);
 }

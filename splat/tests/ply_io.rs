@@ -6,7 +6,7 @@ use std::path::Path;
 
 use common::random_scene;
 use glam::Vec3;
-use splat::ply::{parse_ply, read_ply, write_ply};
+use splat::formats::ply::{parse_ply, read_ply, write_ply};
 use splat::{Gaussians, SplatError};
 
 fn bits(g: &Gaussians) -> Vec<u32> {

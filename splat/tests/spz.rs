@@ -4,7 +4,7 @@ mod common;
 
 use common::{random_scene, test_camera};
 use glam::Vec3;
-use splat::spz::{parse_spz, read_spz, to_spz, write_spz};
+use splat::formats::spz::{parse_spz, read_spz, to_spz, write_spz};
 use splat::{RenderSettings, render};
 
 #[test]

@@ -51,7 +51,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         .ply
         .as_ref()
         .map(|p| {
-            splat::files::read_splats(p)
+            splat::formats::files::read_splats(p)
                 .with_context(|| format!("--ply {}", p.display()))
                 .and_then(|g| {
                     if g.is_empty() {

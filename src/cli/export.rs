@@ -20,7 +20,7 @@ pub struct ExportArgs {
 }
 
 pub fn run(a: ExportArgs) -> Result<()> {
-    splat::files::Format::of(&a.out)?;
+    splat::formats::files::Format::of(&a.out)?;
     metasplat::guard::refuse_overwrite("--out", &a.out, &[("--in", &a.input)])?;
     let is_checkpoint = a
         .input
@@ -34,7 +34,7 @@ pub fn run(a: ExportArgs) -> Result<()> {
         );
         state.model
     } else {
-        splat::files::read_splats(&a.input)?
+        splat::formats::files::read_splats(&a.input)?
     };
     if g.is_empty() {
         bail!("{}: the scene has no splats", a.input.display());
@@ -52,7 +52,7 @@ pub fn run(a: ExportArgs) -> Result<()> {
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
-    splat::files::write_splats(&a.out, &g)?;
+    splat::formats::files::write_splats(&a.out, &g)?;
     let size = std::fs::metadata(&a.out).map(|m| m.len()).unwrap_or(0);
     println!(
         "Wrote {} splats (SH degree {}) to {}: {} bytes, {:.1} per splat.",

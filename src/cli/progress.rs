@@ -29,7 +29,7 @@ pub fn read_splats(path: &std::path::Path) -> anyhow::Result<splat::Gaussians> {
     );
     pb.set_message("reading");
     let start = Instant::now();
-    let g = splat::files::read_splats_reporting(path, &|done, total| {
+    let g = splat::formats::files::read_splats_reporting(path, &|done, total| {
         pb.set_length(total);
         pb.set_position(done);
     });

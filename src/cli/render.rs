@@ -80,7 +80,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
         None => None,
     };
     let (device, note) = Device::choose(a.device)?;
-    let model = splat::files::read_splats(&a.ply)?;
+    let model = splat::formats::files::read_splats(&a.ply)?;
     if model.is_empty() {
         bail!("{}: the scene has no splats", a.ply.display());
     }

@@ -13,7 +13,7 @@
 //! back the parameter gradients and the screen-space mean gradients densification uses.
 
 mod context;
-mod kernels;
+mod pipelines;
 #[doc(hidden)]
 pub mod sort;
 mod training;
@@ -30,11 +30,11 @@ pub use wgpu::DeviceType;
 
 use crate::camera::Camera;
 use crate::conventions::TILE_SIZE;
+use crate::cpu::render::{Gradients, RenderOutput, RenderSettings};
 use crate::error::SplatError;
 use crate::model::Gaussians;
 use crate::rasterizer::{PixelGradients, Rasterizer};
-use crate::render::{Gradients, RenderOutput, RenderSettings};
-use kernels::Kernels;
+use pipelines::Pipelines;
 use sort::{KeyBuffers, radix_sort, scan};
 use util::{
     Scratch, bind, bind_resources, blocks, dispatch, f32s, grid, part, read_back, storage,
@@ -60,7 +60,7 @@ struct ChunkUniform {
 #[derive(Clone)]
 pub struct GpuRasterizer {
     ctx: Arc<GpuContext>,
-    kernels: Arc<Kernels>,
+    kernels: Arc<Pipelines>,
     /// Bytes one binding may span: per-Gaussian parameter buffers larger than this are bound
     /// and processed in pieces ([`GpuRasterizer::chunks`]).
     max_binding: u64,
@@ -110,7 +110,7 @@ impl GpuRasterizer {
 
     /// The rasterizer on an already opened device.
     pub fn on(ctx: Arc<GpuContext>) -> Self {
-        let kernels = Arc::new(Kernels::new(&ctx.device));
+        let kernels = Arc::new(Pipelines::new(&ctx.device));
         let l = &ctx.limits;
         let max_binding = l.max_storage_buffer_binding_size.min(l.max_buffer_size);
         Self {
@@ -196,7 +196,7 @@ impl GpuRasterizer {
         ctx.check_size("the rendered images", 4 * 5 * np)?;
 
         let rows = cam.rotation.transpose();
-        let lim = crate::project::clamp_limits(cam);
+        let lim = crate::cpu::project::clamp_limits(cam);
         let pos = cam.position();
         let row = |v: Vec3, w: f32| [v.x, v.y, v.z, w];
         let cu = CameraUniform {

@@ -2,13 +2,13 @@
 //! The sort uses 4-bit digits and workgroup memory only, so it does not depend on the
 //! subgroup size (software drivers and GPUs differ).
 
-use super::kernels::Kernels;
+use super::pipelines::Pipelines;
 use super::util::{Scratch, bind, blocks, dispatch, grid, uniform};
 
 /// Records an exclusive scan of `n` u32 from `input` into `output` (may not alias).
 pub fn scan(
     device: &wgpu::Device,
-    k: &Kernels,
+    k: &Pipelines,
     encoder: &mut wgpu::CommandEncoder,
     input: &wgpu::Buffer,
     output: &wgpu::Buffer,
@@ -53,7 +53,7 @@ impl KeyBuffers {
 /// can be set. Returns which of `a`, `b` holds the result (`false`: `a`).
 pub fn radix_sort(
     device: &wgpu::Device,
-    k: &Kernels,
+    k: &Pipelines,
     encoder: &mut wgpu::CommandEncoder,
     (a, b): (&KeyBuffers, &KeyBuffers),
     n: u32,

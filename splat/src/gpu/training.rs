@@ -6,11 +6,11 @@
 //! only when the host changed it. [`GpuTrainer`] puts that behind [`SplatTrainer`].
 
 use crate::camera::Camera;
+use crate::cpu::render::{RenderOutput, RenderSettings};
 use crate::error::SplatError;
 use crate::model::Gaussians;
 use crate::optim::{Adam, LearningRates};
 use crate::rasterizer::PixelGradients;
-use crate::render::{RenderOutput, RenderSettings};
 use crate::trainer::{Regularisers, SplatTrainer, StepReport, check_shapes};
 
 use super::util::{

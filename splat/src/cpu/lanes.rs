@@ -1,5 +1,5 @@
 //! Eight `f32` lanes as one value, for code that handles eight Gaussians at once
-//! ([`crate::project_lanes`]). Every operation is a loop over the lanes, which the compiler
+//! ([`crate::cpu::project::lanes`]). Every operation is a loop over the lanes, which the compiler
 //! turns into vector instructions (AVX2 where the caller is compiled with it); no lane mixes
 //! with another, so each lane gets the bits a scalar evaluation of the same expression gets
 //! ([`F8::exp`] included, but for rare arguments where it rounds the other way from `expf`).
@@ -7,7 +7,7 @@
 use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
 /// Lanes per value.
-pub const N: usize = 8;
+pub const LANES: usize = 8;
 
 /// What the formulas shared by the scalar and the lane code (SH basis, quaternion rotation and
 /// its backward) need of a number: `f32` for the scalar path, [`F8`] for eight Gaussians at
@@ -37,16 +37,16 @@ impl Lane for f32 {
 impl Lane for F8 {
     #[inline(always)]
     fn splat(v: f32) -> F8 {
-        F8([v; N])
+        F8([v; LANES])
     }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct F8(pub [f32; N]);
+pub struct F8(pub [f32; LANES]);
 
 /// A lane mask.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct M8(pub [bool; N]);
+pub struct M8(pub [bool; LANES]);
 
 macro_rules! binop {
     ($tr:ident, $f:ident, $op:tt) => {
@@ -90,7 +90,7 @@ impl Neg for F8 {
 impl F8 {
     #[inline(always)]
     pub fn splat(v: f32) -> F8 {
-        F8([v; N])
+        F8([v; LANES])
     }
 
     #[inline(always)]

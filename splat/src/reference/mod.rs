@@ -3,9 +3,17 @@
 //! independently of the crate's kernels (INRIA-form SH polynomials, explicit matrix algebra,
 //! its own literal constants), so that every fast renderer — this crate's tiled CPU one, the
 //! GPU one — can be tested against it from any crate. Slow by design: test scenes only.
+//!
+//! Beside it, the CPU kernels' slow, obvious twins in float32: [`scalar_project`] (one
+//! Gaussian at a time) and [`scalar_blend`] (one pixel at a time, with branches). The fast
+//! kernels in [`crate::cpu`] are tested against them within float32 rounding, and they against
+//! the float64 renderer.
 
 // Index loops read like the matrix algebra they implement.
 #![allow(clippy::needless_range_loop)]
+
+pub mod scalar_blend;
+pub mod scalar_project;
 
 use crate::{Camera, Gaussians, RenderSettings, sh_rest_count};
 

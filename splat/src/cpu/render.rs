@@ -9,16 +9,18 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::blocks;
 use crate::camera::Camera;
+use crate::cpu::blend;
+use crate::cpu::lanes::LANES;
+use crate::cpu::project::lanes::{BackwardIn, Block, project_backward_lanes, project_lanes};
+use crate::cpu::stages::{
+    self, IsectGrad, ParamGrad, PixelGrads, PixelOut, Projected, ScreenGrad, Splat, TileSink,
+};
+use crate::cpu::tiles::{self, TileBins};
 use crate::disjoint::Disjoint;
 use crate::error::SplatError;
-use crate::lanes;
 use crate::model::Gaussians;
-use crate::project::{self, Projected, ScreenGrad};
-use crate::project_lanes::{BackwardIn, Block, project_backward_lanes, project_lanes};
-use crate::raster::{self, IsectGrad, PixelGrads, Splat};
-use crate::tiles::{self, TileBins};
+use crate::reference::scalar_blend;
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct RenderSettings {
@@ -62,7 +64,7 @@ pub struct RenderOutput {
 /// sorted tile lists. Only [`render_for_backward`] makes one; plain renders drop it.
 #[derive(Clone, Debug)]
 pub struct ForwardState {
-    kernels: Kernels,
+    kernels: BlendKernels,
     camera: Camera,
     settings: RenderSettings,
     num_gaussians: usize,
@@ -101,14 +103,14 @@ fn check_inputs(g: &Gaussians, cam: &Camera, s: &RenderSettings) -> Result<(), S
     Ok(())
 }
 
-/// Which CPU blending kernels a render uses: the vectorised pixel blocks ([`crate::blocks`],
-/// the default) or the scalar per-splat loops ([`crate::raster`]), kept as their reference
+/// Which CPU blending kernels a render uses: the vectorised pixel blocks ([`crate::cpu::blend`],
+/// the default) or the scalar per-splat loops ([`crate::reference::scalar_blend`]), kept as their reference
 /// and for side-by-side benchmarks.
 #[doc(hidden)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Kernels {
+pub enum BlendKernels {
     #[default]
-    Blocks,
+    Lanes,
     Scalar,
 }
 
@@ -118,7 +120,7 @@ pub fn render_for_backward_with(
     g: &Gaussians,
     cam: &Camera,
     settings: &RenderSettings,
-    kernels: Kernels,
+    kernels: BlendKernels,
 ) -> Result<(RenderOutput, ForwardState), SplatError> {
     let (out, state) = forward(g, cam, settings, true, kernels)?;
     Ok((out, state.expect("requested")))
@@ -131,7 +133,7 @@ pub fn render(
     cam: &Camera,
     settings: &RenderSettings,
 ) -> Result<RenderOutput, SplatError> {
-    forward(g, cam, settings, false, Kernels::Blocks).map(|(out, _)| out)
+    forward(g, cam, settings, false, BlendKernels::Lanes).map(|(out, _)| out)
 }
 
 /// Renders `g` from `cam` and keeps what [`render_backward`] needs.
@@ -140,7 +142,7 @@ pub fn render_for_backward(
     cam: &Camera,
     settings: &RenderSettings,
 ) -> Result<(RenderOutput, ForwardState), SplatError> {
-    render_for_backward_with(g, cam, settings, Kernels::Blocks)
+    render_for_backward_with(g, cam, settings, BlendKernels::Lanes)
 }
 
 fn forward(
@@ -148,17 +150,17 @@ fn forward(
     cam: &Camera,
     settings: &RenderSettings,
     keep: bool,
-    kernels: Kernels,
+    kernels: BlendKernels,
 ) -> Result<(RenderOutput, Option<ForwardState>), SplatError> {
     check_inputs(g, cam, settings)?;
     let n = g.len();
     let mut projected: Vec<Projected> = Vec::with_capacity(n);
     // Eight Gaussians at a time ([`project_lanes`]), each block written into its own slots.
     projected.spare_capacity_mut()[..n]
-        .par_chunks_mut(lanes::N)
+        .par_chunks_mut(LANES)
         .enumerate()
         .for_each(|(b, slots)| {
-            let first = b * lanes::N;
+            let first = b * LANES;
             let at = Block {
                 g,
                 first,
@@ -175,7 +177,7 @@ fn forward(
     unsafe { projected.set_len(n) };
     let (w, h) = (cam.width, cam.height);
     let bins = tiles::bin(&projected, w, h);
-    let splats: Vec<Splat> = raster::splats_of(&projected);
+    let splats: Vec<Splat> = stages::splats_of(&projected);
     let n_pix = cam.num_pixels();
     let mut color = vec![Vec3::ZERO; n_pix];
     let mut alpha = vec![0.0; n_pix];
@@ -187,11 +189,11 @@ fn forward(
     };
     // The blocks each tile-list entry blended in, for the backward (only the vectorised
     // kernels record them).
-    let keep_blocks = keep && kernels == Kernels::Blocks;
+    let keep_blocks = keep && kernels == BlendKernels::Lanes;
     let mut blended_blocks = vec![0u32; if keep_blocks { bins.ids.len() } else { 0 }];
     let num_blended = {
         let blocks_out = Disjoint::new(&mut blended_blocks);
-        let sink = raster::TileSink::new(
+        let sink = TileSink::new(
             w,
             &mut color,
             &mut alpha,
@@ -203,10 +205,10 @@ fn forward(
             .map_init(
                 || (Vec::new(), Vec::new()),
                 |(list, scratch), t| {
-                    let tile = raster::tile_pixels(&bins, t, w, h);
+                    let tile = stages::tile_pixels(&bins, t, w, h);
                     match kernels {
-                        Kernels::Blocks => {
-                            raster::gather_into(&bins, &splats, t, list);
+                        BlendKernels::Lanes => {
+                            stages::gather_into(&bins, &splats, t, list);
                             let range = bins.range(t);
                             let blocks = if keep_blocks {
                                 // SAFETY: tile t's range of the list entries is this task's alone.
@@ -217,18 +219,24 @@ fn forward(
                             };
                             // SAFETY: tile t is this task's alone.
                             unsafe {
-                                blocks::forward_tile(list, tile, settings.background, &sink, blocks)
+                                blend::forward_tile(list, tile, settings.background, &sink, blocks)
                             }
                         }
-                        Kernels::Scalar => {
-                            let out =
-                                raster::forward_tile(&bins, &splats, t, w, h, settings.background);
+                        BlendKernels::Scalar => {
+                            let out = scalar_blend::forward_tile(
+                                &bins,
+                                &splats,
+                                t,
+                                w,
+                                h,
+                                settings.background,
+                            );
                             let tw = tile.2 as usize;
                             // SAFETY: tile t is this task's alone.
                             unsafe {
                                 sink.write_tile(tile, |lx, ly| {
                                     let i = ly * tw + lx;
-                                    raster::PixelOut {
+                                    PixelOut {
                                         color: out.color[i],
                                         alpha: out.alpha[i],
                                         depth: out.depth[i],
@@ -373,17 +381,17 @@ pub fn render_backward(
     {
         let by_gaussian = Disjoint::new(&mut isect.spare_capacity_mut()[..n_isect]);
         (0..bins.num_tiles()).into_par_iter().for_each_init(
-            || (Vec::new(), Vec::new(), blocks::BackScratch::default()),
+            || (Vec::new(), Vec::new(), blend::BackScratch::default()),
             |(list, out, scratch), t| {
                 let range = bins.range(t);
                 out.clear();
                 out.resize(range.len(), std::mem::MaybeUninit::uninit());
                 match st.kernels {
-                    Kernels::Blocks => {
-                        raster::gather_into(bins, &st.splats, t, list);
-                        blocks::backward_tile(
+                    BlendKernels::Lanes => {
+                        stages::gather_into(bins, &st.splats, t, list);
+                        blend::backward_tile(
                             list,
-                            raster::tile_pixels(bins, t, w, h),
+                            stages::tile_pixels(bins, t, w, h),
                             w,
                             settings.background,
                             &pix,
@@ -392,7 +400,7 @@ pub fn render_backward(
                             scratch,
                         )
                     }
-                    Kernels::Scalar => raster::backward_tile(
+                    BlendKernels::Scalar => scalar_blend::backward_tile(
                         bins,
                         &st.splats,
                         t,
@@ -449,7 +457,7 @@ pub(crate) fn gradients_from_screen(
     cam: &Camera,
     settings: &RenderSettings,
     screen: &[(ScreenGrad, glam::Vec2)],
-    splats: &[raster::Splat],
+    splats: &[stages::Splat],
     touched: impl Fn(usize) -> bool + Sync,
 ) -> Gradients {
     let n = g.len();
@@ -459,19 +467,19 @@ pub(crate) fn gradients_from_screen(
     let mut sh_rest: Vec<Vec3> = (0..n * rc).into_par_iter().map(|_| Vec3::ZERO).collect();
     // Eight Gaussians at a time ([`project_backward_lanes`]), each block writing its own
     // slots of the results and of the SH buffer.
-    let mut results: Vec<(project::ParamGrad, [f32; 2], [f32; 2])> = Vec::with_capacity(n);
+    let mut results: Vec<(ParamGrad, [f32; 2], [f32; 2])> = Vec::with_capacity(n);
     {
         let rest = Disjoint::new(&mut sh_rest);
         results.spare_capacity_mut()[..n]
-            .par_chunks_mut(lanes::N)
+            .par_chunks_mut(LANES)
             .enumerate()
             .for_each(|(b, slots)| {
-                let first = b * lanes::N;
+                let first = b * LANES;
                 let count = slots.len();
                 let part = &screen[first..first + count];
                 let last = count - 1;
-                let sg: [ScreenGrad; lanes::N] = std::array::from_fn(|l| part[l.min(last)].0);
-                let colors: [Vec3; lanes::N] =
+                let sg: [ScreenGrad; LANES] = std::array::from_fn(|l| part[l.min(last)].0);
+                let colors: [Vec3; LANES] =
                     std::array::from_fn(|l| splats[first + l.min(last)].color());
                 let touched = std::array::from_fn(|l| l < count && touched(first + l));
                 // SAFETY: the SH part of Gaussians `first .. first + count` is this block's.

@@ -9,8 +9,8 @@
 use rayon::prelude::*;
 
 use crate::conventions::TILE_SIZE;
+use crate::cpu::stages::Projected;
 use crate::disjoint::Disjoint;
-use crate::project::Projected;
 
 /// Tile lists: tile `t` holds `ids[offsets[t] .. offsets[t + 1]]`, front to back.
 #[derive(Clone, Debug, Default)]
@@ -172,7 +172,10 @@ mod tests {
         let cam = crate::synthetic::benchmark_camera().resized(300, 200);
         let pos = cam.position();
         let projected: Vec<Projected> = (0..g.len())
-            .map(|i| crate::project::project_one(&g, i, &cam, 0, false, pos).unwrap_or_default())
+            .map(|i| {
+                crate::reference::scalar_project::project_one(&g, i, &cam, 0, false, pos)
+                    .unwrap_or_default()
+            })
             .collect();
         let bins = bin(&projected, cam.width, cam.height);
         let mut pairs = Vec::new();

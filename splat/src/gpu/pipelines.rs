@@ -5,7 +5,7 @@
 use crate::conventions as c;
 
 /// The compiled stages.
-pub struct Kernels {
+pub struct Pipelines {
     pub project: wgpu::ComputePipeline,
     pub scan: wgpu::ComputePipeline,
     pub scan_add: wgpu::ComputePipeline,
@@ -74,7 +74,7 @@ fn pipeline(device: &wgpu::Device, label: &str, stage: &str) -> wgpu::ComputePip
     })
 }
 
-impl Kernels {
+impl Pipelines {
     pub fn new(device: &wgpu::Device) -> Self {
         Self {
             project: pipeline(device, "project", include_str!("wgsl/project.wgsl")),

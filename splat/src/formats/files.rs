@@ -39,10 +39,10 @@ impl Format {
 pub fn read_splats(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
     let path = path.as_ref();
     let g = match Format::of(path)? {
-        Format::Ply => crate::ply::read_ply(path),
-        Format::Glb => crate::glb::read_glb(path),
-        Format::Gltf => crate::glb::read_gltf(path),
-        Format::Spz => crate::spz::read_spz(path),
+        Format::Ply => crate::formats::ply::read_ply(path),
+        Format::Glb => crate::formats::glb::read_glb(path),
+        Format::Gltf => crate::formats::glb::read_gltf(path),
+        Format::Spz => crate::formats::spz::read_spz(path),
     }?;
     check_positions(path, &g)?;
     Ok(g)
@@ -78,7 +78,7 @@ pub fn read_splats_reporting(
 ) -> Result<Gaussians, SplatError> {
     let path = path.as_ref();
     if Format::of(path)? == Format::Ply {
-        let g = crate::ply::read_ply_reporting(path, progress)?;
+        let g = crate::formats::ply::read_ply_reporting(path, progress)?;
         check_positions(path, &g)?;
         return Ok(g);
     }
@@ -92,9 +92,9 @@ pub fn read_splats_reporting(
 pub fn write_splats(path: impl AsRef<Path>, g: &Gaussians) -> Result<(), SplatError> {
     let path = path.as_ref();
     match Format::of(path)? {
-        Format::Ply => crate::ply::write_ply(path, g),
-        Format::Glb => crate::glb::write_glb(path, g),
-        Format::Gltf => crate::glb::write_gltf(path, g),
-        Format::Spz => crate::spz::write_spz(path, g),
+        Format::Ply => crate::formats::ply::write_ply(path, g),
+        Format::Glb => crate::formats::glb::write_glb(path, g),
+        Format::Gltf => crate::formats::glb::write_gltf(path, g),
+        Format::Spz => crate::formats::spz::write_spz(path, g),
     }
 }
