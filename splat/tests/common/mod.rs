@@ -4,9 +4,9 @@
 #[allow(unused_imports)]
 pub use splat::reference::{self, flatten, params_per_gaussian};
 
-use base::SplitMix64;
 use glam::Vec3;
-use splat::{Camera, Gaussians, sh_rest_count};
+use splat::synthetic::{Draws, ScaleDraw, random_gaussians};
+use splat::{Camera, Gaussians};
 
 /// A small camera with an off-centre principal point and a non-trivial pose.
 pub fn test_camera(width: u32, height: u32, f: f32) -> Camera {
@@ -32,41 +32,14 @@ pub fn random_scene(
     scale_range: (f64, f64),
     extent: f64,
 ) -> Gaussians {
-    let mut rng = SplitMix64::new(seed);
-    let mut g = Gaussians::new(sh_degree);
-    let rc = sh_rest_count(sh_degree);
-    for _ in 0..n {
-        let mean = Vec3::new(
-            rng.uniform(-extent, extent) as f32,
-            rng.uniform(-extent, extent) as f32,
-            rng.uniform(-extent, extent) as f32,
-        );
-        let ls = |r: &mut SplitMix64| r.uniform(scale_range.0.ln(), scale_range.1.ln()) as f32;
-        let log_scale = Vec3::new(ls(&mut rng), ls(&mut rng), ls(&mut rng));
-        let q = [
-            rng.normal() as f32,
-            rng.normal() as f32,
-            rng.normal() as f32,
-            rng.normal() as f32,
-        ];
-        let logit = rng.uniform(-1.5, 1.5) as f32;
-        let dc = Vec3::new(
-            rng.uniform(-1.0, 1.0) as f32,
-            rng.uniform(-1.0, 1.0) as f32,
-            rng.uniform(-1.0, 1.0) as f32,
-        );
-        let rest: Vec<Vec3> = (0..rc)
-            .map(|_| {
-                Vec3::new(
-                    rng.uniform(-0.1, 0.1) as f32,
-                    rng.uniform(-0.1, 0.1) as f32,
-                    rng.uniform(-0.1, 0.1) as f32,
-                )
-            })
-            .collect();
-        g.push(mean, log_scale, q, logit, dc, &rest);
-    }
-    g
+    let draws = Draws {
+        mean: [(-extent, extent); 3],
+        scale: ScaleDraw::LogUniform(scale_range.0, scale_range.1),
+        logit: (-1.5, 1.5),
+        dc: (-1.0, 1.0),
+        rest: (-0.1, 0.1),
+    };
+    random_gaussians(seed, n, sh_degree, &draws)
 }
 
 /// All parameters of Gaussian-major layout: mean 3, log-scale 3, quaternion 4, logit 1,
