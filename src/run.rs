@@ -11,8 +11,8 @@ use crate::train::config::TrainConfig;
 use crate::train::data::{self, Dataset};
 use crate::train::{self, Event, Outcome};
 
-/// A run ready to train: the run folder exists and is writable, the capture is loaded, and
-/// the config is built and written to `config.json`.
+/// A run ready to train: the run folder exists and is writable, the capture is loaded (with
+/// the `I_ac` images the cache held), and the config is built and written to `config.json`.
 pub struct PreparedRun {
     pub request: RunRequest,
     pub data: Dataset,
@@ -20,7 +20,8 @@ pub struct PreparedRun {
     pub device: Device,
     /// Which device renders, and why, as a sentence.
     pub device_note: String,
-    /// Where the restorer's images came from or went (the cache), as a sentence.
+    /// Where the restorer's images came from or went (the cache), as a sentence, once
+    /// [`PreparedRun::restore_iac`] has made them.
     pub cache_note: Option<String>,
     /// The run folder is this run's alone while it is held.
     _lock: base::FolderLock,
@@ -47,11 +48,10 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
     // I_ac is read from (and, once the run folder exists, written to) a cache: the run's own
     // unless the caller shares one between runs.
     let mut data_options = request.data.clone();
-    let cache_dir = data_options
+    data_options
         .iac_cache
-        .get_or_insert_with(|| out.join(crate::train::iac_cache::CACHE_DIR))
-        .clone();
-    let mut data = data::load(&request.scene, request.training.mode, &data_options)
+        .get_or_insert_with(|| out.join(crate::train::iac_cache::CACHE_DIR));
+    let mut data = data::load_cached(&request.scene, request.training.mode, &data_options)
         .map_err(|e| e.context(format!("cannot load the scene {}", request.scene.display())))?;
     if let Some(path) = &request.training.init {
         let g = splat::formats::files::read_splats(path)
@@ -106,31 +106,13 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
         outputs::clear_run(out)?;
     }
     outputs::write_json(&out.join(outputs::CONFIG_FILE), &config)?;
-    let restored = data.train.iter().filter(|v| v.restored.is_some()).count();
-    let cache_note = match data.cache_restored(&cache_dir) {
-        Some(failure) => Some(failure),
-        None if restored > 0 => {
-            let fresh = data.restored_fresh.len();
-            let dir = cache_dir.display();
-            Some(if fresh == restored {
-                format!("I_ac: restored all {restored} training views and cached them in {dir}.")
-            } else if fresh == 0 {
-                format!("I_ac: read all {restored} training views from the cache in {dir}.")
-            } else {
-                format!(
-                    "I_ac: restored {fresh} of {restored} training views; the others came from the cache in {dir}."
-                )
-            })
-        }
-        None => None,
-    };
     Ok(PreparedRun {
         request: request.clone(),
         data,
         config,
         device,
         device_note,
-        cache_note,
+        cache_note: None,
         _lock: lock,
     })
 }
@@ -162,9 +144,24 @@ fn check_run_folder(request: &RunRequest) -> Result<()> {
 }
 
 impl PreparedRun {
+    /// Makes the `I_ac` images the cache did not hold, caching each in the run's cache as it
+    /// is made ([`Dataset::restore_pending`]); `on_view(done, total)` follows the views. The
+    /// slow part of loading, so it runs once the inputs are checked and the folder is held.
+    pub fn restore_iac(&mut self, on_view: &mut dyn FnMut(usize, usize)) -> Result<()> {
+        if self.data.pending.is_empty() && self.cache_note.is_some() {
+            return Ok(());
+        }
+        let report = self.data.restore_pending(on_view)?;
+        self.cache_note = report.sentence(self.data.cache_dir());
+        Ok(())
+    }
+
     /// Trains (resuming if asked), then writes the run folder: PLY, metrics, log, renders and
-    /// the PSNR-vs-time plot.
-    pub fn run(&self, on_event: &mut dyn FnMut(Event)) -> Result<(RunSummary, Outcome)> {
+    /// the PSNR-vs-time plot. `I_ac` not yet made is made first ([`Self::restore_iac`]).
+    pub fn run(&mut self, on_event: &mut dyn FnMut(Event)) -> Result<(RunSummary, Outcome)> {
+        if !self.data.pending.is_empty() {
+            self.restore_iac(&mut |_, _| {})?;
+        }
         let out = &self.request.out;
         let ckpt = out.join(CHECKPOINT_FILE);
         // Snapshots (`--save-at`) are kept here; one that cannot be written fails the run

@@ -65,10 +65,10 @@ impl CaptureComparison {
         }
         if !self.views.contains_key(&i) {
             let view = self.model.view(i)?;
-            let restored = self
-                .model
-                .restore_cached(&view.observed, self.cache.as_deref())?
-                .map(|(img, _)| img);
+            let restored = match self.model.cached(&view.observed, self.cache.as_deref()) {
+                Some(img) => Some(img),
+                None => self.model.restore(&view.observed)?,
+            };
             self.views.insert(i, (view, restored));
         }
         let (view, restored) = &self.views[&i];

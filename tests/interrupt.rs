@@ -446,3 +446,64 @@ fn ctrl_c_during_a_render_or_an_aberration_leaves_nothing_behind() {
     assert!(!abr.exists(), "a partial capture was kept");
     assert!(staging_in(&out).is_empty(), "{:?}", staging_in(&out));
 }
+
+#[test]
+fn ctrl_c_while_i_ac_is_made_keeps_the_views_restored_so_far() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("scene");
+    procedural(&scene, 160, 120, 24);
+    // The default lens: the shipped network serves only its grid.
+    let psf = d.join("psf.npy");
+    run_ok(&["psf", "simulate", "--out", &s(&psf)]);
+    let abr = d.join("abr");
+    run_ok(&[
+        "scene",
+        "aberrate",
+        "--scene",
+        &s(&scene),
+        "--psf",
+        &s(&psf),
+        "--out",
+        &s(&abr),
+        "--downsample",
+        "1",
+    ]);
+    let weights = Path::new(env!("CARGO_MANIFEST_DIR")).join("restore/weights/tiny.bin");
+    let run = d.join("run");
+    let mut args = train_args(&abr, &run, &["--restorer", &s(&weights)]);
+    let at = args.iter().position(|x| x == "--mode").unwrap();
+    args[at + 1] = "restored".into();
+    let at = args.iter().position(|x| x == "--iters").unwrap();
+    args[at + 1] = "2".into();
+    let cache = run.join(metasplat::train::iac_cache::CACHE_DIR);
+    let entries = || {
+        std::fs::read_dir(&cache).map_or(0, |d| {
+            d.flatten()
+                .filter(|e| e.file_name().to_string_lossy().ends_with(".iac"))
+                .count()
+        })
+    };
+    let (code, err) =
+        interrupt_when(&args, &|| entries() >= 2).expect("I_ac was made too fast to interrupt");
+    assert_eq!(code, Some(130), "{err}");
+    assert!(
+        err.contains("I_ac stopped after") && err.contains("--overwrite"),
+        "{err}"
+    );
+    let kept = entries();
+    // The training views of 24 (every eighth held out).
+    let total = 21;
+    assert!((2..total).contains(&kept), "{kept} of {total} cached");
+    // The next run makes only the others.
+    args.push("--overwrite".into());
+    let out = run_ok(&args);
+    assert!(
+        out.contains(&format!(
+            "restored {} of {total} training views; the others came from the cache",
+            total - kept
+        )),
+        "{out}"
+    );
+    assert_eq!(entries(), total);
+}

@@ -702,7 +702,7 @@ fn the_log_file_holds_every_evaluation_while_the_run_trains() {
     request.training.iters = 30;
     request.training.eval_every = Some(10);
     request.spiral = 0;
-    let prepared = metasplat::run::prepare(&request).unwrap();
+    let mut prepared = metasplat::run::prepare(&request).unwrap();
     let log = out.join(metasplat::outputs::LOG_FILE);
     let mut seen = Vec::new();
     prepared

@@ -11,10 +11,42 @@ use metasplat::train::config::{Mode, Strategy};
 use metasplat::train::eval::Against;
 use metasplat::train::{self, Event};
 
+/// Makes the run's missing `I_ac` images with a bar of views done and time left (a line
+/// every tenth of them away from a terminal).
+fn restore_iac(prepared: &mut run::PreparedRun, quiet: bool) -> Result<()> {
+    let total = prepared.data.pending.len();
+    if total == 0 {
+        return Ok(prepared.restore_iac(&mut |_, _| {})?);
+    }
+    let pb = if quiet {
+        ProgressBar::hidden()
+    } else {
+        super::progress::bar(total as u64, "I_ac")
+    };
+    let lines = pb.is_hidden() && !quiet;
+    let start = std::time::Instant::now();
+    let every = total.div_ceil(10).max(1);
+    prepared.restore_iac(&mut |done, total| {
+        pb.set_position(done as u64);
+        if lines && done > 0 && (done % every == 0 || done == total) {
+            let secs = start.elapsed().as_secs_f64();
+            let left = secs / done as f64 * (total - done) as f64;
+            let left = if done < total {
+                format!(", about {left:.0} s left")
+            } else {
+                String::new()
+            };
+            println!("I_ac: {done} of {total} training views restored in {secs:.0} s{left}.");
+        }
+    })?;
+    pb.finish_and_clear();
+    Ok(())
+}
+
 /// Trains one run and writes its folder; shared by `train`, `experiment` and `demo`, which
 /// differ only in what they print. Returns what went into `metrics.json` and the training log.
 pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::LogRow>)> {
-    let prepared = run::prepare(a)?;
+    let mut prepared = run::prepare(a)?;
     let (data, config) = (&prepared.data, &prepared.config);
     let t = &a.training;
     if !quiet {
@@ -73,9 +105,6 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
                 }
             );
         }
-        if let Some(note) = &prepared.cache_note {
-            println!("{note}");
-        }
         if let (Some(g), Some(path)) = (&data.initial, &t.init) {
             println!(
                 "Starting from the {} splats (SH degree {}) of {}.",
@@ -128,6 +157,11 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             Some(Against::Clean) => {}
             None => println!("no held-out views: training runs, but nothing is evaluated"),
         }
+    }
+
+    restore_iac(&mut prepared, quiet)?;
+    if let Some(note) = prepared.cache_note.as_ref().filter(|_| !quiet) {
+        println!("{note}");
     }
 
     let pb = if quiet {

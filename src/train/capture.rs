@@ -191,24 +191,17 @@ impl CaptureModel {
         self.network.is_some()
     }
 
-    /// `I_ac` from the cache folder `cache` when it holds it, else computed
-    /// ([`Self::restore`]) together with the key to cache it under (None when it was read, or
-    /// when there is no cache).
-    pub fn restore_cached(
-        &self,
-        observed: &[Vec3],
-        cache: Option<&Path>,
-    ) -> Result<Option<(Vec<Vec3>, Option<u64>)>> {
-        let key = match (cache, &self.keyer) {
-            (Some(_), Some(k)) => Some(k.key(self.width, self.height, observed)),
-            _ => None,
-        };
-        if let (Some(dir), Some(key)) = (cache, key)
-            && let Some(img) = crate::train::iac_cache::get(dir, key, observed.len())
-        {
-            return Ok(Some((img, None)));
-        }
-        Ok(self.restore(observed)?.map(|img| (img, key)))
+    /// The key `I_ac` of `observed` is cached under (None without a restorer or PSF grid).
+    pub fn cache_key(&self, observed: &[Vec3]) -> Option<u64> {
+        self.keyer
+            .as_ref()
+            .map(|k| k.key(self.width, self.height, observed))
+    }
+
+    /// `I_ac` of `observed` from the cache folder `cache`, when it holds a whole one.
+    pub fn cached(&self, observed: &[Vec3], cache: Option<&Path>) -> Option<Vec<Vec3>> {
+        let key = self.cache_key(observed)?;
+        crate::train::iac_cache::get(cache?, key, observed.len())
     }
 
     /// `I_ac` for an observed image: the restorer's output, or None when no restorer was

@@ -2,7 +2,9 @@
 //! the imaging model the capture was made with, and the initial point cloud, loaded from a
 //! [`CaptureModel`].
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
 
 use rayon::prelude::*;
 use scenes::PointCloud;
@@ -24,9 +26,47 @@ pub struct Dataset {
     pub points: PointCloud,
     /// A splat scene to start from instead of the points (`train --init`).
     pub initial: Option<splat::Gaussians>,
-    /// Training views whose `I_ac` was computed (not found in the cache), with their cache
-    /// keys: [`Dataset::cache_restored`] stores them.
-    pub restored_fresh: Vec<(usize, u64)>,
+    /// Training views whose `I_ac` the cache did not hold: [`Dataset::restore_pending`]
+    /// makes them.
+    pub pending: Vec<usize>,
+    /// The cache folder `I_ac` is read from and written to.
+    cache: Option<PathBuf>,
+}
+
+/// What [`Dataset::restore_pending`] did.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct IacReport {
+    /// Training views with an `I_ac`, and how many of them were made now (the others came
+    /// from the cache).
+    pub views: usize,
+    pub made: usize,
+    /// Why an image could not be cached (the cache only saves time, so this is not fatal).
+    pub cache_failure: Option<String>,
+}
+
+impl IacReport {
+    /// One sentence for the run's log; None when the run has no `I_ac`.
+    pub fn sentence(&self, cache: Option<&Path>) -> Option<String> {
+        if let Some(f) = &self.cache_failure {
+            return Some(f.clone());
+        }
+        let (views, made) = (self.views, self.made);
+        if views == 0 {
+            return None;
+        }
+        let Some(dir) = cache.map(Path::display) else {
+            return Some(format!("I_ac: restored all {views} training views."));
+        };
+        Some(if made == views {
+            format!("I_ac: restored all {views} training views and cached them in {dir}.")
+        } else if made == 0 {
+            format!("I_ac: read all {views} training views from the cache in {dir}.")
+        } else {
+            format!(
+                "I_ac: restored {made} of {views} training views; the others came from the cache in {dir}."
+            )
+        })
+    }
 }
 
 impl std::ops::Deref for Dataset {
@@ -38,20 +78,67 @@ impl std::ops::Deref for Dataset {
 }
 
 impl Dataset {
-    /// Stores the `I_ac` images computed at load in the cache folder `dir`. The cache only
-    /// saves time, so a failure to write it is reported, not fatal.
-    pub fn cache_restored(&self, dir: &Path) -> Option<String> {
-        for &(i, key) in &self.restored_fresh {
-            if let Some(img) = &self.train[i].restored
-                && let Err(e) = crate::train::iac_cache::put(dir, key, img)
+    /// Makes the `I_ac` images the cache did not hold, the network's one view at a time (it
+    /// parallelises inside), the Wiener stand-in's in parallel, and caches each as soon as it
+    /// is made, so a run stopped here keeps what it restored. `on_view(done, total)` follows
+    /// the views; a stop request (Ctrl-C) ends it between views.
+    pub fn restore_pending(&mut self, on_view: &mut dyn FnMut(usize, usize)) -> Result<IacReport> {
+        let pending = std::mem::take(&mut self.pending);
+        let total = pending.len();
+        let mut report = IacReport {
+            views: self.train.iter().filter(|v| v.restored.is_some()).count() + total,
+            made: 0,
+            cache_failure: None,
+        };
+        let (model, cache) = (&self.source, self.cache.as_deref());
+        let restore = |v: &View| -> Result<(Vec<Vec3>, Option<u64>)> {
+            let img = model.restore(&v.observed)?.ok_or_else(|| {
+                TrainError::Invalid("I_ac was asked for without a restorer".into())
+            })?;
+            Ok((img, model.cache_key(&v.observed)))
+        };
+        let keep = |v: &mut View, (img, key): (Vec<Vec3>, Option<u64>), report: &mut IacReport| {
+            if let (Some(dir), Some(key)) = (cache, key)
+                && report.cache_failure.is_none()
+                && let Err(e) = crate::train::iac_cache::put(dir, key, &img)
             {
-                return Some(format!(
+                report.cache_failure = Some(format!(
                     "The I_ac images were not cached in {}: {e}.",
                     dir.display()
                 ));
             }
+            v.restored = Some(img);
+            report.made += 1;
+        };
+        on_view(0, total);
+        if model.restores_with_network() {
+            for (done, &k) in pending.iter().enumerate() {
+                if base::interrupt::requested() {
+                    self.pending = pending[done..].to_vec();
+                    return Err(TrainError::Interrupted(format!(
+                        "I_ac stopped after {done} of {total} training views; those are cached, and the same command with --overwrite makes only the others"
+                    )));
+                }
+                let made = restore(&self.train[k])?;
+                keep(&mut self.train[k], made, &mut report);
+                on_view(done + 1, total);
+            }
+        } else {
+            let made = pending
+                .par_iter()
+                .map(|&k| restore(&self.train[k]))
+                .collect::<Result<Vec<_>>>()?;
+            for (&k, m) in pending.iter().zip(made) {
+                keep(&mut self.train[k], m, &mut report);
+            }
+            on_view(total, total);
         }
-        None
+        Ok(report)
+    }
+
+    /// The folder `I_ac` is cached in (None: not cached).
+    pub fn cache_dir(&self) -> Option<&Path> {
+        self.cache.as_deref()
     }
 
     /// What held-out evaluation compares with (None: no held-out views).
@@ -60,8 +147,18 @@ impl Dataset {
     }
 }
 
-/// Loads a capture for training in `mode`. Errors name the file and the problem.
+/// Loads a capture for training in `mode`, `I_ac` included. Errors name the file and the
+/// problem.
 pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
+    let mut data = load_cached(dir, mode, options)?;
+    data.restore_pending(&mut |_, _| {})?;
+    Ok(data)
+}
+
+/// [`load`] with only the `I_ac` images the cache holds: the others are
+/// [`Dataset::pending`], for [`Dataset::restore_pending`] to make once every input has been
+/// checked (it is the slow part of loading).
+pub fn load_cached(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
     let model = CaptureModel::open(dir, options, mode.needs_psf())?;
     if mode.needs_psf() && model.imaging.is_none() {
         return Err(TrainError::file(
@@ -72,46 +169,35 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
         ));
     }
     let cache = options.iac_cache.as_deref();
-    // The network parallelises inside, so its views are restored one at a time below.
-    let make_view = |i: usize, restore: bool| -> Result<(View, Option<u64>)> {
+    // Only the cached `I_ac` is read here: making the rest is the slow part of loading, and
+    // it waits for [`Dataset::restore_pending`], after every input has been checked.
+    let make_view = |i: usize, restore: bool| -> Result<View> {
         let mut v = model.view(i)?;
-        let mut fresh = None;
-        if restore
-            && !model.restores_with_network()
-            && let Some((img, key)) = model.restore_cached(&v.observed, cache)?
-        {
-            v.restored = Some(img);
-            fresh = key;
+        if restore {
+            v.restored = model.cached(&v.observed, cache);
         }
-        Ok((v, fresh))
+        Ok(v)
     };
-    let loaded = model
+    let train = model
         .capture
         .split
         .train
         .par_iter()
-        .map(|&i| make_view(i, true))
+        .map(|&i| make_view(i, model.restorer.is_some() && model.imaging.is_some()))
         .collect::<Result<Vec<_>>>()?;
-    let mut restored_fresh = Vec::new();
-    let mut train = Vec::with_capacity(loaded.len());
-    for (k, (mut v, mut fresh)) in loaded.into_iter().enumerate() {
-        if model.restores_with_network()
-            && let Some((img, key)) = model.restore_cached(&v.observed, cache)?
-        {
-            v.restored = Some(img);
-            fresh = key;
-        }
-        if let Some(key) = fresh {
-            restored_fresh.push((k, key));
-        }
-        train.push(v);
-    }
+    let pending = if model.restorer.is_some() && model.imaging.is_some() {
+        (0..train.len())
+            .filter(|&k| train[k].restored.is_none())
+            .collect()
+    } else {
+        Vec::new()
+    };
     let test = model
         .capture
         .split
         .test
         .par_iter()
-        .map(|&i| make_view(i, false).map(|(v, _)| v))
+        .map(|&i| make_view(i, false))
         .collect::<Result<Vec<_>>>()?;
     // One camera (or all at one spot) has no radius; 1 keeps the thresholds meaningful.
     let radius = model.capture.normalization().radius as f32;
@@ -124,6 +210,7 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
         extent,
         points,
         initial: None,
-        restored_fresh,
+        pending,
+        cache: cache.map(Path::to_path_buf),
     })
 }
