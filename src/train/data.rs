@@ -115,8 +115,13 @@ impl Dataset {
             for (done, &k) in pending.iter().enumerate() {
                 if base::interrupt::requested() {
                     self.pending = pending[done..].to_vec();
+                    let kept = if cache.is_some() && report.cache_failure.is_none() {
+                        "those are cached, and the same command with --overwrite makes only the others"
+                    } else {
+                        "they were not cached"
+                    };
                     return Err(TrainError::Interrupted(format!(
-                        "I_ac stopped after {done} of {total} training views; those are cached, and the same command with --overwrite makes only the others"
+                        "I_ac stopped after {done} of {total} training views; {kept}"
                     )));
                 }
                 let made = restore(&self.train[k])?;
@@ -171,6 +176,7 @@ pub fn load_cached(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Data
     let cache = options.iac_cache.as_deref();
     // Only the cached `I_ac` is read here: making the rest is the slow part of loading, and
     // it waits for [`Dataset::restore_pending`], after every input has been checked.
+    let restores = model.restorer.is_some() && model.imaging.is_some();
     let make_view = |i: usize, restore: bool| -> Result<View> {
         let mut v = model.view(i)?;
         if restore {
@@ -183,9 +189,9 @@ pub fn load_cached(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Data
         .split
         .train
         .par_iter()
-        .map(|&i| make_view(i, model.restorer.is_some() && model.imaging.is_some()))
+        .map(|&i| make_view(i, restores))
         .collect::<Result<Vec<_>>>()?;
-    let pending = if model.restorer.is_some() && model.imaging.is_some() {
+    let pending = if restores {
         (0..train.len())
             .filter(|&k| train[k].restored.is_none())
             .collect()
