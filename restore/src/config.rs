@@ -307,6 +307,63 @@ impl RestorerConfig {
             Guidance::SingleWiener => 9 * 3 * d,
         }
     }
+
+    /// Floating-point operations of one forward pass per input pixel, counted from the
+    /// architecture on paper: two per multiply-add of every convolution, matrix product and
+    /// attention (logits and weighted sums), each at its level's resolution. Norms,
+    /// activations, softmax and pooling are left out: they are a few operations per value,
+    /// not per weight. A training step costs about three times this per crop pixel.
+    pub fn analytic_flops_per_pixel(&self) -> f64 {
+        let d = self.dim;
+        let wk = self.key_window();
+        let lk = (wk * wk) as f64;
+        // Each query pixel of a window scores `lk` keys and mixes `lk` values, all heads
+        // together `c` channels wide.
+        let window_attention = |c: f64| 2.0 * 2.0 * lk * c;
+        let block = |c: usize, heads: usize| -> f64 {
+            let (c, h) = (c as f64, self.ffn_hidden(c) as f64);
+            let gdfn = 2.0 * (c * 2.0 * h + 9.0 * 2.0 * h + h * c);
+            // A `c/heads`-square attention map per head, built from and applied to every pixel.
+            let channel_attn =
+                2.0 * (3.0 * c * c + 9.0 * 3.0 * c + c * c) + 2.0 * 2.0 * c * c / heads as f64;
+            let spatial = 2.0 * (3.0 * c * c + c * c) + window_attention(c);
+            let fusion = 2.0 * (2.0 * c * c + c * c);
+            2.0 * gdfn + channel_attn + spatial + fusion
+        };
+        // Pixels at level `l` per input pixel.
+        let at = |l: i32| 0.25f64.powi(l);
+        let mut f = 0.0;
+        for l in 0..4 {
+            f += self.blocks[l] as f64 * block(d << l, self.heads[l]) * at(l as i32);
+        }
+        f += self.blocks[2] as f64 * block(4 * d, self.heads[2]) * at(2);
+        f += self.blocks[1] as f64 * block(2 * d, self.heads[1]) * at(1);
+        f += (self.blocks[0] + self.refinement) as f64 * block(2 * d, self.heads[0]);
+        for l in 0..3 {
+            let c = (d << l) as f64;
+            f += 2.0 * 9.0 * c * (c / 2.0) * at(l as i32);
+            let up = (d << (l + 1)) as f64;
+            f += 2.0 * 9.0 * up * (2.0 * up) * at(l as i32 + 1);
+        }
+        let d = d as f64;
+        f += 2.0 * (8.0 * d * 4.0 * d * at(2) + 4.0 * d * 2.0 * d * at(1));
+        f += 2.0 * 9.0 * 2.0 * d * 3.0;
+        let bank = BANK_SIZE as f64;
+        f + match self.guidance {
+            Guidance::CrossAttention | Guidance::CrossAttentionResidual => {
+                let (e, hd) = (
+                    self.mafg_embed as f64,
+                    (self.mafg_heads * self.mafg_head_dim) as f64,
+                );
+                // Every filter embedded, keyed and valued; one query (the median's); every
+                // filter's window attention and projection back to RGB.
+                let per_filter = 2.0 * (3.0 * e + 2.0 * e * hd + hd * 3.0) + window_attention(hd);
+                bank * per_filter + 2.0 * e * hd + 2.0 * 9.0 * 3.0 * bank * d
+            }
+            Guidance::Concat => 2.0 * 9.0 * 3.0 * bank * d,
+            Guidance::SingleWiener => 2.0 * 9.0 * 3.0 * d,
+        }
+    }
 }
 
 #[cfg(test)]

@@ -14,6 +14,7 @@ pub mod infer;
 pub mod net;
 pub mod provenance;
 pub mod shipped;
+pub mod speed;
 pub mod tiles;
 pub mod train;
 pub mod train_state;

@@ -1,5 +1,7 @@
 //! `metasplat bench step`: the time of each phase of the training loop's own step on a
 //! capture, at one or more thread counts, on the device training would use.
+//! `metasplat bench restorer`: the restorer's forward passes and training steps with its fast
+//! kernels and with the reference ones, alternated in one run.
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
@@ -9,6 +11,9 @@ use metasplat::settings::DataOptions;
 use metasplat::settings::TrainSettings;
 use metasplat::train::config::{Mode, TrainConfig};
 use metasplat::train::data;
+use restore::net::kernels::Kernels;
+use restore::speed::{Sample, Workload, time_workload};
+use restore::{Preset, RestorerConfig};
 use std::path::PathBuf;
 
 #[derive(Subcommand)]
@@ -16,6 +21,30 @@ pub enum BenchCommand {
     /// Time the phases of the training loop's step (render, blur, loss, adjoint, backward,
     /// Adam, densification statistics) for a few steps from the start of a run.
     Step(StepArgs),
+    /// Time the restorer's forward passes and training steps (forward, backward, AdamW) with
+    /// its fast kernels and with the reference kernels they replaced, alternated round by
+    /// round, at each thread count: seconds, CPU seconds, the fast path's speed-up and its
+    /// arithmetic rate.
+    Restorer(RestorerBenchArgs),
+}
+
+#[derive(Args)]
+pub struct RestorerBenchArgs {
+    /// Network sizes to time (random weights: the time does not depend on them).
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Preset::Tiny, Preset::Small])]
+    pub configs: Vec<Preset>,
+    /// Tile sides of the forward passes, in px (multiples of each config's padding unit).
+    #[arg(long, value_delimiter = ',', default_values_t = [256usize, 512])]
+    pub sides: Vec<usize>,
+    /// Crops per training step (of each config's training crop size); 0 leaves training out.
+    #[arg(long, default_value_t = 4)]
+    pub batch: usize,
+    /// Thread counts to time, in order.
+    #[arg(long, value_delimiter = ',', default_values_t = [1usize, 2])]
+    pub threads: Vec<usize>,
+    /// Rounds: each times the reference kernels, then the fast ones; the median is reported.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u64).range(1..=100))]
+    pub rounds: u64,
 }
 
 #[derive(Args)]
@@ -43,7 +72,109 @@ pub struct StepArgs {
 }
 
 pub fn run(cmd: BenchCommand) -> Result<()> {
-    let BenchCommand::Step(a) = cmd;
+    match cmd {
+        BenchCommand::Step(a) => step(a),
+        BenchCommand::Restorer(a) => restorer(a),
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+fn restorer(a: RestorerBenchArgs) -> Result<()> {
+    if a.threads.iter().any(|&t| t == 0 || t > 1024) {
+        bail!("--threads: thread counts are 1 to 1024");
+    }
+    let configs: Vec<RestorerConfig> = a
+        .configs
+        .iter()
+        .map(|&p| RestorerConfig::preset(p))
+        .collect();
+    for cfg in &configs {
+        let m = cfg.multiple();
+        if let Some(s) = a.sides.iter().find(|&&s| s == 0 || !s.is_multiple_of(m)) {
+            bail!(
+                "--sides: {s} px is not a positive multiple of {m} px, the padding unit of '{}'",
+                cfg.name
+            );
+        }
+    }
+    let mut cases: Vec<(RestorerConfig, Workload)> = Vec::new();
+    for cfg in &configs {
+        for &side in &a.sides {
+            cases.push((cfg.clone(), Workload::Forward { side }));
+        }
+        if a.batch > 0 {
+            let w = Workload::TrainStep {
+                batch: a.batch,
+                side: cfg.crop,
+            };
+            cases.push((cfg.clone(), w));
+        }
+    }
+    println!(
+        "The restorer's reference and fast kernels, alternated over {} round{}; medians. \
+         s/MP is wall seconds per megapixel; GFLOP/s counts the analytic operations (a \
+         training step as three forward passes).",
+        a.rounds,
+        if a.rounds == 1 { "" } else { "s" }
+    );
+    println!(
+        "{:<6} {:<20} {:>7} {:>12} {:>12} {:>8} {:>12} {:>10} {:>10}",
+        "config",
+        "workload",
+        "threads",
+        "reference s",
+        "fast s",
+        "speed-up",
+        "fast CPU s",
+        "fast s/MP",
+        "GFLOP/s"
+    );
+    for (cfg, workload) in &cases {
+        for &threads in &a.threads {
+            let mut runs: [Vec<Sample>; 2] = [Vec::new(), Vec::new()];
+            for round in 0..a.rounds {
+                for (i, kernels) in [Kernels::Reference, Kernels::Fast].into_iter().enumerate() {
+                    let s = time_workload(cfg, *workload, kernels, threads, 1, round)
+                        .with_context(|| format!("timing {} {}", cfg.name, workload.describe()))?;
+                    runs[i].extend(s);
+                }
+            }
+            let wall = |r: &[Sample]| median(r.iter().map(|s| s.wall_s).collect());
+            let cpu = |r: &[Sample]| median(r.iter().map(|s| s.cpu_s).collect());
+            let (reference, fast) = (wall(&runs[0]), wall(&runs[1]));
+            let mp = workload.pixels() as f64 / 1e6;
+            let passes = match workload {
+                Workload::Forward { .. } => 1.0,
+                Workload::TrainStep { .. } => 3.0,
+            };
+            let gflop = cfg.analytic_flops_per_pixel() * workload.pixels() as f64 * passes / 1e9;
+            println!(
+                "{:<6} {:<20} {:>7} {:>12.3} {:>12.3} {:>7.2}x {:>12.3} {:>10.2} {:>10.2}",
+                cfg.name,
+                workload.describe(),
+                threads,
+                reference,
+                fast,
+                reference / fast,
+                cpu(&runs[1]),
+                fast / mp,
+                gflop / fast
+            );
+        }
+    }
+    Ok(())
+}
+
+fn step(a: StepArgs) -> Result<()> {
     if a.threads.iter().any(|&t| t == 0 || t > 1024) {
         bail!("--threads: thread counts are 1 to 1024");
     }

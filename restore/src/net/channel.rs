@@ -6,7 +6,7 @@ use burn::nn::conv::Conv2d;
 use burn::tensor::activation::softmax;
 use burn::tensor::{Device, Tensor};
 
-use super::layers::{conv, depthwise3, enhance_query};
+use super::layers::{conv, depthwise3, enhance_query, pointwise};
 
 /// `x / max(‖x‖₂, ε)` along the last dimension.
 pub fn l2_normalise(x: Tensor<4>) -> Tensor<4> {
@@ -44,7 +44,10 @@ impl ChannelAttention {
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let [b, c, h, w] = x.dims();
-        let mut parts = self.qkv_depthwise.forward(self.qkv.forward(x)).chunk(3, 1);
+        let mut parts = self
+            .qkv_depthwise
+            .forward(pointwise(&self.qkv, x))
+            .chunk(3, 1);
         let v = parts.pop().expect("qkv");
         let k = parts.pop().expect("qkv");
         let q = enhance_query(parts.pop().expect("qkv"), self.qe);
@@ -53,6 +56,6 @@ impl ChannelAttention {
         let (q, k, v) = (l2_normalise(split(q)), l2_normalise(split(k)), split(v));
         let t = self.temperature.val().reshape([1, self.heads, 1, 1]);
         let attn = softmax(q.matmul(k.swap_dims(2, 3)) * t, 3);
-        self.proj.forward(attn.matmul(v).reshape([b, c, h, w]))
+        pointwise(&self.proj, attn.matmul(v).reshape([b, c, h, w]))
     }
 }

@@ -7,8 +7,9 @@ use burn::module::{Module, Param};
 use burn::nn::conv::Conv2d;
 use burn::tensor::{Device, Tensor};
 
-use super::layers::{ChannelNorm, conv};
-use super::window::{attend, key_mask, key_windows, merge_windows, query_windows};
+use super::kernels::{Kernels, current};
+use super::layers::{ChannelNorm, conv, pointwise};
+use super::window::{attend, attend_fused, key_mask, key_windows, merge_windows, query_windows};
 use aberration::wiener::{BANK_MEDIAN, BANK_SIZE};
 
 #[derive(Module, Debug)]
@@ -64,18 +65,18 @@ impl CrossAttentionGuide {
         let m = BANK_SIZE;
         let feats = self
             .norm
-            .forward(self.embed.forward(bank.reshape([b * m, 3, h, w])));
+            .forward(pointwise(&self.embed, bank.reshape([b * m, 3, h, w])));
         let e = feats.dims()[1];
         let median = feats
             .clone()
             .reshape([b, m, e, h, w])
             .narrow(1, BANK_MEDIAN, 1)
             .reshape([b, e, h, w]);
-        let q = query_windows(self.q.forward(median), self.win)
+        let q = query_windows(pointwise(&self.q, median), self.win)
             + self.pos_q.val().unsqueeze_dim::<3>(0);
-        let k = key_windows(self.k.forward(feats.clone()), self.win, self.kwin)
+        let k = key_windows(pointwise(&self.k, feats.clone()), self.win, self.kwin)
             + self.pos_k.val().unsqueeze_dim::<3>(0);
-        let v = key_windows(self.v.forward(feats), self.win, self.kwin);
+        let v = key_windows(pointwise(&self.v, feats), self.win, self.kwin);
         // Every filter is asked the same question: repeat the median's query windows.
         let [nq, lq, hd] = q.dims();
         let q =
@@ -83,11 +84,22 @@ impl CrossAttentionGuide {
                 .repeat_dim(1, m)
                 .reshape([b * m * (nq / b), lq, hd]);
         let device = k.device();
-        let mask = key_mask(h, w, self.win, self.kwin, &device)
-            .unsqueeze_dim::<4>(1)
-            .repeat_dim(0, b * m);
-        let out = attend(q, k, v, self.heads, mask);
-        let rgb = self.out.forward(merge_windows(out, b * m, h, w, self.win));
+        let out = match current() {
+            Kernels::Reference => {
+                let mask = key_mask(h, w, self.win, self.kwin, &device)
+                    .unsqueeze_dim::<4>(1)
+                    .repeat_dim(0, b * m);
+                attend(q, k, v, self.heads, mask)
+            }
+            Kernels::Fast => {
+                let mask = key_mask(h, w, self.win, self.kwin, &device);
+                let [n, _, lk] = mask.dims();
+                let bias =
+                    Tensor::zeros([n, self.heads, lq, lk], &device) + mask.unsqueeze_dim::<4>(1);
+                attend_fused(q, k, v, self.heads, bias)
+            }
+        };
+        let rgb = pointwise(&self.out, merge_windows(out, b * m, h, w, self.win));
         let rgb = rgb.reshape([b, 3 * m, h, w]);
         match input {
             Some(bank) => rgb + bank,

@@ -2,6 +2,7 @@
 //! added to one Wiener image of the bank (`RestorerConfig::residual_base`).
 
 pub mod channel;
+pub mod kernels;
 pub mod layers;
 pub mod mafg;
 pub mod staf;
@@ -13,7 +14,7 @@ use burn::module::Module;
 use burn::nn::conv::Conv2d;
 use burn::nn::{PixelShuffle, PixelShuffleConfig, PixelUnshuffle, PixelUnshuffleConfig};
 use burn::tensor::{Device, Tensor};
-use layers::conv;
+use layers::{conv, pointwise};
 use mafg::CrossAttentionGuide;
 use staf::{BlockSpec, Gate, StafBlock};
 
@@ -247,7 +248,7 @@ impl RestorerNet {
             let skip = skips.pop().expect("one skip per level");
             x = Tensor::cat(vec![up.forward(x), skip], 1);
             if let Some(r) = self.reduces.get(i) {
-                x = r.forward(x);
+                x = pointwise(r, x);
             }
             x = dec.forward(x);
         }

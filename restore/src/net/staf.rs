@@ -7,7 +7,7 @@ use burn::tensor::activation::{gelu, sigmoid};
 use burn::tensor::{Device, Tensor};
 
 use super::channel::ChannelAttention;
-use super::layers::{ChannelNorm, Gdfn, conv};
+use super::layers::{ChannelNorm, Gdfn, conv, pointwise};
 use super::window::WindowAttention;
 
 /// Where the fusion gate varies.
@@ -71,10 +71,13 @@ impl StafBlock {
         let sa = sa.clone() + self.ffn_sa.forward(self.norm_sa_ffn.forward(sa));
         let ca = x.clone() + self.channel.forward(self.norm_ca.forward(x));
         let ca = ca.clone() + self.ffn_ca.forward(self.norm_ca_ffn.forward(ca));
-        let f = self.fuse_out.forward(gelu(
-            self.fuse_in
-                .forward(Tensor::cat(vec![sa.clone(), ca.clone()], 1)),
-        ));
+        let f = pointwise(
+            &self.fuse_out,
+            gelu(pointwise(
+                &self.fuse_in,
+                Tensor::cat(vec![sa.clone(), ca.clone()], 1),
+            )),
+        );
         let w = if self.per_pixel {
             sigmoid(f.mean_dim(1))
         } else {

@@ -6,10 +6,12 @@
 use burn::module::{Module, Param};
 use burn::nn::conv::Conv2d;
 use burn::tensor::activation::softmax;
-use burn::tensor::ops::PadMode;
+use burn::tensor::module::attention;
+use burn::tensor::ops::{AttentionModuleOptions, PadMode};
 use burn::tensor::{Device, Int, Tensor, TensorData};
 
-use super::layers::{conv, enhance_query};
+use super::kernels::{Kernels, current};
+use super::layers::{conv, enhance_query, pointwise};
 
 /// Logit added to masked keys: `exp` of it is exactly zero in f32.
 const MASKED: f32 = -1e4;
@@ -110,6 +112,46 @@ pub fn attend(
         .reshape([n, lq, c])
 }
 
+/// [`attend`] as burn's fused attention, which keeps one window's logits at a time instead of
+/// a tensor of all of them. `q: [g·n, win², heads·d]`, `k, v: [g·n, kwin², heads·d]` for `g`
+/// maps of `n` windows each; `bias: [n, heads, win², kwin²]` (position logits and the key
+/// mask) is shared by the `g` maps, which burn broadcasts without copying.
+pub fn attend_fused(
+    q: Tensor<3>,
+    k: Tensor<3>,
+    v: Tensor<3>,
+    heads: usize,
+    bias: Tensor<4>,
+) -> Tensor<3> {
+    let [total, lq, c] = q.dims();
+    let lk = k.dims()[1];
+    let d = c / heads;
+    let n = bias.dims()[0];
+    let g = total / n;
+    // Each (window, head) is one attention problem: the windows go where burn puts heads.
+    let split = |t: Tensor<3>, l: usize| {
+        t.reshape([g, n, l, heads, d])
+            .swap_dims(2, 3)
+            .reshape([g, n * heads, l, d])
+    };
+    let options = AttentionModuleOptions {
+        scale: Some(f64::from((d as f32).powf(-0.5))),
+        ..Default::default()
+    };
+    let bias = bias.reshape([1, n * heads, lq, lk]);
+    attention(
+        split(q, lq),
+        split(k, lk),
+        split(v, lk),
+        None,
+        Some(bias),
+        options,
+    )
+    .reshape([g, n, heads, lq, d])
+    .swap_dims(2, 3)
+    .reshape([total, lq, c])
+}
+
 /// STAF's spatial branch: window self-attention with relative position logits.
 #[derive(Module, Debug)]
 pub struct WindowAttention {
@@ -164,7 +206,7 @@ impl WindowAttention {
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let [b, _, h, w] = x.dims();
-        let mut parts = self.qkv.forward(x).chunk(3, 1);
+        let mut parts = pointwise(&self.qkv, x).chunk(3, 1);
         let v = parts.pop().expect("qkv");
         let k = parts.pop().expect("qkv");
         let q = enhance_query(parts.pop().expect("qkv"), self.qe);
@@ -173,12 +215,21 @@ impl WindowAttention {
         let k = key_windows(k, self.win, self.kwin);
         let v = key_windows(v, self.win, self.kwin);
         let nwin = (h / self.win) * (w / self.win);
-        let mask = key_mask(h, w, self.win, self.kwin, &device)
-            .unsqueeze_dim::<4>(1)
-            .repeat_dim(0, b);
-        let bias = self.position_bias().unsqueeze_dim::<4>(0) + mask;
-        debug_assert_eq!(bias.dims()[0], b * nwin);
-        let out = attend(q, k, v, self.heads, bias);
-        self.proj.forward(merge_windows(out, b, h, w, self.win))
+        let out = match current() {
+            Kernels::Reference => {
+                let mask = key_mask(h, w, self.win, self.kwin, &device)
+                    .unsqueeze_dim::<4>(1)
+                    .repeat_dim(0, b);
+                let bias = self.position_bias().unsqueeze_dim::<4>(0) + mask;
+                debug_assert_eq!(bias.dims()[0], b * nwin);
+                attend(q, k, v, self.heads, bias)
+            }
+            Kernels::Fast => {
+                let mask = key_mask(h, w, self.win, self.kwin, &device).unsqueeze_dim::<4>(1);
+                let bias = self.position_bias().unsqueeze_dim::<4>(0) + mask;
+                attend_fused(q, k, v, self.heads, bias)
+            }
+        };
+        pointwise(&self.proj, merge_windows(out, b, h, w, self.win))
     }
 }

@@ -1,0 +1,51 @@
+//! Which implementation of the network's costly operations a forward pass uses: the fast
+//! ones (the default), or the obvious ones they replaced, kept beside them so each fast path
+//! is checked against its reference (`restore/tests/kernels.rs`) and timed side by side with
+//! it in one run (`metasplat bench restorer`).
+//!
+//! The choice is per thread: the network reads it on the thread that calls `forward`, so
+//! tests running in parallel cannot change each other's.
+
+use std::cell::Cell;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kernels {
+    /// Attention as one fused op per window batch (no logits tensor for the whole tile, no
+    /// materialised mask), query enhancement as two 1-D box passes, 1×1 convolutions as
+    /// matrix products (whose weight gradient is a matrix product too).
+    Fast,
+    /// The operations as first written: logits, additive mask and softmax as tensors, a
+    /// `k × k` average pool, 1×1 convolutions through burn's `Conv2d`.
+    Reference,
+}
+
+impl Kernels {
+    pub fn name(self) -> &'static str {
+        match self {
+            Kernels::Fast => "fast",
+            Kernels::Reference => "reference",
+        }
+    }
+}
+
+thread_local! {
+    static CURRENT: Cell<Kernels> = const { Cell::new(Kernels::Fast) };
+}
+
+/// The kernels a forward pass on this thread uses now.
+pub fn current() -> Kernels {
+    CURRENT.with(Cell::get)
+}
+
+/// Runs `f` with `kernels` on this thread, then restores the previous choice (also when `f`
+/// panics).
+pub fn with_kernels<R>(kernels: Kernels, f: impl FnOnce() -> R) -> R {
+    struct Restore(Kernels);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            CURRENT.with(|c| c.set(self.0));
+        }
+    }
+    let _restore = Restore(CURRENT.with(|c| c.replace(kernels)));
+    f()
+}

@@ -1,0 +1,163 @@
+//! The fast kernels against the reference ones they replaced: the shipped weights restore a
+//! crop alike (to 1e-4, float order), and a training step's loss and gradients agree.
+
+use aberration::optics::{SimConfig, simulate_grid};
+use aberration::{BlurMode, Image, ImagingModel, NoiseModel};
+use burn::module::Module;
+use burn::tensor::{Device, Distribution, Tensor, TensorData};
+use restore::data::bank_images;
+use restore::infer::{bank_planes, run_tile};
+use restore::net::kernels::{Kernels, with_kernels};
+use restore::net::layers::{conv, enhance_query, pointwise};
+use restore::{RestorerConfig, RestorerNet, shipped};
+
+fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.try_into_vec_as::<f32>().unwrap()
+}
+
+fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+/// A photo-like test card: smooth shading, a hard edge, fine stripes and a dot grid.
+fn test_card(w: usize, h: usize) -> Image {
+    let mut data = Vec::with_capacity(3 * w * h);
+    for c in 0..3 {
+        for y in 0..h {
+            for x in 0..w {
+                let (u, v) = (x as f32 / w as f32, y as f32 / h as f32);
+                let shade = 0.3 + 0.4 * u * (1.0 - v) + 0.1 * c as f32;
+                let edge = if u + 0.5 * v > 0.7 { 0.25 } else { 0.0 };
+                let stripes = 0.15 * ((x as f32 * 0.9 + c as f32).sin());
+                let dots = if x % 9 < 2 && y % 7 < 2 { 0.2 } else { 0.0 };
+                data.push((shade + edge + stripes + dots).clamp(0.0, 1.0));
+            }
+        }
+    }
+    Image {
+        width: w,
+        height: h,
+        data,
+    }
+}
+
+#[test]
+fn the_shipped_weights_restore_a_crop_alike_with_fast_and_reference_kernels() {
+    let (native, _) = simulate_grid(&SimConfig::default(), &|_, _| {}).unwrap();
+    let restorer = shipped::for_psf(&native).unwrap().expect("shipped weights");
+    // Not square, and not a multiple of the key window, so border windows are masked.
+    let (w, h) = (160, 96);
+    assert_eq!(w % restorer.config().multiple(), 0);
+    assert_eq!(h % restorer.config().multiple(), 0);
+    let clean = test_card(w, h);
+    let model =
+        ImagingModel::new(&native, w, h, BlurMode::Tiled, None, NoiseModel::default()).unwrap();
+    let blurred = model.capture(&clean, 5).unwrap();
+    let bank = bank_images(&blurred, model.psf(), true).unwrap();
+    let x = bank_planes(&bank);
+    let device = restorer.device.clone();
+    let fast = with_kernels(Kernels::Fast, || run_tile(&restorer.net, &x, &device));
+    let reference = with_kernels(Kernels::Reference, || run_tile(&restorer.net, &x, &device));
+    assert!(fast.data.iter().all(|v| v.is_finite()));
+    let err = max_abs_diff(&fast.data, &reference.data);
+    println!("shipped tiny on a {w}x{h} crop: |fast - reference| max {err:.2e}");
+    assert!(err <= 1e-4, "max abs difference {err:.2e}");
+    // The comparison could fail: the network's output is not the input's base image.
+    let spread = reference.data.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    assert!(spread > 0.1);
+}
+
+#[test]
+fn separable_query_enhancement_equals_the_square_pool() {
+    let device = Device::flex();
+    device.seed(11);
+    let x = Tensor::<4>::random([2, 3, 19, 23], Distribution::Normal(0.0, 1.0), &device);
+    for k in [3, 7, 11, 15] {
+        let fast = with_kernels(Kernels::Fast, || values(enhance_query(x.clone(), k)));
+        let reference = with_kernels(Kernels::Reference, || values(enhance_query(x.clone(), k)));
+        let err = max_abs_diff(&fast, &reference);
+        assert!(err < 1e-5, "k {k}: {err:.2e}");
+    }
+}
+
+#[test]
+fn pointwise_convolution_as_a_matrix_product_equals_the_convolution() {
+    let device = Device::flex();
+    device.seed(12);
+    for bias in [false, true] {
+        let mut c = conv(5, 7, 1, bias, &device);
+        if let Some(b) = c.bias.as_mut() {
+            *b = burn::module::Param::from_tensor(Tensor::random(
+                [7],
+                Distribution::Normal(0.0, 1.0),
+                &device,
+            ));
+        }
+        let x = Tensor::<4>::random([3, 5, 6, 9], Distribution::Normal(0.0, 1.0), &device);
+        let fast = with_kernels(Kernels::Fast, || pointwise(&c, x.clone()));
+        assert_eq!(fast.dims(), [3, 7, 6, 9]);
+        let err = max_abs_diff(&values(fast), &values(c.forward(x)));
+        assert!(err < 1e-5, "bias {bias}: {err:.2e}");
+    }
+}
+
+/// The loss and the gradient of every parameter of a small network, on a batch of two crops
+/// that are not multiples of the key window.
+fn loss_and_gradients(net: &RestorerNet, x: &Tensor<4>, y: &Tensor<4>) -> (f32, Vec<Vec<f32>>) {
+    let loss = (net.forward(x.clone()) - y.clone()).abs().mean();
+    let value = values(loss.clone())[0];
+    let grads = loss.backward();
+    let mut all = Vec::new();
+    struct Collect<'a> {
+        grads: &'a burn::tensor::Gradients,
+        out: &'a mut Vec<Vec<f32>>,
+    }
+    impl burn::module::ModuleVisitor for Collect<'_> {
+        fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {
+            if let Some(g) = param.val().grad(self.grads) {
+                self.out.push(values(g));
+            }
+        }
+    }
+    net.visit(&mut Collect {
+        grads: &grads,
+        out: &mut all,
+    });
+    (value, all)
+}
+
+#[test]
+fn a_training_step_has_the_same_loss_and_gradients_with_either_kernels() {
+    let device = Device::flex().autodiff();
+    device.seed(13);
+    let cfg = RestorerConfig {
+        dim: 8,
+        blocks: [1, 1, 1, 1],
+        refinement: 1,
+        ..RestorerConfig::tiny()
+    };
+    let net = RestorerNet::new(&cfg, &device);
+    let side = cfg.multiple();
+    let x = Tensor::<4>::random([2, 39, side, side], Distribution::Default, &device);
+    let y = Tensor::<4>::from_data(
+        TensorData::new(vec![0.5f32; 2 * 3 * side * side], [2, 3, side, side]),
+        &device,
+    );
+    let (lf, gf) = with_kernels(Kernels::Fast, || loss_and_gradients(&net, &x, &y));
+    let (lr, gr) = with_kernels(Kernels::Reference, || loss_and_gradients(&net, &x, &y));
+    assert!((lf - lr).abs() <= 1e-5 * lr.abs().max(1.0), "{lf} vs {lr}");
+    assert_eq!(gf.len(), gr.len());
+    assert!(gf.len() > 50, "{} parameter gradients", gf.len());
+    for (i, (a, b)) in gf.iter().zip(&gr).enumerate() {
+        let scale = b.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
+        let err = max_abs_diff(a, b);
+        assert!(
+            err <= 1e-3 * scale,
+            "parameter {i}: max |fast - reference| {err:.2e} of {scale:.2e}"
+        );
+    }
+}
