@@ -86,7 +86,8 @@ fn separable_query_enhancement_equals_the_square_pool() {
 
 #[test]
 fn pointwise_convolution_as_a_matrix_product_equals_the_convolution() {
-    let device = Device::flex();
+    // With gradients, where the matrix product is used.
+    let device = Device::flex().autodiff();
     device.seed(12);
     for bias in [false, true] {
         let mut c = conv(5, 7, 1, bias, &device);
@@ -97,6 +98,7 @@ fn pointwise_convolution_as_a_matrix_product_equals_the_convolution() {
                 &device,
             ));
         }
+        assert!(c.weight.val().is_require_grad());
         let x = Tensor::<4>::random([3, 5, 6, 9], Distribution::Normal(0.0, 1.0), &device);
         let fast = with_kernels(Kernels::Fast, || pointwise(&c, x.clone()));
         assert_eq!(fast.dims(), [3, 7, 6, 9]);

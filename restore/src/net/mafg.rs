@@ -5,11 +5,14 @@
 
 use burn::module::{Module, Param};
 use burn::nn::conv::Conv2d;
-use burn::tensor::{Device, Tensor};
+use burn::tensor::{Device, Tensor, TensorData};
 
 use super::kernels::{Kernels, current};
 use super::layers::{ChannelNorm, conv, pointwise};
-use super::window::{attend, attend_fused, key_mask, key_windows, merge_windows, query_windows};
+use super::window::{
+    attend, attend_fused, direct_applies, host, key_mask, key_windows, merge_windows, query_windows,
+};
+use super::window_direct::{WindowSpec, attend_maps, head_dim_supported};
 use aberration::wiener::{BANK_MEDIAN, BANK_SIZE};
 
 #[derive(Module, Debug)]
@@ -61,6 +64,7 @@ impl CrossAttentionGuide {
     /// `bank: [b, 39, h, w]` (filter-major) → `[b, 39, h, w]`.
     pub fn forward(&self, bank: Tensor<4>) -> Tensor<4> {
         let [b, _, h, w] = bank.dims();
+        let bank_device = bank.device();
         let input = self.residual.then(|| bank.clone());
         let m = BANK_SIZE;
         let feats = self
@@ -72,6 +76,33 @@ impl CrossAttentionGuide {
             .reshape([b, m, e, h, w])
             .narrow(1, BANK_MEDIAN, 1)
             .reshape([b, e, h, w]);
+        let hd = self.pos_q.val().dims()[1];
+        if current() == Kernels::Fast
+            && direct_applies(&median)
+            && head_dim_supported(hd / self.heads)
+        {
+            let (pos_q, pos_k) = (host(self.pos_q.val()), host(self.pos_k.val()));
+            let spec = WindowSpec {
+                heads: self.heads,
+                win: self.win,
+                kwin: self.kwin,
+                share: m,
+                pos_q: Some(&pos_q),
+                pos_k: Some(&pos_k),
+                bias: None,
+            };
+            let q = host(pointwise(&self.q, median));
+            let k = host(pointwise(&self.k, feats.clone()));
+            let v = host(pointwise(&self.v, feats));
+            let out = attend_maps(&q, &k, &v, [hd, h, w], &spec).expect("a supported head width");
+            let device = bank_device;
+            let out = Tensor::from_data(TensorData::new(out, [b * m, hd, h, w]), &device);
+            let rgb = pointwise(&self.out, out).reshape([b, 3 * m, h, w]);
+            return match input {
+                Some(bank) => rgb + bank,
+                None => rgb,
+            };
+        }
         let q = query_windows(pointwise(&self.q, median), self.win)
             + self.pos_q.val().unsqueeze_dim::<3>(0);
         let k = key_windows(pointwise(&self.k, feats.clone()), self.win, self.kwin)

@@ -7,6 +7,7 @@ pub mod layers;
 pub mod mafg;
 pub mod staf;
 pub mod window;
+pub mod window_direct;
 
 use crate::config::{Guidance, RestorerConfig};
 use aberration::wiener::BANK_MEDIAN;

@@ -12,6 +12,18 @@ use burn::tensor::{Device, Int, Tensor, TensorData};
 
 use super::kernels::{Kernels, current};
 use super::layers::{conv, enhance_query, pointwise};
+use super::window_direct::{WindowSpec, attend_maps, head_dim_supported};
+
+/// Whether [`attend_maps`] may stand in for the tensor formulation: on burn's CPU backend
+/// (it reads and writes host memory) and without gradients (it has none).
+pub fn direct_applies(t: &Tensor<4>) -> bool {
+    !t.is_autodiff() && t.device() == Device::flex()
+}
+
+/// A CPU tensor's values, in its logical order.
+pub fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.try_into_vec_as::<f32>().expect("flex tensors read back")
+}
 
 /// Logit added to masked keys: `exp` of it is exactly zero in f32.
 const MASKED: f32 = -1e4;
@@ -205,12 +217,28 @@ impl WindowAttention {
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let [b, _, h, w] = x.dims();
+        let [b, c, h, w] = x.dims();
         let mut parts = pointwise(&self.qkv, x).chunk(3, 1);
         let v = parts.pop().expect("qkv");
         let k = parts.pop().expect("qkv");
         let q = enhance_query(parts.pop().expect("qkv"), self.qe);
         let device = q.device();
+        if current() == Kernels::Fast && direct_applies(&q) && head_dim_supported(c / self.heads) {
+            let bias = host(self.position_bias());
+            let spec = WindowSpec {
+                heads: self.heads,
+                win: self.win,
+                kwin: self.kwin,
+                share: 1,
+                pos_q: None,
+                pos_k: None,
+                bias: Some(&bias),
+            };
+            let out = attend_maps(&host(q), &host(k), &host(v), [c, h, w], &spec)
+                .expect("a supported head width");
+            let out = Tensor::from_data(TensorData::new(out, [b, c, h, w]), &device);
+            return pointwise(&self.proj, out);
+        }
         let q = query_windows(q, self.win);
         let k = key_windows(k, self.win, self.kwin);
         let v = key_windows(v, self.win, self.kwin);

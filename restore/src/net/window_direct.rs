@@ -1,0 +1,261 @@
+//! Windowed attention read straight from the feature maps, for inference on the CPU.
+//!
+//! The tensor formulation ([`super::window::attend_fused`]) first copies every overlapping
+//! key window out of the map, splits heads, repeats the MAFG query for each filter and merges
+//! the windows back: with a few channels per head those copies cost more than the attention.
+//! This kernel gathers each window's queries, keys and values into small buffers as it goes
+//! and writes its answer into the output map, so nothing the size of the map is made but
+//! the output. It has no gradient: training takes the tensor formulation.
+
+use rayon::prelude::*;
+
+/// Sizes and extra terms of one windowed attention.
+pub struct WindowSpec<'a> {
+    pub heads: usize,
+    /// Query window side.
+    pub win: usize,
+    /// Key window side (centred on the query window, `kwin − win` even).
+    pub kwin: usize,
+    /// Query maps are shared: output map `g` takes its queries from query map `g / share`.
+    pub share: usize,
+    /// `[win², channels]` added to the queries by position in their window.
+    pub pos_q: Option<&'a [f32]>,
+    /// `[kwin², channels]` added to the keys by position in their window.
+    pub pos_k: Option<&'a [f32]>,
+    /// `[heads, win², kwin²]` logits added by (query, key) position.
+    pub bias: Option<&'a [f32]>,
+}
+
+/// Channels per head the kernel is built for (the configs use 8 and 16).
+pub fn head_dim_supported(d: usize) -> bool {
+    matches!(d, 4 | 8 | 16 | 32)
+}
+
+/// `q: [g / share, c, h, w]`, `k, v: [g, c, h, w]` → `[g, c, h, w]`: every query attends, per
+/// head, to the keys of the `kwin` window around its `win` window that lie inside the image
+/// (keys outside are left out, which the tensor form does with a logit whose `exp` is 0).
+/// `None` for a head width [`head_dim_supported`] refuses.
+pub fn attend_maps(
+    q: &[f32],
+    k: &[f32],
+    v: &[f32],
+    [c, h, w]: [usize; 3],
+    s: &WindowSpec,
+) -> Option<Vec<f32>> {
+    let d = c / s.heads;
+    let z = Sizes { c, h, w };
+    Some(match d {
+        4 => run::<4>(q, k, v, z, s),
+        8 => run::<8>(q, k, v, z, s),
+        16 => run::<16>(q, k, v, z, s),
+        32 => run::<32>(q, k, v, z, s),
+        _ => return None,
+    })
+}
+
+#[derive(Clone, Copy)]
+struct Sizes {
+    c: usize,
+    h: usize,
+    w: usize,
+}
+
+fn run<const D: usize>(q: &[f32], k: &[f32], v: &[f32], z: Sizes, s: &WindowSpec) -> Vec<f32> {
+    let Sizes { c, h, w } = z;
+    let plane = h * w;
+    let groups = k.len() / (c * plane);
+    let nh = h / s.win;
+    // One strip of window rows per task: `[c, win, w]` of one output map.
+    let strips: Vec<Vec<f32>> = (0..groups * nh)
+        .into_par_iter()
+        .map(|task| strip::<D>(task, q, k, v, z, s))
+        .collect();
+    let mut out = vec![0.0f32; groups * c * plane];
+    for (task, strip) in strips.iter().enumerate() {
+        let (g, wy) = (task / nh, task % nh);
+        for ch in 0..c {
+            let dst = &mut out[(g * c + ch) * plane + wy * s.win * w..][..s.win * w];
+            dst.copy_from_slice(&strip[ch * s.win * w..][..s.win * w]);
+        }
+    }
+    out
+}
+
+/// One task's strip, in the build for the CPU at hand.
+fn strip<const D: usize>(
+    task: usize,
+    q: &[f32],
+    k: &[f32],
+    v: &[f32],
+    z: Sizes,
+    s: &WindowSpec,
+) -> Vec<f32> {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2.
+        return unsafe { strip_avx2::<D>(task, q, k, v, z, s) };
+    }
+    strip_body::<D>(task, q, k, v, z, s)
+}
+
+/// The same code compiled for AVX2: the loops over keys and channels become 8-wide. No
+/// multiply-add is contracted, so it gives the portable build's bits.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn strip_avx2<const D: usize>(
+    task: usize,
+    q: &[f32],
+    k: &[f32],
+    v: &[f32],
+    z: Sizes,
+    s: &WindowSpec,
+) -> Vec<f32> {
+    strip_body::<D>(task, q, k, v, z, s)
+}
+
+#[inline(always)]
+fn strip_body<const D: usize>(
+    task: usize,
+    q: &[f32],
+    k: &[f32],
+    v: &[f32],
+    z: Sizes,
+    s: &WindowSpec,
+) -> Vec<f32> {
+    let Sizes { c, h, w } = z;
+    let plane = h * w;
+    let (nh, nw) = (h / s.win, w / s.win);
+    let (lq, lk) = (s.win * s.win, s.kwin * s.kwin);
+    let pad = (s.kwin - s.win) / 2;
+    let scale = (D as f32).powf(-0.5);
+    let (g, wy) = (task / nh, task % nh);
+    let qmap = &q[(g / s.share) * c * plane..][..c * plane];
+    let kmap = &k[g * c * plane..][..c * plane];
+    let vmap = &v[g * c * plane..][..c * plane];
+    let mut strip = vec![0.0f32; c * s.win * w];
+    let mut qb = vec![[0.0f32; D]; lq];
+    // Keys transposed, `[D, n]`, so the logits accumulate along contiguous keys.
+    let mut kt = vec![0.0f32; D * lk];
+    let mut vb = vec![[0.0f32; D]; lk];
+    let mut inside: Vec<(usize, usize)> = Vec::with_capacity(lk);
+    let mut logits = vec![0.0f32; lq * lk];
+    for wx in 0..nw {
+        let (y0, x0) = (wy * s.win, wx * s.win);
+        inside.clear();
+        for ky in 0..s.kwin {
+            for kx in 0..s.kwin {
+                let y = (y0 + ky) as isize - pad as isize;
+                let x = (x0 + kx) as isize - pad as isize;
+                if (0..h as isize).contains(&y) && (0..w as isize).contains(&x) {
+                    inside.push((ky * s.kwin + kx, y as usize * w + x as usize));
+                }
+            }
+        }
+        let n = inside.len();
+        for head in 0..s.heads {
+            let ch0 = head * D;
+            for i in 0..D {
+                let ch = ch0 + i;
+                let qp = &qmap[ch * plane..][..plane];
+                for qy in 0..s.win {
+                    for qx in 0..s.win {
+                        let qi = qy * s.win + qx;
+                        let pos = s.pos_q.map_or(0.0, |p| p[qi * c + ch]);
+                        qb[qi][i] = (qp[(y0 + qy) * w + x0 + qx] + pos) * scale;
+                    }
+                }
+                let kp = &kmap[ch * plane..][..plane];
+                let vp = &vmap[ch * plane..][..plane];
+                let krow = &mut kt[i * n..][..n];
+                for (j, &(kj, px)) in inside.iter().enumerate() {
+                    krow[j] = kp[px] + s.pos_k.map_or(0.0, |p| p[kj * c + ch]);
+                    vb[j][i] = vp[px];
+                }
+            }
+            let logits = &mut logits[..lq * n];
+            match s.bias {
+                Some(b) => {
+                    let b = &b[head * lq * lk..][..lq * lk];
+                    for qi in 0..lq {
+                        for (l, &(kj, _)) in logits[qi * n..][..n].iter_mut().zip(&inside) {
+                            *l = b[qi * lk + kj];
+                        }
+                    }
+                }
+                None => logits.fill(0.0),
+            }
+            for i in 0..D {
+                let krow = &kt[i * n..][..n];
+                for qi in 0..lq {
+                    let a = qb[qi][i];
+                    for (l, k) in logits[qi * n..][..n].iter_mut().zip(krow) {
+                        *l += a * k;
+                    }
+                }
+            }
+            for qi in 0..lq {
+                let row = &mut logits[qi * n..][..n];
+                let max = row.iter().fold(f32::NEG_INFINITY, |m, &l| m.max(l));
+                for l in row.iter_mut() {
+                    *l = exp_nonpositive(*l - max);
+                }
+                let total: f32 = row.iter().sum();
+                let mut acc = [0.0f32; D];
+                for (p, vrow) in row.iter().zip(&vb[..n]) {
+                    for (a, v) in acc.iter_mut().zip(vrow) {
+                        *a += p * v;
+                    }
+                }
+                let inv = 1.0 / total;
+                let (qy, qx) = (qi / s.win, qi % s.win);
+                for (i, a) in acc.iter().enumerate() {
+                    strip[((ch0 + i) * s.win + qy) * w + x0 + qx] = a * inv;
+                }
+            }
+        }
+    }
+    strip
+}
+
+/// `eᵡ` for `x ≤ 0` without a library call, so the softmax loop vectorises: `x = n·ln 2 + r`
+/// with `|r| ≤ ln 2 / 2`, Cephes' degree-6 polynomial for `eʳ`, `2ⁿ` from the exponent bits.
+/// Below −87 it returns `e⁻⁸⁷` (≈ 1.6e-38), which next to the row's maximum (whose term
+/// is 1) is below f32 resolution, as is every such term in the exact softmax.
+#[inline(always)]
+pub fn exp_nonpositive(x: f32) -> f32 {
+    const LOG2E: f32 = std::f32::consts::LOG2_E;
+    // ln 2 split so that `n · LN2_HI` is exact.
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    let x = x.max(-87.0);
+    let n = (x * LOG2E + 0.5).floor();
+    let r = x - n * LN2_HI - n * LN2_LO;
+    let p = ((((1.987_569_1e-4 * r + 1.398_199_9e-3) * r + 8.333_452e-3) * r + 4.166_579_6e-2) * r
+        + 1.666_666_5e-1)
+        * r
+        + 5.000_000_1e-1;
+    let e = p * r * r + r + 1.0;
+    f32::from_bits(((n as i32 + 127) as u32) << 23) * e
+}
+
+#[cfg(test)]
+mod tests {
+    use super::exp_nonpositive;
+
+    #[test]
+    fn exp_nonpositive_is_within_a_few_ulp_of_f64_exp() {
+        let mut worst = 0.0f64;
+        for i in 0..=200_000 {
+            let x = -87.0 * i as f64 / 200_000.0;
+            let got = f64::from(exp_nonpositive(x as f32));
+            let want = (x as f32 as f64).exp();
+            worst = worst.max((got - want).abs() / want);
+        }
+        assert!(worst < 5e-7, "worst relative error {worst:.2e}");
+        assert_eq!(exp_nonpositive(0.0), 1.0);
+        // Far below: a positive number too small to matter beside 1, never NaN or negative.
+        let tiny = exp_nonpositive(-1e4);
+        assert!(tiny >= 0.0 && tiny < 1e-37);
+        assert!(exp_nonpositive(f32::NEG_INFINITY) < 1e-37);
+    }
+}
