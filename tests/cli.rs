@@ -1584,3 +1584,41 @@ fn a_transforms_json_capture_trains_and_aberrates() {
     ]);
     assert!(abr.join("poses_bounds.npy").is_file());
 }
+
+/// `bench restorer` times both kernels of each workload and prints a row per case; bad sizes
+/// are refused naming the flag before anything runs.
+#[test]
+fn restorer_benchmark_times_both_kernels_and_refuses_bad_sizes() {
+    let out = ok(&[
+        "bench",
+        "restorer",
+        "--configs",
+        "tiny",
+        "--sides",
+        "32",
+        "--batch",
+        "1",
+        "--threads",
+        "1",
+        "--rounds",
+        "1",
+    ]);
+    let rows: Vec<&str> = out.lines().filter(|l| l.starts_with("tiny")).collect();
+    assert_eq!(rows.len(), 2, "{out}");
+    for row in rows {
+        // The last six columns: reference s, fast s, speed-up, CPU s, s/MP, GFLOP/s, all
+        // positive and finite.
+        let words: Vec<&str> = row.split_whitespace().collect();
+        let numbers: Vec<f64> = words[words.len() - 6..]
+            .iter()
+            .map(|w| w.trim_end_matches('x').parse().unwrap())
+            .collect();
+        assert!(numbers.iter().all(|v| v.is_finite() && *v > 0.0), "{row}");
+    }
+    let err = fails(&["bench", "restorer", "--configs", "tiny", "--sides", "100"]);
+    assert!(err.contains("--sides") && err.contains("100 px"), "{err}");
+    let err = fails(&["bench", "restorer", "--threads", "0"]);
+    assert!(err.contains("--threads"), "{err}");
+    let err = fails(&["bench", "restorer", "--train-only", "--batch", "0"]);
+    assert!(err.contains("nothing to time"), "{err}");
+}

@@ -39,6 +39,9 @@ pub struct RestorerBenchArgs {
     /// Crops per training step (of each config's training crop size); 0 leaves training out.
     #[arg(long, default_value_t = 4)]
     pub batch: usize,
+    /// Time training steps only, no forward passes.
+    #[arg(long, conflicts_with = "sides")]
+    pub train_only: bool,
     /// Thread counts to time, in order.
     #[arg(long, value_delimiter = ',', default_values_t = [1usize, 2])]
     pub threads: Vec<usize>,
@@ -97,7 +100,10 @@ fn restorer(a: RestorerBenchArgs) -> Result<()> {
         .iter()
         .map(|&p| RestorerConfig::preset(p))
         .collect();
-    for cfg in &configs {
+    if a.train_only && a.batch == 0 {
+        bail!("--train-only with --batch 0 leaves nothing to time");
+    }
+    for cfg in configs.iter().filter(|_| !a.train_only) {
         let m = cfg.multiple();
         if let Some(s) = a.sides.iter().find(|&&s| s == 0 || !s.is_multiple_of(m)) {
             bail!(
@@ -108,8 +114,10 @@ fn restorer(a: RestorerBenchArgs) -> Result<()> {
     }
     let mut cases: Vec<(RestorerConfig, Workload)> = Vec::new();
     for cfg in &configs {
-        for &side in &a.sides {
-            cases.push((cfg.clone(), Workload::Forward { side }));
+        if !a.train_only {
+            for &side in &a.sides {
+                cases.push((cfg.clone(), Workload::Forward { side }));
+            }
         }
         if a.batch > 0 {
             let w = Workload::TrainStep {
