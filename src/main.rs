@@ -10,6 +10,20 @@ use clap::Parser;
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+/// mimalloc's `mi_option_purge_delay` (its place in `mi_option_t`, the same in mimalloc 2 and 3).
+const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
+
+/// Keeps freed memory for reuse instead of handing it back to the kernel after a short delay:
+/// the restorer frees and makes tensors of tens of MB all the time, and faulting fresh pages
+/// in again cost more than the work done in them (`metasplat bench restorer`: three times the
+/// system time; restore/README.md). `MIMALLOC_PURGE_DELAY` in the environment still decides.
+fn keep_freed_memory() {
+    if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
+        // SAFETY: sets an integer option; mimalloc reads it at its next purge.
+        unsafe { libmimalloc_sys::mi_option_set(MI_OPTION_PURGE_DELAY, -1) };
+    }
+}
+
 /// The exit status after an interruption, as shells report a process ended by SIGINT.
 const INTERRUPTED: u8 = 130;
 
@@ -30,6 +44,7 @@ fn handle_signals() {
 }
 
 fn main() -> std::process::ExitCode {
+    keep_freed_memory();
     let args = cli::Cli::parse();
     if args.stops_when_asked() {
         handle_signals();

@@ -341,9 +341,9 @@ impl RestorerConfig {
         f += (self.blocks[0] + self.refinement) as f64 * block(2 * d, self.heads[0]);
         for l in 0..3 {
             let c = (d << l) as f64;
-            f += 2.0 * 9.0 * c * (c / 2.0) * at(l as i32);
+            f += 2.0 * 9.0 * c * (c / 2.0) * at(l);
             let up = (d << (l + 1)) as f64;
-            f += 2.0 * 9.0 * up * (2.0 * up) * at(l as i32 + 1);
+            f += 2.0 * 9.0 * up * (2.0 * up) * at(l + 1);
         }
         let d = d as f64;
         f += 2.0 * (8.0 * d * 4.0 * d * at(2) + 4.0 * d * 2.0 * d * at(1));

@@ -163,3 +163,38 @@ fn a_training_step_has_the_same_loss_and_gradients_with_either_kernels() {
         );
     }
 }
+
+#[test]
+fn the_one_pass_gated_depthwise_equals_the_tensor_gdfn() {
+    let device = Device::flex();
+    device.seed(14);
+    // Odd sizes, a one-pixel-wide map and a batch of two.
+    for (c, hidden, h, w) in [(4, 6, 7, 9), (3, 5, 1, 6), (2, 3, 5, 1)] {
+        let mut m = restore::net::layers::Gdfn::new(c, hidden, &device);
+        m.depthwise.weight = burn::module::Param::from_tensor(Tensor::random(
+            m.depthwise.weight.val().dims(),
+            Distribution::Normal(0.0, 1.0),
+            &device,
+        ));
+        let x = Tensor::<4>::random([2, c, h, w], Distribution::Normal(0.0, 2.0), &device);
+        let fast = with_kernels(Kernels::Fast, || values(m.forward(x.clone())));
+        let reference = with_kernels(Kernels::Reference, || values(m.forward(x.clone())));
+        let err = max_abs_diff(&fast, &reference);
+        assert!(err < 1e-5, "{c}x{hidden} at {h}x{w}: {err:.2e}");
+    }
+}
+
+#[test]
+fn the_vectorised_gelu_matches_burns_erf_gelu() {
+    let device = Device::flex();
+    let xs: Vec<f32> = (0..=4000).map(|i| -10.0 + i as f32 * 0.005).collect();
+    let n = xs.len();
+    let want = values(burn::tensor::activation::gelu(Tensor::<1>::from_data(
+        TensorData::new(xs.clone(), [n]),
+        &device,
+    )));
+    let got: Vec<f32> = xs.iter().map(|&x| restore::net::gate_direct::gelu(x)).collect();
+    let err = max_abs_diff(&got, &want);
+    assert!(err < 1e-6, "max abs difference {err:.2e}");
+    assert!(restore::net::gate_direct::gelu(f32::NAN).is_nan());
+}

@@ -7,9 +7,11 @@ use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::tensor::activation::gelu;
 use burn::tensor::module::avg_pool2d;
 use burn::tensor::ops::AvgPoolOptions;
-use burn::tensor::{Device, Tensor};
+use burn::tensor::{Device, Tensor, TensorData};
 
+use super::gate_direct::gated_depthwise;
 use super::kernels::{Kernels, current};
+use super::window::{direct_applies, host};
 
 /// `k × k` convolution with same-size output.
 pub fn conv(cin: usize, cout: usize, k: usize, bias: bool, device: &Device) -> Conv2d {
@@ -92,7 +94,17 @@ impl Gdfn {
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let h = self.depthwise.forward(pointwise(&self.project_in, x));
+        let h = pointwise(&self.project_in, x);
+        if current() == Kernels::Fast && direct_applies(&h) {
+            let dims = h.dims();
+            let [b, c2, hh, w] = dims;
+            let device = h.device();
+            let weight = host(self.depthwise.weight.val());
+            let gated = gated_depthwise(&host(h), &weight, dims);
+            let gated = Tensor::from_data(TensorData::new(gated, [b, c2 / 2, hh, w]), &device);
+            return pointwise(&self.project_out, gated);
+        }
+        let h = self.depthwise.forward(h);
         let mut parts = h.chunk(2, 1);
         let x2 = parts.pop().expect("two halves");
         let x1 = parts.pop().expect("two halves");

@@ -1,0 +1,101 @@
+//! The GDFN's middle for CPU inference, `GELU(DW(x₁)) ⊙ DW(x₂)`, in one pass.
+//!
+//! As tensors it is four passes over the widest maps of the network (the depthwise
+//! convolution's output, its two halves, the GELU and the product, each a new tensor of
+//! the hidden width); here each output plane is made from its two input planes while they
+//! are in cache. It has no gradient: training takes the tensor formulation.
+
+use super::window_direct::exp_nonpositive;
+use rayon::prelude::*;
+
+/// `x: [b, 2·hid, h, w]` (the GDFN's first projection), `weight: [2·hid, 1, 3, 3]` (its
+/// depthwise 3×3 kernels, zero padding) → `[b, hid, h, w]`: channel `i` is
+/// `GELU(dw_i(x_i)) · dw_{hid+i}(x_{hid+i})`.
+pub fn gated_depthwise(x: &[f32], weight: &[f32], [b, c2, h, w]: [usize; 4]) -> Vec<f32> {
+    let hid = c2 / 2;
+    let plane = h * w;
+    let mut out = vec![0.0f32; b * hid * plane];
+    out.par_chunks_mut(plane)
+        .enumerate()
+        .for_each(|(task, dst)| {
+            let (n, i) = (task / hid, task % hid);
+            let src = |ch: usize| &x[(n * c2 + ch) * plane..][..plane];
+            let kernel = |ch: usize| -> &[f32; 9] { weight[ch * 9..][..9].try_into().unwrap() };
+            plane_task(
+                dst,
+                (src(i), kernel(i)),
+                (src(hid + i), kernel(hid + i)),
+                h,
+                w,
+            );
+        });
+    out
+}
+
+type Plane<'a> = (&'a [f32], &'a [f32; 9]);
+
+fn plane_task(dst: &mut [f32], a: Plane, g: Plane, h: usize, w: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2.
+        return unsafe { plane_avx2(dst, a, g, h, w) };
+    }
+    plane_body(dst, a, g, h, w)
+}
+
+/// The same code compiled for AVX2 (no multiply-add contracted: the portable build's bits).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn plane_avx2(dst: &mut [f32], a: Plane, g: Plane, h: usize, w: usize) {
+    plane_body(dst, a, g, h, w)
+}
+
+#[inline(always)]
+fn plane_body(dst: &mut [f32], a: Plane, g: Plane, h: usize, w: usize) {
+    let mut ra = vec![0.0f32; w];
+    let mut rg = vec![0.0f32; w];
+    for y in 0..h {
+        depthwise_row(&mut ra, a.0, a.1, y, h, w);
+        depthwise_row(&mut rg, g.0, g.1, y, h, w);
+        for ((o, &u), &v) in dst[y * w..][..w].iter_mut().zip(&ra).zip(&rg) {
+            *o = gelu(u) * v;
+        }
+    }
+}
+
+/// Row `y` of a 3×3 cross-correlation with zero padding (what burn's `conv2d` computes).
+#[inline(always)]
+fn depthwise_row(row: &mut [f32], src: &[f32], k: &[f32; 9], y: usize, h: usize, w: usize) {
+    row.fill(0.0);
+    for ky in 0..3 {
+        let Some(sy) = (y + ky).checked_sub(1).filter(|&sy| sy < h) else {
+            continue;
+        };
+        let s = &src[sy * w..][..w];
+        let (k0, k1, k2) = (k[ky * 3], k[ky * 3 + 1], k[ky * 3 + 2]);
+        // Interior columns as shifted slices, so the loop vectorises; the two edges apart.
+        if w >= 2 {
+            for (x, r) in row[1..w - 1].iter_mut().enumerate() {
+                *r += k0 * s[x] + k1 * s[x + 1] + k2 * s[x + 2];
+            }
+            row[0] += k1 * s[0] + k2 * s[1];
+            row[w - 1] += k0 * s[w - 2] + k1 * s[w - 1];
+        } else {
+            row[0] += k1 * s[0];
+        }
+    }
+}
+
+/// GELU with the exact (erf) form, `x/2 · (1 + erf(x/√2))`, with erf from Abramowitz and
+/// Stegun 7.1.26 (absolute error below 1.5e-7) so the loop vectorises.
+#[inline(always)]
+pub fn gelu(x: f32) -> f32 {
+    let z = (x * std::f32::consts::FRAC_1_SQRT_2).abs();
+    let t = 1.0 / (1.0 + 0.327_591_1 * z);
+    let poly = ((((1.061_405_4 * t - 1.453_152_1) * t + 1.421_413_8) * t - 0.284_496_74) * t
+        + 0.254_829_6)
+        * t;
+    let erf_abs = 1.0 - poly * exp_nonpositive(-z * z);
+    let erf = if x < 0.0 { -erf_abs } else { erf_abs };
+    0.5 * x * (1.0 + erf)
+}
