@@ -193,7 +193,10 @@ fn the_vectorised_gelu_matches_burns_erf_gelu() {
         TensorData::new(xs.clone(), [n]),
         &device,
     )));
-    let got: Vec<f32> = xs.iter().map(|&x| restore::net::gate_direct::gelu(x)).collect();
+    let got: Vec<f32> = xs
+        .iter()
+        .map(|&x| restore::net::gate_direct::gelu(x))
+        .collect();
     let err = max_abs_diff(&got, &want);
     assert!(err < 1e-6, "max abs difference {err:.2e}");
     assert!(restore::net::gate_direct::gelu(f32::NAN).is_nan());
