@@ -61,8 +61,9 @@ pub fn process_cpu_seconds() -> Option<f64> {
     Some(ticks / 100.0)
 }
 
-/// Input planes with values spread like Wiener images (a fixed pseudo-random stream).
-fn planes(c: usize, h: usize, w: usize, seed: u64) -> Planes {
+/// Input planes of values in [0, 1) from a fixed pseudo-random stream started at `seed`
+/// (timing needs inputs, not photos).
+pub fn planes(c: usize, h: usize, w: usize, seed: u64) -> Planes {
     let mut s = seed;
     let data = (0..c * h * w)
         .map(|_| {

@@ -6,6 +6,7 @@
 //! The choice is per thread: the network reads it on the thread that calls `forward`, so
 //! tests running in parallel cannot change each other's.
 
+use burn::tensor::{Device, Tensor};
 use std::cell::Cell;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -48,4 +49,15 @@ pub fn with_kernels<R>(kernels: Kernels, f: impl FnOnce() -> R) -> R {
     }
     let _restore = Restore(CURRENT.with(|c| c.replace(kernels)));
     f()
+}
+
+/// Whether a hand-written CPU kernel may stand in for the tensor formulation: on burn's CPU
+/// backend (the kernels read and write host memory) and without gradients (they have none).
+pub fn direct_applies(t: &Tensor<4>) -> bool {
+    !t.is_autodiff() && t.device() == Device::flex()
+}
+
+/// A CPU tensor's values, in its logical order.
+pub fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.try_into_vec_as::<f32>().expect("flex tensors read back")
 }

@@ -10,8 +10,7 @@ use burn::tensor::ops::AvgPoolOptions;
 use burn::tensor::{Device, Tensor, TensorData};
 
 use super::gate_direct::gated_depthwise;
-use super::kernels::{Kernels, current};
-use super::window::{direct_applies, host};
+use super::kernels::{Kernels, current, direct_applies, host};
 
 /// `k × k` convolution with same-size output.
 pub fn conv(cin: usize, cout: usize, k: usize, bias: bool, device: &Device) -> Conv2d {

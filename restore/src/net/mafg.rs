@@ -7,11 +7,9 @@ use burn::module::{Module, Param};
 use burn::nn::conv::Conv2d;
 use burn::tensor::{Device, Tensor, TensorData};
 
-use super::kernels::{Kernels, current};
+use super::kernels::{Kernels, current, direct_applies, host};
 use super::layers::{ChannelNorm, conv, pointwise};
-use super::window::{
-    attend, attend_fused, direct_applies, host, key_mask, key_windows, merge_windows, query_windows,
-};
+use super::window::{attend, attend_fused, key_mask, key_windows, merge_windows, query_windows};
 use super::window_direct::{WindowSpec, attend_maps, head_dim_supported};
 use aberration::wiener::{BANK_MEDIAN, BANK_SIZE};
 
@@ -64,7 +62,6 @@ impl CrossAttentionGuide {
     /// `bank: [b, 39, h, w]` (filter-major) → `[b, 39, h, w]`.
     pub fn forward(&self, bank: Tensor<4>) -> Tensor<4> {
         let [b, _, h, w] = bank.dims();
-        let bank_device = bank.device();
         let input = self.residual.then(|| bank.clone());
         let m = BANK_SIZE;
         let feats = self
@@ -76,11 +73,25 @@ impl CrossAttentionGuide {
             .reshape([b, m, e, h, w])
             .narrow(1, BANK_MEDIAN, 1)
             .reshape([b, e, h, w]);
-        let hd = self.pos_q.val().dims()[1];
-        if current() == Kernels::Fast
-            && direct_applies(&median)
-            && head_dim_supported(hd / self.heads)
-        {
+        let q = pointwise(&self.q, median);
+        let k = pointwise(&self.k, feats.clone());
+        let v = pointwise(&self.v, feats);
+        let rgb = pointwise(&self.out, self.answers(q, k, v));
+        let rgb = rgb.reshape([b, 3 * m, h, w]);
+        match input {
+            Some(bank) => rgb + bank,
+            None => rgb,
+        }
+    }
+
+    /// Every filter's answer map `[b·m, hd, h, w]` from the median's query map `[b, hd, h, w]`
+    /// and the filters' key and value maps `[b·m, hd, h, w]`, by the kernels [`current`]
+    /// names (the direct one where it applies).
+    fn answers(&self, q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
+        let [b, hd, h, w] = q.dims();
+        let m = BANK_SIZE;
+        let device = q.device();
+        if current() == Kernels::Fast && direct_applies(&q) && head_dim_supported(hd / self.heads) {
             let (pos_q, pos_k) = (host(self.pos_q.val()), host(self.pos_k.val()));
             let spec = WindowSpec {
                 heads: self.heads,
@@ -91,30 +102,19 @@ impl CrossAttentionGuide {
                 pos_k: Some(&pos_k),
                 bias: None,
             };
-            let q = host(pointwise(&self.q, median));
-            let k = host(pointwise(&self.k, feats.clone()));
-            let v = host(pointwise(&self.v, feats));
-            let out = attend_maps(&q, &k, &v, [hd, h, w], &spec).expect("a supported head width");
-            let device = bank_device;
-            let out = Tensor::from_data(TensorData::new(out, [b * m, hd, h, w]), &device);
-            let rgb = pointwise(&self.out, out).reshape([b, 3 * m, h, w]);
-            return match input {
-                Some(bank) => rgb + bank,
-                None => rgb,
-            };
+            let out = attend_maps(&host(q), &host(k), &host(v), [hd, h, w], &spec)
+                .expect("a supported head width");
+            return Tensor::from_data(TensorData::new(out, [b * m, hd, h, w]), &device);
         }
-        let q = query_windows(pointwise(&self.q, median), self.win)
-            + self.pos_q.val().unsqueeze_dim::<3>(0);
-        let k = key_windows(pointwise(&self.k, feats.clone()), self.win, self.kwin)
-            + self.pos_k.val().unsqueeze_dim::<3>(0);
-        let v = key_windows(pointwise(&self.v, feats), self.win, self.kwin);
+        let q = query_windows(q, self.win) + self.pos_q.val().unsqueeze_dim::<3>(0);
+        let k = key_windows(k, self.win, self.kwin) + self.pos_k.val().unsqueeze_dim::<3>(0);
+        let v = key_windows(v, self.win, self.kwin);
         // Every filter is asked the same question: repeat the median's query windows.
         let [nq, lq, hd] = q.dims();
         let q =
             q.reshape([b, 1, nq / b, lq, hd])
                 .repeat_dim(1, m)
                 .reshape([b * m * (nq / b), lq, hd]);
-        let device = k.device();
         let out = match current() {
             Kernels::Reference => {
                 let mask = key_mask(h, w, self.win, self.kwin, &device)
@@ -130,11 +130,6 @@ impl CrossAttentionGuide {
                 attend_fused(q, k, v, self.heads, bias)
             }
         };
-        let rgb = pointwise(&self.out, merge_windows(out, b * m, h, w, self.win));
-        let rgb = rgb.reshape([b, 3 * m, h, w]);
-        match input {
-            Some(bank) => rgb + bank,
-            None => rgb,
-        }
+        merge_windows(out, b * m, h, w, self.win)
     }
 }

@@ -10,20 +10,9 @@ use burn::tensor::module::attention;
 use burn::tensor::ops::{AttentionModuleOptions, PadMode};
 use burn::tensor::{Device, Int, Tensor, TensorData};
 
-use super::kernels::{Kernels, current};
+use super::kernels::{Kernels, current, direct_applies, host};
 use super::layers::{conv, enhance_query, pointwise};
 use super::window_direct::{WindowSpec, attend_maps, head_dim_supported};
-
-/// Whether [`attend_maps`] may stand in for the tensor formulation: on burn's CPU backend
-/// (it reads and writes host memory) and without gradients (it has none).
-pub fn direct_applies(t: &Tensor<4>) -> bool {
-    !t.is_autodiff() && t.device() == Device::flex()
-}
-
-/// A CPU tensor's values, in its logical order.
-pub fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-    t.try_into_vec_as::<f32>().expect("flex tensors read back")
-}
 
 /// Logit added to masked keys: `exp` of it is exactly zero in f32.
 const MASKED: f32 = -1e4;
@@ -217,11 +206,17 @@ impl WindowAttention {
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let [b, c, h, w] = x.dims();
         let mut parts = pointwise(&self.qkv, x).chunk(3, 1);
         let v = parts.pop().expect("qkv");
         let k = parts.pop().expect("qkv");
         let q = enhance_query(parts.pop().expect("qkv"), self.qe);
+        pointwise(&self.proj, self.answers(q, k, v))
+    }
+
+    /// The attention's answer map `[b, c, h, w]` from the query, key and value maps, by the
+    /// kernels [`current`] names (the direct one where it applies).
+    fn answers(&self, q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
+        let [b, c, h, w] = q.dims();
         let device = q.device();
         if current() == Kernels::Fast && direct_applies(&q) && head_dim_supported(c / self.heads) {
             let bias = host(self.position_bias());
@@ -236,8 +231,7 @@ impl WindowAttention {
             };
             let out = attend_maps(&host(q), &host(k), &host(v), [c, h, w], &spec)
                 .expect("a supported head width");
-            let out = Tensor::from_data(TensorData::new(out, [b, c, h, w]), &device);
-            return pointwise(&self.proj, out);
+            return Tensor::from_data(TensorData::new(out, [b, c, h, w]), &device);
         }
         let q = query_windows(q, self.win);
         let k = key_windows(k, self.win, self.kwin);
@@ -258,6 +252,6 @@ impl WindowAttention {
                 attend_fused(q, k, v, self.heads, bias)
             }
         };
-        pointwise(&self.proj, merge_windows(out, b, h, w, self.win))
+        merge_windows(out, b, h, w, self.win)
     }
 }
