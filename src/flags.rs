@@ -144,11 +144,23 @@ pub fn camera_pose(s: &str) -> Result<[f32; 6], String> {
         .map_err(|_| format!("'{s}' is not six numbers ex,ey,ez,tx,ty,tz"))?;
     if v.iter()
         .any(|x| !(x.is_finite() && x.abs() <= splat::formats::files::MAX_POSITION))
-        || v[..3] == v[3..]
     {
         return Err(format!(
-            "'{s}': numbers within ±{:e}, and the eye apart from the target",
+            "'{s}': every number must be within ±{:e}",
             splat::formats::files::MAX_POSITION
+        ));
+    }
+    // The view direction and the near plane come from eye − target in f32: a separation
+    // lost in the coordinates' rounding (or a denormal one) gives no direction at all.
+    let d = (0..3)
+        .map(|i| (v[i] as f64 - v[i + 3] as f64).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let magnitude = v.iter().fold(1.0f64, |m, x| m.max(x.abs() as f64));
+    let least = 1e-4 * magnitude;
+    if d.is_nan() || d < least {
+        return Err(format!(
+            "'{s}': the eye and the target are {d:e} apart; put them at least {least:e} apart"
         ));
     }
     Ok(v)
@@ -191,6 +203,16 @@ pub fn colour(s: &str) -> Result<[f32; 3], String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_camera_needs_an_eye_apart_from_its_target() {
+        assert!(camera_pose("0,0,-1,0,0,1").is_ok());
+        for bad in ["0,0,0,1e-30,0,0", "1,1,1,1,1,1", "1e7,0,0,1e7,0,1"] {
+            let e = camera_pose(bad).unwrap_err();
+            assert!(e.contains("apart"), "{bad}: {e}");
+        }
+        assert!(camera_pose("1e9,0,0,0,0,0").unwrap_err().contains("within"));
+    }
 
     #[test]
     fn nonsense_is_refused() {

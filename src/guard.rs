@@ -173,6 +173,52 @@ pub fn refuse_overwrite(flag: &str, out: &Path, inputs: &[(&str, &Path)]) -> Res
     Inputs::of(inputs).refuse(flag, out)
 }
 
+/// Refuses, before any work, an output file (given with `flag`) that cannot be written where
+/// it is named: an existing folder, or a file whose folder does not exist (or is a file). A
+/// command with several outputs checks them all first, so that one it cannot write does not
+/// fail after the others were written.
+pub fn refuse_unwritable_file(flag: &str, path: &Path) -> Result<()> {
+    let problem = if path.is_dir() {
+        "is a folder; name the file to write".to_string()
+    } else {
+        let parent = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => Path::new("."),
+        };
+        if parent.is_dir() {
+            return Ok(());
+        }
+        if parent.exists() {
+            format!("cannot be written: {} is not a folder", parent.display())
+        } else {
+            format!(
+                "cannot be written: its folder {} does not exist",
+                parent.display()
+            )
+        }
+    };
+    Err(TrainError::Invalid(format!(
+        "{flag} {} {problem}",
+        path.display()
+    )))
+}
+
+/// Refuses, before any work, an image output (given with `flag`) whose name says another
+/// format than the PNG bytes every image command writes (`--out a.jpg` would hold a PNG).
+pub fn refuse_non_png(flag: &str, path: &Path) -> Result<()> {
+    let png = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    if png {
+        return Ok(());
+    }
+    Err(TrainError::Invalid(format!(
+        "{flag} {}: images are written as PNG; name the file with .png",
+        path.display()
+    )))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -201,6 +247,25 @@ mod tests {
         }
         for good in [d.join("b.png"), d.join("out/scene"), d.join("scene2")] {
             refuse_overwrite("--out", &good, &inputs).unwrap();
+        }
+    }
+
+    #[test]
+    fn an_output_file_needs_an_existing_folder_and_must_not_be_one() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("file"), b"x").unwrap();
+        refuse_unwritable_file("--out", &d.join("new.png")).unwrap();
+        refuse_unwritable_file("--out", &d.join("file")).unwrap();
+        for (bad, says) in [
+            (d.to_path_buf(), "is a folder"),
+            (d.join("missing/new.png"), "does not exist"),
+            (d.join("file/new.png"), "is not a folder"),
+        ] {
+            let err = refuse_unwritable_file("--out", &bad)
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains("--out") && err.contains(says), "{err}");
         }
     }
 

@@ -29,6 +29,34 @@ pub struct PreparedRun {
 
 /// Checks and loads everything a run needs, before any training time is spent.
 pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
+    let (data, config, device, device_note) = checked(request)?;
+    let out = &request.out;
+    let lock = outputs::prepare_run_dir(out, "train")
+        .map_err(|e| e.context(format!("cannot use {} as the run folder", out.display())))?;
+    if request.overwrite {
+        outputs::clear_run(out)?;
+    }
+    outputs::write_json(&out.join(outputs::CONFIG_FILE), &config)?;
+    Ok(PreparedRun {
+        request: request.clone(),
+        data,
+        config,
+        device,
+        device_note,
+        cache_note: None,
+        _lock: lock,
+    })
+}
+
+/// Every check [`prepare`] makes, with nothing written: for a caller that makes other
+/// outputs before this run starts (an experiment's aberrated copy) and must not make them
+/// for a run that would be refused.
+pub fn check(request: &RunRequest) -> Result<()> {
+    checked(request).map(|_| ())
+}
+
+/// The inputs read and checked, the config built; no folder made.
+fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String)> {
     let out = &request.out;
     let mut inputs = vec![("--scene", request.scene.as_path())];
     if let Some(p) = &request.data.psf {
@@ -100,21 +128,7 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
             ));
         }
     }
-    let lock = outputs::prepare_run_dir(out, "train")
-        .map_err(|e| e.context(format!("cannot use {} as the run folder", out.display())))?;
-    if request.overwrite {
-        outputs::clear_run(out)?;
-    }
-    outputs::write_json(&out.join(outputs::CONFIG_FILE), &config)?;
-    Ok(PreparedRun {
-        request: request.clone(),
-        data,
-        config,
-        device,
-        device_note,
-        cache_note: None,
-        _lock: lock,
-    })
+    Ok((data, config, device, device_note))
 }
 
 /// A run folder that holds a run is continued (`--resume`) or replaced (`--overwrite`), never

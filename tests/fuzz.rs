@@ -1,19 +1,23 @@
 //! Fuzzing every file parser with proptest for a fixed budget: random bytes and mutations of
 //! valid files (byte flips, truncations, inserted bytes) must give `Ok` or an error, never a
-//! panic (a panic fails the test) and never a single allocation above [`MAX_ALLOCATION`]
+//! panic (a panic fails the test) and never hold more than [`MAX_HELD`] at once while parsing
 //! (the inputs are a few kB; the readers check sizes against the file and `base::limits`
-//! before reserving, so a lying header must not size an allocation).
+//! before reserving, so a lying header must not size an allocation, and a count that grows a
+//! buffer piece by piece must stop where the file's bytes do). The watching allocator also
+//! refuses any single request above `base::alloc_watch::HARD_LIMIT`, so a reader that escapes
+//! the bound fails its case rather than exhausting the machine.
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-/// The largest single allocation a parse of these small inputs may make.
-const MAX_ALLOCATION: usize = 64 << 20;
+/// The most a parse of these small inputs may hold at once, every allocation of the case
+/// together (a valid file's parse holds well under a megabyte).
+const MAX_HELD: usize = 64 << 20;
 
 #[global_allocator]
 static ALLOCATOR: base::alloc_watch::Watching = base::alloc_watch::Watching;
 
-use base::alloc_watch::largest as largest_allocation;
+use base::alloc_watch::on_this_thread;
 
 use proptest::prelude::*;
 
@@ -256,16 +260,16 @@ fn file(name: &str, bytes: &[u8]) -> (tempfile::TempDir, PathBuf) {
 }
 
 /// Every parser on `bytes` as the file it is meant for; results are ignored, panics and
-/// allocations above [`MAX_ALLOCATION`] are not.
+/// holding more than [`MAX_HELD`] are not.
 fn parse_as(kind: &str, bytes: &[u8]) {
     valid();
-    largest_allocation();
-    parse_unwatched(kind, bytes);
-    let largest = largest_allocation();
+    let ((), usage) = on_this_thread(|| parse_unwatched(kind, bytes));
     assert!(
-        largest <= MAX_ALLOCATION,
-        "parsing {} bytes as {kind} allocated {largest} bytes at once",
-        bytes.len()
+        usage.peak <= MAX_HELD,
+        "parsing {} bytes as {kind} held {} bytes at once (largest request {})",
+        bytes.len(),
+        usage.peak,
+        usage.largest
     );
 }
 
@@ -451,12 +455,14 @@ proptest! {
         damaged.extend(apply(&record[..region], &m));
         damaged.extend_from_slice(&record[region..]);
         let device = restore::Compute::Cpu.device().unwrap();
-        largest_allocation();
-        if let Err(e) = restore::weights::load_bytes(&damaged, Path::new("w.bin"), &device, None, None) {
+        let (loaded, usage) = on_this_thread(|| {
+            restore::weights::load_bytes(&damaged, Path::new("w.bin"), &device, None, None)
+                .map(|_| ())
+        });
+        if let Err(e) = loaded {
             prop_assert!(e.to_string().contains("w.bin"), "{e}");
         }
-        let largest = largest_allocation();
-        prop_assert!(largest <= MAX_ALLOCATION, "loading allocated {largest} bytes at once");
+        prop_assert!(usage.peak <= MAX_HELD, "loading held {} bytes at once", usage.peak);
     }
 }
 

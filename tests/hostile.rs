@@ -993,6 +993,24 @@ fn hostile_splat_files() {
         b[0..4].copy_from_slice(&3e38f32.to_le_bytes());
         [header.clone().into_bytes(), b].concat()
     }));
+    // Finite, but beyond what a render or a loss can sum without overflowing (a colour of
+    // 1e38 made training fail blaming the capture): refused at read, naming the splat.
+    for (label, edit) in [
+        (
+            "PLY base colour 1e38",
+            (|g: &mut splat::Gaussians| g.sh_dc[4].x = 1e38) as fn(&mut _),
+        ),
+        ("PLY higher SH 1e38", |g| g.sh_rest[5].y = -1e38),
+        ("PLY rotation 1e38", |g| g.rotations[4][2] = 1e38),
+        ("PLY opacity logit 1e38", |g| g.logit_opacities[4] = 1e38),
+    ] {
+        let mut h = g.clone();
+        edit(&mut h);
+        let path = d.join("huge.ply");
+        splat::formats::ply::write_ply(&path, &h).unwrap();
+        variants.push((label.into(), "ply", std::fs::read(&path).unwrap()));
+        std::fs::remove_file(&path).unwrap();
+    }
     variants.extend([
         (
             "vertex count 41".into(),
@@ -1243,6 +1261,24 @@ fn hostile_splat_files() {
             );
         });
     }
+    // A valid scene whose splat lies beyond SPZ's fixed point: the export names the splat,
+    // and the folder it would have made for the file is not left behind.
+    let mut far = g.clone();
+    far.means[4].x = 3000.0;
+    let far_ply = d.join("far.ply");
+    splat::formats::ply::write_ply(&far_ply, &far).unwrap();
+    suite.case(
+        "SPZ export beyond the fixed point",
+        &args(&[
+            "export",
+            "--in",
+            &s(&far_ply),
+            "--out",
+            &s(&d.join("new").join("far.spz")),
+        ]),
+        &["splat 4 at"],
+    );
+    std::fs::remove_file(&far_ply).unwrap();
     suite.finish("splat file");
 }
 
@@ -1494,6 +1530,12 @@ fn hostile_run_files() {
             edit("noise_gaussian_sigma", (-1.0).into()),
         ),
         ("psf missing", edit("psf", "nowhere.npy".into())),
+        // The photos went through another PSF file than the one beside them.
+        ("psf checksum", edit("psf_fnv1a", "0123456789abcdef".into())),
+        // More photos than were made through the lens.
+        ("images 1", edit("images", 1.into())),
+        // Beyond f32: named as written, not as inf.
+        ("noise 1e300", edit("noise_poisson_scale", 1e300.into())),
         ("psf string is a number", edit("psf", 7.into())),
     ] {
         copy_dir(&abr, &work);
@@ -1645,7 +1687,29 @@ fn hostile_run_files() {
             value,
         ])
     };
+    // An experiment whose ceiling run would be refused (its folder holds a run) refuses
+    // before it makes the PSF grid or the aberrated copy.
+    let exp = d.join("exp");
+    std::fs::create_dir_all(exp.join("run_clean")).unwrap();
+    std::fs::write(exp.join("run_clean/point_cloud.ply"), b"a run").unwrap();
     for (flag, c) in [
+        (
+            "run_clean",
+            args(&[
+                "experiment",
+                "llff",
+                "--scene",
+                &s(&scene),
+                "--out",
+                &s(&exp),
+                "--iters",
+                "2",
+                "--downsample",
+                "1",
+                "--device",
+                "cpu",
+            ]),
+        ),
         (
             "--fft-size",
             args(&["psf", "simulate", "--out", &o, "--fft-size", "100000"]),
@@ -1678,6 +1742,19 @@ fn hostile_run_files() {
         (
             "--aperture-um",
             args(&["psf", "simulate", "--out", &o, "--aperture-um", "1e-300"]),
+        ),
+        // Optics that describe no imaging system: no light in the crop, or a flat PSF.
+        (
+            "--focal-um",
+            args(&["psf", "simulate", "--out", &o, "--focal-um", "1e300"]),
+        ),
+        (
+            "--focal-um",
+            args(&["psf", "simulate", "--out", &o, "--focal-um", "1e-6"]),
+        ),
+        (
+            "--sensor-pitch-um",
+            args(&["psf", "simulate", "--out", &o, "--sensor-pitch-um", "1e-9"]),
         ),
         (
             "--width",
@@ -1737,6 +1814,133 @@ fn hostile_run_files() {
                 &o,
                 "--sensor-px",
                 "0",
+            ]),
+        ),
+        // Every output checked before the first is written: a picture that cannot be
+        // written (or that is the grid itself) used to leave the grid behind, or replace it.
+        (
+            "--picture",
+            args(&["psf", "simulate", "--out", &o, "--picture", &o]),
+        ),
+        (
+            "--picture",
+            args(&[
+                "psf",
+                "simulate",
+                "--out",
+                &o,
+                "--picture",
+                &s(&d.join("missing/p.png")),
+            ]),
+        ),
+        (
+            "--out",
+            args(&[
+                "deconvolve",
+                "--psf",
+                &s(&psf),
+                "--in",
+                &s(&photo),
+                "--bank",
+                &s(&d.join("bank")),
+                "--out",
+                &s(&d.join("missing/d.png")),
+            ]),
+        ),
+        ("--out", args(&["psf", "simulate", "--out", &s(d)])),
+        // Aberrating an aberrated capture would make its blurred photos the clean images.
+        (
+            "--scene",
+            args(&[
+                "scene",
+                "aberrate",
+                "--scene",
+                &s(&abr),
+                "--psf",
+                &s(&psf),
+                "--out",
+                &o,
+                "--downsample",
+                "1",
+            ]),
+        ),
+        // A weights file's problem names its flag, not the capture.
+        (
+            "--restorer",
+            args(&[
+                "train",
+                "--scene",
+                &s(&abr),
+                "--out",
+                &o,
+                "--mode",
+                "restored",
+                "--downsample",
+                "1",
+                "--restorer",
+                &s(&d.join("missing.bin")),
+                "--device",
+                "cpu",
+            ]),
+        ),
+        // An image named .jpg would hold PNG bytes: refused before any work.
+        (
+            "--out",
+            args(&[
+                "aberrate",
+                "--psf",
+                &s(&psf),
+                "--in",
+                &s(&photo),
+                "--out",
+                &s(&d.join("a.jpg")),
+            ]),
+        ),
+        (
+            "--out",
+            args(&[
+                "deconvolve",
+                "--psf",
+                &s(&psf),
+                "--in",
+                &s(&photo),
+                "--out",
+                &s(&d.join("d.jpeg")),
+            ]),
+        ),
+        // A bad PSF file for the maker is the flag's problem, not the output's.
+        (
+            "--psf",
+            args(&[
+                "scene",
+                "aberrate",
+                "--scene",
+                &s(&scene),
+                "--psf",
+                &s(&photo),
+                "--out",
+                &o,
+                "--downsample",
+                "1",
+            ]),
+        ),
+        // A file where a folder is due, and a folder where a file is due, say so.
+        (
+            "is a file, not a capture folder",
+            args(&["train", "--scene", &s(&photo), "--out", &o]),
+        ),
+        (
+            "is a folder, not a splat file",
+            args(&[
+                "train",
+                "--scene",
+                &s(&abr),
+                "--out",
+                &o,
+                "--downsample",
+                "1",
+                "--init",
+                &s(&abr),
             ]),
         ),
     ] {

@@ -44,6 +44,10 @@ pub struct AberrationRecord {
     pub images: usize,
     /// The capture the clean images came from, as given.
     pub source: String,
+    /// FNV-1a of the PSF file's bytes, so that a replaced `psf.npy` (which would model a blur
+    /// the photos never had) is refused; absent in records written before it was kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub psf_fnv1a: Option<String>,
 }
 
 impl AberrationRecord {
@@ -102,18 +106,51 @@ impl AberrationRecord {
         }
         SceneError::check_file_size(&path, base::limits::MAX_TEXT_FILE_BYTES)?;
         let text = std::fs::read_to_string(&path).map_err(|e| SceneError::io(&path, e))?;
-        let record: AberrationRecord = serde_json::from_str(&text)
+        let value: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| SceneError::invalid(&path, format!("not a valid record: {e}")))?;
+        // serde reads a number beyond f32 as infinity; say what was written instead.
+        for key in ["noise_gaussian_sigma", "noise_poisson_scale"] {
+            if let Some(v) = value[key].as_f64()
+                && v.is_finite()
+                && v.abs() > f32::MAX as f64
+            {
+                return Err(SceneError::invalid(
+                    &path,
+                    format!("{key} {v:e} is beyond single precision; it must be a noise level"),
+                ));
+            }
+        }
+        let record: AberrationRecord = serde_json::from_value(value)
             .map_err(|e| SceneError::invalid(&path, format!("not a valid record: {e}")))?;
         record.blur_mode(&path)?;
         record.check().map_err(|p| SceneError::invalid(&path, p))?;
         Ok(Some(record))
     }
 
-    /// Loads the PSF grid named by the record.
+    /// Loads the PSF grid named by the record, refusing a file other than the one the
+    /// capture was made with.
     pub fn load_psf(&self, capture_dir: &Path) -> Result<PsfGrid> {
         let path = capture_dir.join(&self.psf);
+        if let Some(want) = &self.psf_fnv1a {
+            SceneError::check_file_size(&path, base::limits::MAX_NPY_BYTES)?;
+            let bytes = std::fs::read(&path).map_err(|e| SceneError::io(&path, e))?;
+            let got = psf_checksum(&bytes);
+            if &got != want {
+                return Err(SceneError::invalid(
+                    &path,
+                    format!(
+                        "is not the PSF grid this capture was made with (checksum {got}, {RECORD_FILE} records {want}); the photos' blur would be modelled wrongly: put the original file back, or make the capture again"
+                    ),
+                ));
+            }
+        }
         PsfGrid::load_npy(&path).map_err(SceneError::Psf)
     }
+}
+
+/// The checksum [`AberrationRecord::psf_fnv1a`] holds.
+fn psf_checksum(bytes: &[u8]) -> String {
+    format!("{:016x}", base::hash::fnv1a64(bytes))
 }
 
 /// Settings of the maker.
@@ -193,10 +230,21 @@ pub fn clean_image_path(capture: &Capture, index: usize) -> Option<PathBuf> {
     path.is_file().then_some(path)
 }
 
-/// Loads the clean image of camera `index`; `Ok(None)` when the capture has no `clean/` copy.
+/// Loads the clean image of camera `index`; `Ok(None)` when the capture has no `clean/`
+/// folder. A `clean/` folder that lacks this camera's image is an error naming it: scoring
+/// some views against their clean images and others against their photos would mix two
+/// measures in one figure.
 pub fn load_clean_image(capture: &Capture, index: usize) -> Result<Option<Photo>> {
     let Some(path) = clean_image_path(capture, index) else {
-        return Ok(None);
+        let folder = capture.root.join(CLEAN_DIR);
+        return match capture.image_paths.get(index).and_then(|p| p.file_name()) {
+            Some(name) if folder.is_dir() => Err(SceneError::NotFound {
+                path: folder.join(name),
+                what: "clean image (the capture has a clean/ folder, so every photo needs one)"
+                    .into(),
+            }),
+            _ => Ok(None),
+        };
     };
     let img = images::load_rgb(&path)?;
     let camera = &capture.cameras[index];
@@ -288,6 +336,9 @@ pub fn make_aberrated(
         height,
         images: capture.len(),
         source: capture.root.display().to_string(),
+        psf_fnv1a: Some(psf_checksum(
+            &std::fs::read(&psf_dest).map_err(|e| SceneError::io(&psf_dest, e))?,
+        )),
     };
     let record_path = staging.join(RECORD_FILE);
     let text = serde_json::to_string_pretty(&record)

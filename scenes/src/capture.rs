@@ -210,9 +210,51 @@ impl Capture {
         Ok(Some(mask.data.chunks_exact(3).map(|p| p[0]).collect()))
     }
 
-    /// Decodes several images in parallel, in the order given.
+    /// Decodes several images in parallel, in the order given, with at most
+    /// [`MAX_PIXELS_IN_FLIGHT`] pixels being decoded at once.
     pub fn load_images(&self, indices: &[usize]) -> Result<Vec<Photo>> {
-        indices.par_iter().map(|&i| self.load_image(i)).collect()
+        self.load_images_within(indices, MAX_PIXELS_IN_FLIGHT)
+    }
+
+    /// [`Capture::load_images`] decoding at most `budget` file pixels at once (at least one
+    /// image at a time): the photos are decoded in consecutive groups that fit, each group in
+    /// parallel, so that the decoders' working memory does not grow with the thread count.
+    pub fn load_images_within(&self, indices: &[usize], budget: u64) -> Result<Vec<Photo>> {
+        let mut photos = Vec::with_capacity(indices.len());
+        for group in decode_groups(indices, |i| self.file_pixels(i), budget) {
+            let decoded: Vec<Photo> = group
+                .par_iter()
+                .map(|&i| self.load_image(i))
+                .collect::<Result<_>>()?;
+            photos.extend(decoded);
+        }
+        Ok(photos)
+    }
+
+    /// Decodes every image, keeping none, at most `budget` file pixels at once: what finds a
+    /// damaged photo before a command makes its output (opening a capture reads headers
+    /// only).
+    pub fn check_images_within(&self, budget: u64) -> Result<()> {
+        let all: Vec<usize> = (0..self.len()).collect();
+        for group in decode_groups(&all, |i| self.file_pixels(i), budget) {
+            group
+                .par_iter()
+                .try_for_each(|&i| self.load_image(i).map(drop))?;
+        }
+        Ok(())
+    }
+
+    /// [`Capture::check_images_within`] at [`MAX_PIXELS_IN_FLIGHT`].
+    pub fn check_images(&self) -> Result<()> {
+        self.check_images_within(MAX_PIXELS_IN_FLIGHT)
+    }
+
+    /// Pixels of image `index`'s file (before any shrink at load), from its camera.
+    fn file_pixels(&self, index: usize) -> u64 {
+        self.cameras.get(index).map_or(0, |c| {
+            let s = u64::from(self.shrink.max(1));
+            u64::from(c.width) * s * u64::from(c.height) * s
+        })
     }
 
     /// True when the cameras look at the scene from around it (an object or room captured
@@ -231,8 +273,38 @@ impl Capture {
     }
 }
 
+/// Most file pixels the parallel loaders decode at once: as many as the largest image a
+/// capture may hold, so a capture of huge photos decodes them one by one while thumbnails
+/// still go through every thread together.
+pub const MAX_PIXELS_IN_FLIGHT: u64 = base::limits::MAX_IMAGE_PIXELS;
+
+/// `indices` cut into consecutive groups whose `pixels` sum to at most `budget`; an image
+/// larger than the budget is a group of its own.
+fn decode_groups(indices: &[usize], pixels: impl Fn(usize) -> u64, budget: u64) -> Vec<&[usize]> {
+    let mut groups = Vec::new();
+    let (mut start, mut sum) = (0, 0u64);
+    for (k, &i) in indices.iter().enumerate() {
+        let p = pixels(i);
+        if k > start && sum.saturating_add(p) > budget {
+            groups.push(&indices[start..k]);
+            (start, sum) = (k, 0);
+        }
+        sum = sum.saturating_add(p);
+    }
+    if start < indices.len() {
+        groups.push(&indices[start..]);
+    }
+    groups
+}
+
 /// Opens the capture in `dir`, LLFF if it has `poses_bounds.npy`, else COLMAP.
 pub fn open(dir: &Path, options: &OpenOptions) -> Result<Capture> {
+    if dir.exists() && !dir.is_dir() {
+        return Err(SceneError::invalid(
+            dir,
+            "is a file, not a capture folder (a folder holding images/ and poses)",
+        ));
+    }
     if !dir.is_dir() {
         return Err(SceneError::NotFound {
             path: dir.to_path_buf(),
@@ -701,4 +773,26 @@ fn percentile(sorted: &[f64], q: f64) -> f64 {
     let lo = pos.floor() as usize;
     let hi = pos.ceil() as usize;
     sorted[lo] + (sorted[hi] - sorted[lo]) * (pos - lo as f64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::decode_groups;
+
+    #[test]
+    fn decode_groups_keep_order_and_stay_within_the_budget() {
+        let sizes = [3u64, 3, 3, 10, 1, 1, 1, 1, 2];
+        let indices: Vec<usize> = (0..sizes.len()).collect();
+        let groups = decode_groups(&indices, |i| sizes[i], 6);
+        let flat: Vec<usize> = groups.iter().flat_map(|g| g.iter().copied()).collect();
+        assert_eq!(flat, indices, "every image once, in order");
+        for g in &groups {
+            let sum: u64 = g.iter().map(|&i| sizes[i]).sum();
+            assert!(sum <= 6 || g.len() == 1, "{g:?} holds {sum}");
+        }
+        assert_eq!(groups, vec![&[0, 1][..], &[2], &[3], &[4, 5, 6, 7, 8]]);
+        assert!(decode_groups(&[], |_| 1, 6).is_empty());
+        // A budget of nothing still decodes, one image at a time.
+        assert_eq!(decode_groups(&indices[..3], |i| sizes[i], 0).len(), 3);
+    }
 }

@@ -35,8 +35,20 @@ pub struct Frame {
 }
 
 /// A number of the frame, else of the file (nerfstudio allows both), else `default`.
-fn number(frame: &Value, doc: &Value, key: &str) -> Option<f64> {
-    frame[key].as_f64().or_else(|| doc[key].as_f64())
+/// The frame's value of `key`, else the file's; a value that is there but not a number is
+/// an error, not an absent key.
+fn number(frame: &Value, doc: &Value, key: &str) -> std::result::Result<Option<f64>, String> {
+    let v = match &frame[key] {
+        Value::Null => &doc[key],
+        v => v,
+    };
+    match v {
+        Value::Null => Ok(None),
+        v => v
+            .as_f64()
+            .map(Some)
+            .ok_or_else(|| format!("{key} is {v}, not a number")),
+    }
 }
 
 /// The photo file a frame names at `downsample` (1: as written).
@@ -92,6 +104,7 @@ pub fn read_frames(root: &Path, downsample: u32) -> Result<Vec<Frame>> {
         });
     }
     let mut out = Vec::with_capacity(frames.len());
+    let mut seen = std::collections::HashMap::new();
     for (i, frame) in frames.iter().enumerate() {
         let bad = |problem: String| SceneError::invalid(&path, format!("frame {i}: {problem}"));
         let file = frame["file_path"]
@@ -104,18 +117,29 @@ pub fn read_frames(root: &Path, downsample: u32) -> Result<Vec<Frame>> {
                 what: format!("photo of frame {i} in {}", path.display()),
             });
         }
-        let need = |key: &str| number(frame, &doc, key).ok_or_else(|| bad(format!("no {key}")));
+        if let Some(first) = seen.insert(photo.clone(), i) {
+            return Err(bad(format!(
+                "names the photo of frame {first} ({}) again",
+                photo.display()
+            )));
+        }
+        let need = |key: &str| {
+            number(frame, &doc, key)
+                .map_err(&bad)?
+                .ok_or_else(|| bad(format!("no {key}")))
+        };
         let (w, h) = (need("w")?, need("h")?);
         let (fx, fy, cx, cy) = (need("fl_x")?, need("fl_y")?, need("cx")?, need("cy")?);
         limits::check_size(w, h).map_err(bad)?;
         limits::check_intrinsics(w, h, fx, fy, cx, cy).map_err(bad)?;
-        let k = |key: &str| number(frame, &doc, key).unwrap_or(0.0);
+        let k =
+            |key: &str| Ok::<_, SceneError>(number(frame, &doc, key).map_err(&bad)?.unwrap_or(0.0));
         let distortion = Distortion {
             model: CameraModel::OpenCv,
-            k1: k("k1"),
-            k2: k("k2"),
-            p1: k("p1"),
-            p2: k("p2"),
+            k1: k("k1")?,
+            k2: k("k2")?,
+            p1: k("p1")?,
+            p2: k("p2")?,
         };
         limits::check_distortion(&distortion).map_err(bad)?;
         let m = frame["transform_matrix"]

@@ -138,6 +138,44 @@ fn maker_writes_an_llff_capture_the_model_would_record() {
                 > aberration::psnr(&got, &aberrated::to_planar(&clean)).unwrap()
         );
     }
+
+    // A clean/ folder missing one image names it, rather than scoring that view against
+    // its blurred photo.
+    let name = out.image_paths[1].file_name().unwrap().to_owned();
+    let missing = dest.join(aberrated::CLEAN_DIR).join(&name);
+    std::fs::remove_file(&missing).unwrap();
+    let err = aberrated::load_clean_image(&out, 1)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains(&*missing.to_string_lossy()), "{err}");
+    assert!(aberrated::load_clean_image(&out, 0).unwrap().is_some());
+
+    // A psf.npy swapped for another grid (a valid file, but not the blur the photos have)
+    // is refused, naming the file; the original put back reads again.
+    let kept = std::fs::read(dest.join(PSF_FILE)).unwrap();
+    let mut planar = psf.planar().to_vec();
+    planar.swap(0, 24);
+    let other = PsfGrid::from_planar(psf.grid(), psf.size(), planar).unwrap();
+    other.save_npy(&dest.join(PSF_FILE)).unwrap();
+    let err = record.load_psf(&dest).unwrap_err().to_string();
+    assert!(
+        err.contains("psf.npy") && err.contains("not the PSF grid this capture was made with"),
+        "{err}"
+    );
+    std::fs::write(dest.join(PSF_FILE), kept).unwrap();
+    assert_eq!(record.load_psf(&dest).unwrap(), psf);
+
+    // A noise level beyond f32 is reported as written, not as the infinity serde makes of it.
+    let path = dest.join(aberrated::RECORD_FILE);
+    let text = std::fs::read_to_string(&path).unwrap();
+    let mut doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+    doc["noise_gaussian_sigma"] = serde_json::json!(1e300);
+    std::fs::write(&path, doc.to_string()).unwrap();
+    let err = AberrationRecord::read(&dest).unwrap_err().to_string();
+    assert!(
+        err.contains("noise_gaussian_sigma 1e300") && err.contains("aberration.json"),
+        "{err}"
+    );
 }
 
 #[test]

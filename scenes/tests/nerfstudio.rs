@@ -159,6 +159,17 @@ fn transforms_json_that_lies_is_refused_naming_the_frame() {
         d.as_object_mut().unwrap().remove("fl_x");
     });
     assert!(e.contains("fl_x"), "{e}");
+    // A number written as a string is named as such, not reported missing.
+    let e = case("string width", &|d| d["w"] = "64".into());
+    assert!(e.contains("w is \"64\", not a number"), "{e}");
+    // Two frames of one photo: both frames and the file are named.
+    let e = case("same photo", &|d| {
+        d["frames"][2]["file_path"] = d["frames"][0]["file_path"].clone()
+    });
+    assert!(
+        e.contains("transforms.json") && e.contains("frame 2") && e.contains("photo of frame 0"),
+        "{e}"
+    );
     // Distortion is kept, for reporting, as COLMAP's is.
     let dir = tmp.path().join("distorted");
     write_capture(&dir, &cameras, json!({"k1": 0.02}));

@@ -39,12 +39,22 @@ pub fn run(a: DeconvolveArgs) -> Result<()> {
         inputs.push(("--reference", r));
     }
     metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
+    metasplat::guard::refuse_non_png("--out", &a.out)?;
+    metasplat::guard::refuse_unwritable_file("--out", &a.out)?;
     if let Some(bank) = &a.bank {
         metasplat::guard::refuse_overwrite("--bank", bank, &inputs)?;
+        if bank.exists() && !bank.is_dir() {
+            anyhow::bail!(
+                "--bank {} is a file; it names the folder the filters go to",
+                bank.display()
+            );
+        }
     }
     let native = PsfGrid::load_npy(&a.psf)?;
     let blurred = Image::load(&a.input)?;
-    let psf = native.for_image(blurred.width, blurred.height, a.sensor_px)?;
+    let psf = native
+        .for_image(blurred.width, blurred.height, a.sensor_px)
+        .with_context(|| super::sensor_flag(a.sensor_px, &a.psf))?;
     let reference = a.reference.as_deref().map(Image::load).transpose()?;
     if let Some(r) = &reference
         && (r.width, r.height) != (blurred.width, blurred.height)

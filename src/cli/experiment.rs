@@ -146,6 +146,7 @@ fn aberrated_capture(
     let capture = if aberrated.join(scenes::aberrated::RECORD_FILE).exists() {
         None
     } else {
+        super::refuse_aberrated_source("--scene", scene)?;
         let capture = super::open_scene(scene, downsample)?;
         super::decode_all(&capture)?;
         Some(capture)
@@ -195,6 +196,15 @@ fn refuse_repeats<T: PartialEq + std::fmt::Display>(flag: &str, values: &[T]) ->
 
 fn budget(a: BudgetArgs) -> Result<()> {
     refuse_repeats("--budgets", &a.budgets)?;
+    if a.runs.ceiling
+        && let Some(b) = a.budgets.first()
+    {
+        let mut clean = a
+            .runs
+            .ceiling_run(a.runs.out.join(format!("budget_{b}_clean")));
+        clean.training.max_splats = Some(b.0.unwrap_or(UNBOUNDED));
+        a.runs.check_ceiling(&clean)?;
+    }
     let (aberrated, _lock) = a.runs.aberrated()?;
     let mut rows = Vec::new();
     for &b in &a.budgets {
@@ -295,6 +305,17 @@ impl ExperimentRuns {
         )
     }
 
+    /// Refuses, before the aberrated copy or the PSF grid is made, a ceiling run that would
+    /// be refused once they are.
+    fn check_ceiling(&self, request: &RunRequest) -> Result<()> {
+        metasplat::run::check(request).with_context(|| {
+            format!(
+                "the ceiling run (plain 3DGS on the clean photos of {}) cannot start; --ceiling false leaves it out",
+                self.scene.display()
+            )
+        })
+    }
+
     /// Plain 3DGS on the clean capture (`--scene` itself) into `run_dir`, with the settings
     /// every other run has.
     fn ceiling_run(&self, run_dir: PathBuf) -> RunRequest {
@@ -347,10 +368,17 @@ fn near_final(log: &[metasplat::train::LogRow]) -> Option<(u64, f64, f64)> {
 
 fn llff(a: LlffArgs) -> Result<()> {
     refuse_repeats("--modes", &a.modes)?;
-    let (aberrated, _lock) = a.runs.aberrated()?;
-    let ceiling = if a.runs.ceiling {
+    let ceiling_run = || {
         let mut args = a.runs.ceiling_run(a.runs.out.join("run_clean"));
         args.training.eval_every = Some((a.runs.iters / 20).max(1));
+        args
+    };
+    if a.runs.ceiling {
+        a.runs.check_ceiling(&ceiling_run())?;
+    }
+    let (aberrated, _lock) = a.runs.aberrated()?;
+    let ceiling = if a.runs.ceiling {
+        let args = ceiling_run();
         println!("Training plain on the clean photos (the ceiling).");
         Some(train_run(&args, false)?)
     } else {

@@ -1,6 +1,6 @@
 //! `metasplat export`: a splat scene from one file format to another (PLY, GLB, SPZ).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
@@ -49,10 +49,28 @@ pub fn run(a: ExportArgs) -> Result<()> {
         }
         g.set_sh_degree(d);
     }
-    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+    // A folder made for the file goes again when the file cannot be written (a position SPZ
+    // cannot hold, a full disk): a refused export leaves nothing behind.
+    let made = a
+        .out
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty() && !d.exists())
+        .map(Path::to_path_buf);
+    if let Some(dir) = &made {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
-    splat::formats::files::write_splats(&a.out, &g)?;
+    if let Err(e) = splat::formats::files::write_splats(&a.out, &g) {
+        if let Some(dir) = &made {
+            let _ = std::fs::remove_dir(dir);
+        }
+        return Err(e).with_context(|| {
+            format!(
+                "--out {}: cannot convert {}",
+                a.out.display(),
+                a.input.display()
+            )
+        });
+    }
     let size = std::fs::metadata(&a.out).map(|m| m.len()).unwrap_or(0);
     println!(
         "Wrote {} splats (SH degree {}) to {}: {} bytes, {:.1} per splat.",

@@ -99,16 +99,42 @@ pub fn downsample_for(dir: &std::path::Path, given: Option<u32>) -> u32 {
     d
 }
 
-/// Decodes every image of `capture` (one at a time per thread, nothing kept): opening a
-/// capture reads image headers only, so this is what finds a damaged image before a command
-/// makes its output.
+/// Decodes every image of `capture`, nothing kept and a bounded number of pixels at once
+/// ([`scenes::Capture::check_images`]): opening a capture reads image headers only, so this
+/// is what finds a damaged image before a command makes its output.
 pub fn decode_all(capture: &scenes::Capture) -> anyhow::Result<()> {
     use anyhow::Context;
-    use rayon::prelude::*;
-    (0..capture.len())
-        .into_par_iter()
-        .try_for_each(|i| capture.load_image(i).map(|_| ()))
+    capture
+        .check_images()
         .with_context(|| format!("cannot open the scene {}", capture.root.display()))
+}
+
+/// What a PSF grid's mapping onto an image failed with: the `--sensor-px` given, or the
+/// grid's own sensor size when none was.
+pub fn sensor_flag(sensor_px: Option<usize>, psf: &std::path::Path) -> String {
+    match sensor_px {
+        Some(px) => format!("--sensor-px {px}"),
+        None => format!(
+            "the sensor size of --psf {} (set another with --sensor-px)",
+            psf.display()
+        ),
+    }
+}
+
+/// Refuses to make an aberrated capture from one that already is (it holds
+/// `aberration.json`): its blurred photos would become the new clean images and be blurred a
+/// second time.
+pub fn refuse_aberrated_source(flag: &str, scene: &std::path::Path) -> anyhow::Result<()> {
+    let record = scene.join(scenes::aberrated::RECORD_FILE);
+    if record.is_file() {
+        anyhow::bail!(
+            "{flag} {} is already an aberrated capture ({} exists): its photos are blurred, and \
+             aberrating them again would make them the clean images; start from the clean capture",
+            scene.display(),
+            record.display()
+        );
+    }
+    Ok(())
 }
 
 impl Cli {

@@ -129,6 +129,11 @@ pub struct ShowArgs {
 pub fn run(cmd: PsfCommand) -> Result<()> {
     match cmd {
         PsfCommand::Simulate(a) => {
+            metasplat::guard::refuse_unwritable_file("--out", &a.out)?;
+            if let Some(p) = &a.picture {
+                metasplat::guard::refuse_unwritable_file("--picture", p)?;
+                metasplat::guard::refuse_overwrite("--picture", p, &[("--out", &a.out)])?;
+            }
             let (grid, report) = simulate(&a.lens.config())?;
             grid.save_npy(&a.out)?;
             println!("wrote {}", a.out.display());

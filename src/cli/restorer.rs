@@ -105,7 +105,8 @@ impl Tiling {
             self.tile.unwrap_or(r.tile),
             self.overlap.unwrap_or(r.overlap),
         );
-        Ok(r.with_tiling(tile, overlap)?)
+        r.with_tiling(tile, overlap)
+            .with_context(|| format!("--tile {tile} --overlap {overlap}"))
     }
 }
 
@@ -132,7 +133,7 @@ impl Inference {
     fn load(&self) -> Result<(PsfGrid, Restorer)> {
         let native = PsfGrid::load_npy(&self.psf)
             .with_context(|| format!("cannot read {}", self.psf.display()))?;
-        let device = self.backend.device()?;
+        let device = self.backend.device().context("--backend")?;
         let net = match &self.weights {
             Some(w) => Restorer::load_on(w, &native, device)?,
             None => match restore::shipped::for_psf_on(&native, device)? {
@@ -218,9 +219,13 @@ fn load_folder(dir: &Path, min_side: usize) -> Result<Vec<(String, Image)>> {
 }
 
 fn config_from(a: &TrainRestorerArgs) -> Result<RestorerConfig> {
-    RestorerConfig::preset(a.config)
+    let preset = RestorerConfig::preset(a.config);
+    let name = preset.name.clone();
+    preset
         .with_ablations(a.guidance, a.fixed_k, a.residual_base)
-        .map_err(anyhow::Error::msg)
+        .map_err(|e| {
+            anyhow::anyhow!("--guidance/--fixed-k/--residual-base on config '{name}': {e}")
+        })
 }
 
 fn run_train(a: TrainRestorerArgs) -> Result<()> {
@@ -243,7 +248,7 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
             a.images.display()
         );
     }
-    let device = a.backend.device()?;
+    let device = a.backend.device().context("--backend")?;
     let cfg = config_from(&a)?;
     let native =
         PsfGrid::load_npy(&a.psf).with_context(|| format!("cannot read {}", a.psf.display()))?;
@@ -307,6 +312,23 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         .map(|(_, i)| i)
         .collect();
     let val_photos = load_folder(&a.val, cfg.crop)?;
+    // A crop no photo can give would silently validate on whole images instead.
+    if a.val_crop > 0
+        && let Some((name, img)) = val_photos
+            .iter()
+            .min_by_key(|(_, i)| i.width.min(i.height))
+            .filter(|(_, i)| i.width.min(i.height) < a.val_crop)
+    {
+        anyhow::bail!(
+            "--val-crop {}: {} in --val {} is {}x{}; use at most {} px, or 0 to validate on whole photos",
+            a.val_crop,
+            name,
+            a.val.display(),
+            img.width,
+            img.height,
+            img.width.min(img.height)
+        );
+    }
     let noise = NoiseModel::default();
     let first = match &start {
         Start::Resume(_, state, _) => state.step,
@@ -587,10 +609,14 @@ pub fn run_restore(a: RestoreArgs) -> Result<()> {
         inputs.push(("--reference", r));
     }
     metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
+    metasplat::guard::refuse_non_png("--out", &a.out)?;
+    metasplat::guard::refuse_unwritable_file("--out", &a.out)?;
     let (native, restorer) = a.net.load()?;
     let blurred =
         Image::load(&a.input).with_context(|| format!("cannot read {}", a.input.display()))?;
-    let psf = native.for_image(blurred.width, blurred.height, a.sensor_px)?;
+    let psf = native
+        .for_image(blurred.width, blurred.height, a.sensor_px)
+        .with_context(|| super::sensor_flag(a.sensor_px, &a.net.psf))?;
     let (restored, secs) = step("restoring", || restorer.restore(&blurred, &psf));
     let restored = restored?;
     restored

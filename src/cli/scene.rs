@@ -121,6 +121,7 @@ fn aberrate(a: SceneAberrateArgs) -> Result<()> {
         &a.out,
         &[("--scene", &a.scene), ("--psf", &a.psf)],
     )?;
+    super::refuse_aberrated_source("--scene", &a.scene)?;
     let capture = super::open_scene(&a.scene, a.downsample)?;
     let mut inputs = metasplat::guard::Inputs::of(&[("--scene", &a.scene), ("--psf", &a.psf)]);
     inputs.add_files("a photo of --scene", &capture.image_paths);
@@ -136,6 +137,8 @@ fn aberrate(a: SceneAberrateArgs) -> Result<()> {
             other => anyhow::bail!("--bit-depth must be 8 or 16, not {other}"),
         },
     };
+    // A bad PSF file is the flag's error, found before the lock, the bar and the staging.
+    aberration::PsfGrid::load_npy(&a.psf).with_context(|| format!("--psf {}", a.psf.display()))?;
     // The capture appears by renaming its staging folder into place; the lock beside it keeps
     // a second maker from doing the work only to fail at the end (or to win a race).
     let _lock = base::FolderLock::beside(&a.out, "scene aberrate")?;

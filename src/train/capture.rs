@@ -35,10 +35,26 @@ fn imaging_settings(
         return Err(TrainError::file(
             dir.join(aberrated::RECORD_FILE),
             format!(
-                "the capture was aberrated at {}x{} but {} holds {w}x{h} images; the PSF model would not match (use the downsample it was made at)",
+                "the capture was aberrated at {}x{} but {} holds {w}x{h} images; the PSF model would not match: pass the --downsample whose image folder holds {}x{} images",
                 r.width,
                 r.height,
-                capture.image_dir.display()
+                capture.image_dir.display(),
+                r.width,
+                r.height
+            ),
+        ));
+    }
+    // Fewer photos than were made is a user's pruning; more were never made through the lens.
+    if let Some(r) = &record
+        && capture.len() > r.images
+    {
+        return Err(TrainError::file(
+            dir.join(aberrated::RECORD_FILE),
+            format!(
+                "the capture was made with {} images but {} holds {}: the others did not come through its PSF model",
+                r.images,
+                capture.image_dir.display(),
+                capture.len()
             ),
         ));
     }
@@ -124,7 +140,15 @@ impl CaptureModel {
         };
         let capture = scenes::open(dir, &open)?;
         if capture.split.train.is_empty() {
-            return Err(TrainError::file(dir, "no training views after the split"));
+            return Err(TrainError::file(
+                dir,
+                format!(
+                    "no training views: the capture has {} view(s) and --llffhold {} holds out every {}th from the first; give a capture with more views or --llffhold 0 to train on all",
+                    capture.len(),
+                    options.llffhold,
+                    options.llffhold
+                ),
+            ));
         }
         let (width, height) = (capture.cameras[0].width, capture.cameras[0].height);
         let settings = imaging_settings(dir, &capture, options.psf.as_deref())?;
@@ -142,7 +166,15 @@ impl CaptureModel {
         };
         let (network, restorer_note) = match (&settings, &imaging, with_restorer) {
             (Some((psf, ..)), Some(model), true) => {
-                open_restorer(&options.restorer, psf, model.psf().size())?
+                open_restorer(&options.restorer, psf, model.psf().size()).map_err(|e| {
+                    // A weights file's error is the flag's, not the capture's.
+                    match &options.restorer {
+                        crate::settings::RestorerChoice::Weights(w) => {
+                            e.context(format!("--restorer {}", w.display()))
+                        }
+                        _ => e,
+                    }
+                })?
             }
             _ => (None, None),
         };

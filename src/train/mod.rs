@@ -287,7 +287,7 @@ impl<'a> Run<'a> {
         let view = &self.data.train[view_index(self.config.seed, p.step, n_views)];
         let at = |what: &str, cause: &str| {
             TrainError::Invalid(format!(
-                "step {}: {what} is not finite (view {}); {cause}. The last checkpoint is kept",
+                "step {}: {what} is not finite (view {}); {cause}. This step reached neither the model nor a checkpoint",
                 p.step + 1,
                 view.name
             ))
@@ -297,7 +297,7 @@ impl<'a> Run<'a> {
         if !parts.total.is_finite() {
             return Err(at(
                 "the loss",
-                "a non-finite pixel in the capture's images or I_ac, or a huge --lambda, is the likely cause",
+                "a non-finite pixel in the capture's images or I_ac, a huge --lambda, or an --init scene whose values overflow, is the likely cause",
             ));
         }
         let lr = self

@@ -123,6 +123,38 @@ impl SimConfig {
                 num(l.pitch_um)
             ));
         }
+        // Optics each in range can still describe no imaging system: a focal length shorter
+        // than the light's wavelength, a diffraction-limited spot wider than the PSF crop (the
+        // crop would hold almost none of the light), or sensor pixels so fine that the whole
+        // crop falls between two samples of the focal plane (a flat PSF).
+        let longest_um = self.wavelengths_nm.iter().cloned().fold(0.0, f64::max) / 1000.0;
+        if l.focal_um < longest_um {
+            return bad(format!(
+                "a focal length of {} um is shorter than the {} um wavelength: no lens focuses there",
+                num(l.focal_um),
+                num(longest_um)
+            ));
+        }
+        let airy_px = 2.44 * longest_um * l.focal_um / l.aperture_um / self.sensor_pitch_um;
+        if airy_px.is_nan() || airy_px > self.psf_size as f64 {
+            return bad(format!(
+                "a {} um focal length behind a {} um aperture focuses {} um light to a {} px spot at best (the diffraction limit), wider than the {} px PSF: lower the focal length or the sensor pitch, or raise the aperture or the PSF size",
+                num(l.focal_um),
+                num(l.aperture_um),
+                num(longest_um),
+                num(airy_px),
+                self.psf_size
+            ));
+        }
+        if self.psf_size as f64 * self.sensor_pitch_um < 2.0 * l.pitch_um {
+            return bad(format!(
+                "a {} px PSF at {} um sensor pixels spans {} um, less than two {} um samples of the focal plane: the PSF would be flat; raise the sensor pitch or the PSF size",
+                self.psf_size,
+                num(self.sensor_pitch_um),
+                num(self.psf_size as f64 * self.sensor_pitch_um),
+                num(l.pitch_um)
+            ));
+        }
         // The flags are checked together, not one by one: each may be in range while their
         // product is not (a huge sensor pitch or PSF needs a focal window wider than the
         // propagation grid; a fine grid of big PSFs makes a file no reader accepts).

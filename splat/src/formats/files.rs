@@ -22,6 +22,12 @@ impl Format {
             .extension()
             .and_then(|e| e.to_str())
             .map(str::to_ascii_lowercase);
+        if path.is_dir() {
+            return Err(SplatError::Ply {
+                path: path.to_path_buf(),
+                problem: "is a folder, not a splat file (.ply, .glb, .gltf or .spz)".into(),
+            });
+        }
         match ext.as_deref() {
             Some("ply") => Ok(Format::Ply),
             Some("glb") => Ok(Format::Glb),
@@ -48,16 +54,25 @@ pub fn read_splats(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
     Ok(g)
 }
 
-/// Farthest a splat may lie from the origin on any axis: squared, a coordinate must stay far
-/// from f32's overflow, or every projection of it is infinite.
+/// Largest magnitude of any stored value of a splat (a coordinate, a colour coefficient, a
+/// rotation component, an opacity logit): squared or summed over many splats, a value must
+/// stay far from f32's overflow, or every render of it, and every loss against it, is
+/// infinite.
 pub const MAX_POSITION: f32 = 1e8;
 
-/// Refuses a scene with a splat beyond [`MAX_POSITION`], naming the splat.
+/// Refuses a scene holding a value beyond [`MAX_POSITION`], naming the splat and what holds it.
 fn check_positions(path: &Path, g: &Gaussians) -> Result<(), SplatError> {
+    let ok = |v: f32| v.is_finite() && v.abs() <= MAX_POSITION;
+    let bad = |i: usize, what: &str, value: String| SplatError::Ply {
+        path: path.to_path_buf(),
+        problem: format!(
+            "splat {i} has {what} {value}; every value must be finite and within ±{MAX_POSITION:e}"
+        ),
+    };
     if let Some(i) = g
         .means
         .iter()
-        .position(|p| !(p.is_finite() && p.abs().max_element() <= MAX_POSITION))
+        .position(|p| !p.to_array().into_iter().all(ok))
     {
         return Err(SplatError::Ply {
             path: path.to_path_buf(),
@@ -66,6 +81,39 @@ fn check_positions(path: &Path, g: &Gaussians) -> Result<(), SplatError> {
                 g.means[i]
             ),
         });
+    }
+    if let Some(i) = g
+        .sh_dc
+        .iter()
+        .position(|c| !c.to_array().into_iter().all(ok))
+    {
+        return Err(bad(
+            i,
+            "base colour (SH band 0)",
+            format!("{:?}", g.sh_dc[i].to_array()),
+        ));
+    }
+    let per = g.sh_rest.len().checked_div(g.len()).unwrap_or(0).max(1);
+    if let Some(j) = g
+        .sh_rest
+        .iter()
+        .position(|c| !c.to_array().into_iter().all(ok))
+    {
+        return Err(bad(
+            j / per,
+            "a higher SH coefficient",
+            g.sh_rest[j].to_string(),
+        ));
+    }
+    if let Some(i) = g.rotations.iter().position(|q| !q.iter().all(|&v| ok(v))) {
+        return Err(bad(i, "rotation", format!("{:?}", g.rotations[i])));
+    }
+    if let Some(i) = g.logit_opacities.iter().position(|&v| !ok(v)) {
+        return Err(bad(
+            i,
+            "opacity logit",
+            format!("{:?}", g.logit_opacities[i]),
+        ));
     }
     Ok(())
 }

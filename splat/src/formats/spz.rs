@@ -76,13 +76,14 @@ pub fn to_spz(g: &Gaussians) -> Result<Vec<u8>, SplatError> {
     let bad = |m: String| SplatError::InvalidModel(m);
     let n = g.len();
     let limit = (1 << 23) as f32 / (1 << FRACTIONAL_BITS) as f32;
-    if let Some(m) = g
+    if let Some((i, m)) = g
         .means
         .iter()
-        .find(|m| !m.is_finite() || m.abs().max_element() >= limit)
+        .enumerate()
+        .find(|(_, m)| !m.is_finite() || m.abs().max_element() >= limit)
     {
         return Err(bad(format!(
-            "position {m} cannot be stored in SPZ (24-bit fixed point: |x| < {limit})"
+            "splat {i} at {m} cannot be stored in SPZ (24-bit fixed point: |x| < {limit}); PLY or GLB keep any position"
         )));
     }
     let rc = g.rest_count();
