@@ -1800,6 +1800,15 @@ fn hostile_run_files() {
             restorer_train(&["--val-crop", "1"], &s(&images), &s(&val)),
         ),
         ("--val", restorer_train(&[], &s(&images), &s(&images))),
+        // A batch no machine holds is refused before a photo is read, not killed by the system.
+        (
+            "--batch",
+            restorer_train(
+                &["--config", "paper", "--batch", "1024"],
+                &s(&images),
+                &s(&val),
+            ),
+        ),
         (
             "--sensor-px",
             args(&[

@@ -308,6 +308,46 @@ impl RestorerConfig {
         }
     }
 
+    /// An upper estimate of the bytes one training step on `batch` crops of `side × side`
+    /// holds: the activations the backward pass keeps (per block its norms, projections,
+    /// feed-forward planes and attention probabilities; per bank filter its embedding, keys,
+    /// values and cross-attention probabilities), doubled for the gradients and temporaries
+    /// alive at the backward's peak, plus the input bank and the weights with their gradients
+    /// and two AdamW moments. `restorer train` refuses a batch beyond the machine with it
+    /// before it allocates (tested against a counting allocator in `tests/train_memory.rs`).
+    pub fn training_bytes(&self, batch: usize, side: usize) -> u64 {
+        let lk = self.key_window().pow(2) as f64;
+        let block = |c: usize| -> f64 {
+            let (cf, h) = (c as f64, self.ffn_hidden(c) as f64);
+            let heads = (c / self.window_head_dim).max(1) as f64;
+            24.0 * cf + 12.0 * h + 2.0 * heads * lk
+        };
+        let at = |l: i32| 0.25f64.powi(l);
+        let d = self.dim;
+        let mut per_px = 0.0;
+        for l in 0..4 {
+            per_px += self.blocks[l] as f64 * block(d << l) * at(l as i32);
+        }
+        per_px += self.blocks[2] as f64 * block(4 * d) * at(2);
+        per_px += self.blocks[1] as f64 * block(2 * d) * at(1);
+        per_px += (self.blocks[0] + self.refinement) as f64 * block(2 * d);
+        let bank = BANK_SIZE as f64;
+        per_px += match self.guidance {
+            Guidance::CrossAttention | Guidance::CrossAttentionResidual => {
+                let e = self.mafg_embed as f64;
+                let hd = (self.mafg_heads * self.mafg_head_dim) as f64;
+                bank * (2.0 * e + 3.0 * hd + 2.0 * self.mafg_heads as f64 * lk + 3.0) + e + hd
+            }
+            Guidance::Concat | Guidance::SingleWiener => 0.0,
+        };
+        // The bank and the clean crop.
+        per_px += 3.0 * bank + 3.0;
+        let pixels = (batch * side * side) as f64;
+        let activations = 2.0 * 4.0 * pixels * per_px;
+        let weights = 4.0 * 4.0 * self.analytic_params() as f64;
+        (activations + weights).ceil() as u64
+    }
+
     /// Floating-point operations of one forward pass per input pixel, counted from the
     /// architecture on paper: two per multiply-add of every convolution, matrix product and
     /// attention (logits and weighted sums), each at its level's resolution. Norms,

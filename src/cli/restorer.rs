@@ -218,6 +218,48 @@ fn load_folder(dir: &Path, min_side: usize) -> Result<Vec<(String, Image)>> {
         .collect()
 }
 
+/// The machine's memory (`MemTotal`), where the system says (Linux).
+fn physical_memory() -> Option<u64> {
+    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = info.lines().find(|l| l.starts_with("MemTotal:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+/// Refuses, before a photo is read, a batch whose training step would not fit in three
+/// quarters of the machine's memory (the estimate bounds a step from above; see
+/// [`RestorerConfig::training_bytes`]): such a run would be killed by the system, saying
+/// nothing, after the photos were aberrated.
+fn refuse_training_memory(cfg: &RestorerConfig, batch: usize, resumed: bool) -> Result<()> {
+    let Some(memory) = physical_memory() else {
+        return Ok(());
+    };
+    let budget = memory / 4 * 3;
+    let need = cfg.training_bytes(batch, cfg.crop);
+    if need <= budget {
+        return Ok(());
+    }
+    let fits = (1..batch)
+        .rev()
+        .find(|&b| cfg.training_bytes(b, cfg.crop) <= budget);
+    let way_out = match (fits, resumed) {
+        (_, true) => "the batch comes from the saved state: continue on a machine with more memory, or start again with --init and a smaller --batch".to_string(),
+        (Some(b), false) => format!("use --batch {b} or less, or a smaller --config"),
+        (None, false) => "even one crop does not fit: use a smaller --config".to_string(),
+    };
+    bail!(
+        "--batch {batch}: a training step of config '{}' on {batch} crops of {} px needs about {}, more than three quarters of this machine's {}; {way_out}",
+        cfg.name,
+        cfg.crop,
+        gb(need),
+        gb(memory)
+    )
+}
+
+fn gb(bytes: u64) -> String {
+    format!("{:.1} GB", bytes as f64 / 1e9)
+}
+
 fn config_from(a: &TrainRestorerArgs) -> Result<RestorerConfig> {
     let preset = RestorerConfig::preset(a.config);
     let name = preset.name.clone();
@@ -252,9 +294,6 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
     let cfg = config_from(&a)?;
     let native =
         PsfGrid::load_npy(&a.psf).with_context(|| format!("cannot read {}", a.psf.display()))?;
-    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    }
     let load = |p: &Path| {
         let device = device.clone().autodiff();
         weights::load(p, &device, Some(&cfg), Some(&native))
@@ -307,6 +346,10 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
             }
         }
     };
+    // On the CPU the step lives in this machine's memory (a GPU's is its own).
+    if a.backend == restore::Compute::Cpu {
+        refuse_training_memory(&cfg, schedule.batch, a.resume)?;
+    }
     let photos: Vec<Image> = load_folder(&a.images, cfg.crop)?
         .into_iter()
         .map(|(_, i)| i)
@@ -330,6 +373,9 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         );
     }
     let noise = NoiseModel::default();
+    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
     let first = match &start {
         Start::Resume(_, state, _) => state.step,
         _ => 0,
