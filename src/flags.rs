@@ -190,10 +190,10 @@ pub fn colour(s: &str) -> Result<[f32; 3], String> {
         ));
     }
     let mut rgb = [0.0f32; 3];
-    for (c, p) in rgb.iter_mut().zip(parts) {
+    for ((c, p), name) in rgb.iter_mut().zip(parts).zip(["red", "green", "blue"]) {
         let v = float(p)?;
         if !(0.0..=1.0).contains(&v) {
-            return Err(format!("colour channel {v} is outside [0, 1]"));
+            return Err(format!("'{s}': the {name} value {v} is outside [0, 1]"));
         }
         *c = v as f32;
     }

@@ -203,18 +203,36 @@ pub fn refuse_unwritable_file(flag: &str, path: &Path) -> Result<()> {
     )))
 }
 
+/// Refuses an output folder (given with `flag`) that exists as a file: the command would
+/// fail at its first write, after the work.
+pub fn refuse_file_as_folder(flag: &str, path: &Path) -> Result<()> {
+    if path.exists() && !path.is_dir() {
+        return Err(TrainError::Invalid(format!(
+            "{flag} {} is a file; this command writes a folder there, so name a folder",
+            path.display()
+        )));
+    }
+    Ok(())
+}
+
 /// Refuses, before any work, an image output (given with `flag`) whose name says another
 /// format than the PNG bytes every image command writes (`--out a.jpg` would hold a PNG).
 pub fn refuse_non_png(flag: &str, path: &Path) -> Result<()> {
-    let png = path
+    refuse_other_extension(flag, path, "png", "images are written as PNG")
+}
+
+/// Refuses an output file (given with `flag`) not named with `.ext`, the format written
+/// (`what` says which).
+pub fn refuse_other_extension(flag: &str, path: &Path, ext: &str, what: &str) -> Result<()> {
+    let named = path
         .extension()
         .and_then(|e| e.to_str())
-        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
-    if png {
+        .is_some_and(|e| e.eq_ignore_ascii_case(ext));
+    if named {
         return Ok(());
     }
     Err(TrainError::Invalid(format!(
-        "{flag} {}: images are written as PNG; name the file with .png",
+        "{flag} {}: {what}; name the file with .{ext}",
         path.display()
     )))
 }

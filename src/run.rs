@@ -6,7 +6,7 @@
 use crate::device::Device;
 use crate::error::{Result, TrainError};
 use crate::outputs::{self, CHECKPOINT_FILE, RunSummary};
-use crate::settings::{RestorerChoice, RunRequest};
+use crate::settings::{LambdaFade, Mode, RestorerChoice, RunRequest};
 use crate::train::config::TrainConfig;
 use crate::train::data::{self, Dataset};
 use crate::train::{self, Event, Outcome};
@@ -57,6 +57,7 @@ pub fn check(request: &RunRequest) -> Result<()> {
 
 /// The inputs read and checked, the config built; no folder made.
 fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String)> {
+    refuse_unused_settings(request)?;
     let out = &request.out;
     let mut inputs = vec![("--scene", request.scene.as_path())];
     if let Some(p) = &request.data.psf {
@@ -70,6 +71,7 @@ fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String
     }
     let mut inputs = crate::guard::Inputs::of(&inputs);
     inputs.refuse("--out", out)?;
+    crate::guard::refuse_file_as_folder("--out", out)?;
     check_run_folder(request)?;
     let (device, device_note) = Device::choose(request.device)?;
     // Every input is checked before the run folder is made.
@@ -129,6 +131,31 @@ fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String
         }
     }
     Ok((data, config, device, device_note))
+}
+
+/// Refuses a setting the mode never reads: a `--restorer` file plain mode would not open
+/// (and so not check), a λ only aware mode weighs. Accepted, they would be recorded as the
+/// run's settings and block a `--resume` that leaves them out.
+fn refuse_unused_settings(request: &RunRequest) -> Result<()> {
+    let t = &request.training;
+    let unused = |flag: String, users: &str| {
+        Err(TrainError::Invalid(format!(
+            "{flag}: only {users} use it, and this run's --mode is {}",
+            t.mode
+        )))
+    };
+    if t.mode != Mode::Aware {
+        if let Some(l) = t.lambda {
+            return unused(format!("--lambda {l}"), "aware runs");
+        }
+        if t.lambda_fade != LambdaFade::Auto {
+            return unused("--lambda-fade".into(), "aware runs");
+        }
+    }
+    if t.mode == Mode::Plain && request.data.restorer != RestorerChoice::Auto {
+        return unused("--restorer".into(), "restored and aware runs");
+    }
+    Ok(())
 }
 
 /// A run folder that holds a run is continued (`--resume`) or replaced (`--overwrite`), never

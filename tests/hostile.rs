@@ -1002,6 +1002,7 @@ fn hostile_splat_files() {
         ),
         ("PLY higher SH 1e38", |g| g.sh_rest[5].y = -1e38),
         ("PLY rotation 1e38", |g| g.rotations[4][2] = 1e38),
+        ("PLY zero rotation", |g| g.rotations[4] = [0.0; 4]),
         ("PLY opacity logit 1e38", |g| g.logit_opacities[4] = 1e38),
     ] {
         let mut h = g.clone();
@@ -1692,7 +1693,67 @@ fn hostile_run_files() {
     let exp = d.join("exp");
     std::fs::create_dir_all(exp.join("run_clean")).unwrap();
     std::fs::write(exp.join("run_clean/point_cloud.ply"), b"a run").unwrap();
+    // A folder of the user's: the demo would replace its psf.npy.
+    let grid = s(&d.join("grid.npy"));
+    let mine = d.join("mine");
+    std::fs::create_dir_all(&mine).unwrap();
+    std::fs::write(mine.join("psf.npy"), b"my grid").unwrap();
+    // An experiment folder whose aberrated copy was made with another noise seed.
+    let exp2 = d.join("exp2");
+    copy_dir(&abr, &exp2.join("aberrated"));
     for (flag, c) in [
+        ("--out", args(&["demo", "--quick", "--out", &s(&mine)])),
+        (
+            "--seed 0, not 3",
+            args(&[
+                "experiment",
+                "llff",
+                "--scene",
+                &s(&scene),
+                "--out",
+                &s(&exp2),
+                "--seed",
+                "3",
+                "--ceiling",
+                "false",
+                "--iters",
+                "2",
+                "--downsample",
+                "1",
+                "--device",
+                "cpu",
+            ]),
+        ),
+        // Settings the mode never reads.
+        ("--lambda", flagged("--lambda", "0.5")),
+        ("--restorer", flagged("--restorer", "nothing.bin")),
+        // A folder where a file is due and the other way round.
+        (
+            "--out",
+            restorer_train(&[], &s(&images), &s(&val))
+                .into_iter()
+                .map(|a| if a == o { s(d) } else { a })
+                .collect(),
+        ),
+        ("--images", restorer_train(&[], &s(&photo), &s(&val))),
+        (
+            "--out",
+            args(&["psf", "show", &s(&psf), "--out", &s(&d.join("p.npy"))]),
+        ),
+        (
+            "--width",
+            args(&[
+                "render",
+                "--in",
+                &s(&photo),
+                "--scene",
+                &s(&scene),
+                "--out",
+                &o,
+                "--width",
+                "100",
+            ]),
+        ),
         (
             "run_clean",
             args(&[
@@ -1829,7 +1890,7 @@ fn hostile_run_files() {
         // written (or that is the grid itself) used to leave the grid behind, or replace it.
         (
             "--picture",
-            args(&["psf", "simulate", "--out", &o, "--picture", &o]),
+            args(&["psf", "simulate", "--out", &grid, "--picture", &grid]),
         ),
         (
             "--picture",
@@ -1837,7 +1898,7 @@ fn hostile_run_files() {
                 "psf",
                 "simulate",
                 "--out",
-                &o,
+                &grid,
                 "--picture",
                 &s(&d.join("missing/p.png")),
             ]),
@@ -1857,6 +1918,10 @@ fn hostile_run_files() {
             ]),
         ),
         ("--out", args(&["psf", "simulate", "--out", &s(d)])),
+        (
+            "--out",
+            args(&["psf", "simulate", "--out", &s(&d.join("g.png"))]),
+        ),
         // Aberrating an aberrated capture would make its blurred photos the clean images.
         (
             "--scene",

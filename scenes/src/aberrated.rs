@@ -149,7 +149,7 @@ impl AberrationRecord {
 }
 
 /// The checksum [`AberrationRecord::psf_fnv1a`] holds.
-fn psf_checksum(bytes: &[u8]) -> String {
+pub fn psf_checksum(bytes: &[u8]) -> String {
     format!("{:016x}", base::hash::fnv1a64(bytes))
 }
 
@@ -285,7 +285,16 @@ pub fn make_aberrated(
         options.sensor_px,
         options.noise,
     )
-    .map_err(|e| SceneError::invalid(psf_path, format!("cannot plan the blur: {e}")))?;
+    .map_err(|e| {
+        let sensor = match options.sensor_px {
+            Some(px) => format!("a {px} px sensor (--sensor-px)"),
+            None => "the grid's own sensor size".into(),
+        };
+        SceneError::invalid(
+            psf_path,
+            format!("cannot plan the blur of {width}x{height} images on {sensor}: {e}"),
+        )
+    })?;
     let downsample = capture.downsample.round().max(1.0) as u32;
     let mut writer = LlffWriter::create(dest, downsample, options.depth)?;
     let staging = writer.staging_dir().to_path_buf();

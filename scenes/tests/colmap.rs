@@ -313,6 +313,16 @@ fn colmap_capture_opens_with_scaled_intrinsics_and_point_bounds() {
         "{summary}"
     );
 
+    // A points file that is a folder is named, not replaced by random points.
+    let points = sparse.join("points3D.txt");
+    let kept = std::fs::read(&points).unwrap();
+    std::fs::remove_file(&points).unwrap();
+    std::fs::create_dir(&points).unwrap();
+    let e = scenes::open(&root, &options).unwrap_err().to_string();
+    assert!(e.contains("points3D.txt"), "{e}");
+    std::fs::remove_dir(&points).unwrap();
+    std::fs::write(&points, kept).unwrap();
+
     // A listed image that is missing is named.
     std::fs::remove_file(root.join("images_2/img001.png")).unwrap();
     let e = scenes::open(&root, &options).unwrap_err();

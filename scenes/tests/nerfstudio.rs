@@ -162,6 +162,11 @@ fn transforms_json_that_lies_is_refused_naming_the_frame() {
     // A number written as a string is named as such, not reported missing.
     let e = case("string width", &|d| d["w"] = "64".into());
     assert!(e.contains("w is \"64\", not a number"), "{e}");
+    // w and h of another aspect than the photos': refused, not stretched.
+    let e = case("aspect", &|d| {
+        d["w"] = json!(d["w"].as_f64().unwrap() * 1.25)
+    });
+    assert!(e.contains("aspect differs") && e.contains("frame 0"), "{e}");
     // Two frames of one photo: both frames and the file are named.
     let e = case("same photo", &|d| {
         d["frames"][2]["file_path"] = d["frames"][0]["file_path"].clone()

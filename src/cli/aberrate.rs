@@ -65,7 +65,15 @@ pub fn run(a: AberrateArgs) -> Result<()> {
             im.sensor_px,
             noise,
         )
-        .context("cannot plan the blur")?;
+        .with_context(|| {
+            format!(
+                "--in {} ({}x{}) with {}: cannot plan the blur",
+                a.input.display(),
+                clean.width,
+                clean.height,
+                super::sensor_flag(im.sensor_px, &a.psf)
+            )
+        })?;
         let out = model.capture(&clean, im.seed)?;
         Ok((model, out))
     });

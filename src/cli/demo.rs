@@ -46,10 +46,51 @@ fn clear_previous(dir: &Path) -> Result<()> {
     Ok(())
 }
 
+/// The file that marks a folder as the demo's: a later demo may replace what is in it.
+const MARKER: &str = "demo.txt";
+
+/// Refuses an --out that holds anything the demo did not write: the demo replaces its PSF
+/// grid, scenes and runs, and must not replace a user's files of the same names.
+fn refuse_foreign_folder(out: &Path) -> Result<()> {
+    if !out.exists() {
+        return Ok(());
+    }
+    if !out.is_dir() {
+        anyhow::bail!(
+            "--out {} is a file; name a folder for the demo",
+            out.display()
+        );
+    }
+    let empty = std::fs::read_dir(out)
+        .with_context(|| format!("--out {}", out.display()))?
+        .next()
+        .is_none();
+    // Folders of demos from before the marker have its layout.
+    let demo_made = out.join(MARKER).is_file()
+        || (out.join("scene_clean/poses_bounds.npy").is_file()
+            && out
+                .join("scene_aberrated")
+                .join(scenes::aberrated::RECORD_FILE)
+                .is_file());
+    if empty || demo_made {
+        return Ok(());
+    }
+    anyhow::bail!(
+        "--out {} holds files the demo did not write (it has no {MARKER}): the demo replaces its PSF grid, scenes and runs in its folder, so name a new or empty one",
+        out.display()
+    )
+}
+
 pub fn run(a: DemoArgs) -> Result<()> {
     let start = Instant::now();
+    refuse_foreign_folder(&a.out)?;
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
+    base::write_bytes_atomically(
+        &a.out.join(MARKER),
+        b"Written by `metasplat demo`: a later demo into this folder replaces its contents.\n",
+    )
+    .with_context(|| format!("cannot write {}", a.out.join(MARKER).display()))?;
     let cfg = if a.quick {
         SimConfig::small(21)
     } else {

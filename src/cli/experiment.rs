@@ -140,14 +140,29 @@ fn aberrated_capture(
         inputs.push(("--psf", p));
     }
     metasplat::guard::refuse_overwrite("--out", out, &inputs)?;
+    metasplat::guard::refuse_file_as_folder("--out", out)?;
     // Every input is read and checked before --out is made: the capture (unless an earlier
     // run already made the aberrated copy) and the PSF grid given.
     let aberrated = out.join("aberrated");
     let capture = if aberrated.join(scenes::aberrated::RECORD_FILE).exists() {
+        refuse_other_copy(
+            &aberrated,
+            scene,
+            &psf.map_or(out.join("psf.npy"), Into::into),
+            seed,
+        )?;
         None
     } else {
         super::refuse_aberrated_source("--scene", scene)?;
         let capture = super::open_scene(scene, downsample)?;
+        if capture.split.train.is_empty() {
+            anyhow::bail!(
+                "--scene {}: {} view(s) leave no training views once every {}th is held out for testing; use a capture with more views",
+                scene.display(),
+                capture.len(),
+                scenes::LLFFHOLD
+            );
+        }
         super::decode_all(&capture)?;
         Some(capture)
     };
@@ -180,6 +195,52 @@ fn aberrated_capture(
         );
     }
     Ok((aberrated, lock))
+}
+
+/// Refuses an aberrated copy, made by an earlier experiment into the same --out, that is not
+/// the one this experiment asks for (another capture, noise seed or PSF grid): its runs would
+/// train on other photos than the ones named, and the table would mix them.
+fn refuse_other_copy(
+    aberrated: &std::path::Path,
+    scene: &std::path::Path,
+    psf: &std::path::Path,
+    seed: u64,
+) -> Result<()> {
+    let Some(record) = scenes::aberrated::AberrationRecord::read(aberrated)? else {
+        return Ok(());
+    };
+    // The record keeps the source as given: from another working folder it may not resolve,
+    // and then it cannot be told apart.
+    let same_place =
+        |a: &std::path::Path, b: &std::path::Path| match (a.canonicalize(), b.canonicalize()) {
+            (Ok(a), Ok(b)) => a == b,
+            _ => true,
+        };
+    let mut differs = Vec::new();
+    if !same_place(std::path::Path::new(&record.source), scene) {
+        differs.push(format!(
+            "from {}, not --scene {}",
+            record.source,
+            scene.display()
+        ));
+    }
+    if record.seed != seed {
+        differs.push(format!("with --seed {}, not {seed}", record.seed));
+    }
+    if let (Some(want), Ok(bytes)) = (&record.psf_fnv1a, std::fs::read(psf))
+        && &scenes::aberrated::psf_checksum(&bytes) != want
+    {
+        differs.push(format!("through another PSF grid than {}", psf.display()));
+    }
+    if differs.is_empty() {
+        return Ok(());
+    }
+    anyhow::bail!(
+        "{} was made by an earlier experiment {}: this one would train on other photos than it names; use another --out, or delete {} to make it again",
+        aberrated.display(),
+        differs.join(", "),
+        aberrated.display()
+    )
 }
 
 /// Refuses a list flag that names one value twice: both would train into one run folder.
@@ -310,7 +371,7 @@ impl ExperimentRuns {
     fn check_ceiling(&self, request: &RunRequest) -> Result<()> {
         metasplat::run::check(request).with_context(|| {
             format!(
-                "the ceiling run (plain 3DGS on the clean photos of {}) cannot start; --ceiling false leaves it out",
+                "the ceiling run (plain 3DGS on the clean photos of {}) would be refused",
                 self.scene.display()
             )
         })
@@ -388,7 +449,9 @@ fn llff(a: LlffArgs) -> Result<()> {
     for &mode in &a.modes {
         let run_dir = a.runs.out.join(format!("run_{mode}"));
         let mut args = a.runs.run(&aberrated, run_dir, mode);
-        args.training.lambda = a.lambda;
+        if mode == Mode::Aware {
+            args.training.lambda = a.lambda;
+        }
         args.training.eval_every = Some((a.runs.iters / 20).max(1));
         let (summary, log) = train_run(&args, false)?;
         rows.push((mode, summary, log));

@@ -20,12 +20,15 @@ pub struct ExportArgs {
 }
 
 pub fn run(a: ExportArgs) -> Result<()> {
-    splat::formats::files::Format::of(&a.out)?;
-    metasplat::guard::refuse_overwrite("--out", &a.out, &[("--in", &a.input)])?;
+    splat::formats::files::Format::of(&a.out).context("--out")?;
     let is_checkpoint = a
         .input
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("bin"));
+    if !is_checkpoint {
+        splat::formats::files::Format::of(&a.input).context("--in")?;
+    }
+    metasplat::guard::refuse_overwrite("--out", &a.out, &[("--in", &a.input)])?;
     let mut g = if is_checkpoint {
         let state = metasplat::train::checkpoint::load(&a.input)?;
         println!(

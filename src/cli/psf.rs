@@ -129,9 +129,18 @@ pub struct ShowArgs {
 pub fn run(cmd: PsfCommand) -> Result<()> {
     match cmd {
         PsfCommand::Simulate(a) => {
+            // The lens flags first: the simulation's own refusals name them.
+            check_lens(&a.lens.config())?;
             metasplat::guard::refuse_unwritable_file("--out", &a.out)?;
+            metasplat::guard::refuse_other_extension(
+                "--out",
+                &a.out,
+                "npy",
+                "the grid is written as a NumPy array",
+            )?;
             if let Some(p) = &a.picture {
                 metasplat::guard::refuse_unwritable_file("--picture", p)?;
+                metasplat::guard::refuse_non_png("--picture", p)?;
                 metasplat::guard::refuse_overwrite("--picture", p, &[("--out", &a.out)])?;
             }
             let (grid, report) = simulate(&a.lens.config())?;
@@ -146,6 +155,8 @@ pub fn run(cmd: PsfCommand) -> Result<()> {
         }
         PsfCommand::Show(a) => {
             metasplat::guard::refuse_overwrite("--out", &a.out, &[("the PSF file", &a.psf)])?;
+            metasplat::guard::refuse_non_png("--out", &a.out)?;
+            metasplat::guard::refuse_unwritable_file("--out", &a.out)?;
             let grid = PsfGrid::load_npy(&a.psf)?;
             save_rgb8_png(&psf_grid_picture(&grid), &a.out)?;
             println!(
@@ -161,11 +172,15 @@ pub fn run(cmd: PsfCommand) -> Result<()> {
     }
 }
 
-/// Simulates with a progress bar over the propagations.
-pub fn simulate(cfg: &SimConfig) -> Result<(PsfGrid, SimReport)> {
+fn check_lens(cfg: &SimConfig) -> Result<()> {
     cfg.validate().context(
         "the lens flags (--grid, --size, --fft-size, --pitch-um, --sensor-pitch-um, --aperture-um, --focal-um) do not make a simulation",
-    )?;
+    )
+}
+
+/// Simulates with a progress bar over the propagations.
+pub fn simulate(cfg: &SimConfig) -> Result<(PsfGrid, SimReport)> {
+    check_lens(cfg)?;
     let pb = progress::bar(0, "propagating");
     let out = simulate_grid(cfg, &|done, total| {
         pb.set_length(total as u64);

@@ -49,13 +49,13 @@ pub struct RenderArgs {
     #[arg(long, conflicts_with = "scene", value_parser = metasplat::flags::camera_pose, allow_hyphen_values = true)]
     pub camera: Option<[f32; 6]>,
     /// Image size without --scene.
-    #[arg(long, default_value_t = 640, value_parser = clap::value_parser!(u32).range(8..=8192))]
+    #[arg(long, default_value_t = 640, conflicts_with = "scene", value_parser = clap::value_parser!(u32).range(8..=8192))]
     pub width: u32,
     /// Image height without --scene.
-    #[arg(long, default_value_t = 480, value_parser = clap::value_parser!(u32).range(8..=8192))]
+    #[arg(long, default_value_t = 480, conflicts_with = "scene", value_parser = clap::value_parser!(u32).range(8..=8192))]
     pub height: u32,
     /// Field of view (degrees) across the shorter image side, without --scene.
-    #[arg(long, default_value_t = 50.0, value_parser = metasplat::flags::field_angle, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 50.0, conflicts_with = "scene", value_parser = metasplat::flags::field_angle, allow_negative_numbers = true)]
     pub fov: f64,
     /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu`.
     #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
@@ -63,12 +63,14 @@ pub struct RenderArgs {
 }
 
 pub fn run(a: RenderArgs) -> Result<()> {
+    splat::formats::files::Format::of(&a.ply).context("--in")?;
     let mut inputs = vec![("--in", a.ply.as_path())];
     if let Some(s) = &a.scene {
         inputs.push(("--scene", s));
     }
     let mut inputs = metasplat::guard::Inputs::of(&inputs);
     inputs.refuse("--out", &a.out)?;
+    metasplat::guard::refuse_file_as_folder("--out", &a.out)?;
     let capture = match &a.scene {
         Some(dir) => {
             let capture = super::open_scene(dir, super::downsample_for(dir, a.downsample))?;

@@ -135,7 +135,8 @@ impl Inference {
             .with_context(|| format!("cannot read {}", self.psf.display()))?;
         let device = self.backend.device().context("--backend")?;
         let net = match &self.weights {
-            Some(w) => Restorer::load_on(w, &native, device)?,
+            Some(w) => Restorer::load_on(w, &native, device)
+                .with_context(|| format!("--weights with --psf {}", self.psf.display()))?,
             None => match restore::shipped::for_psf_on(&native, device)? {
                 Some(net) => {
                     println!(
@@ -280,6 +281,25 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         inputs.push(("--init", i));
     }
     metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
+    if a.out.is_dir() {
+        bail!(
+            "--out {} is a folder; name the weights file to write",
+            a.out.display()
+        );
+    }
+    for (flag, dir) in [("--images", &a.images), ("--val", &a.val)] {
+        if !dir.is_dir() {
+            bail!(
+                "{flag} {}: {}; name a folder of photos",
+                dir.display(),
+                if dir.exists() {
+                    "is not a folder"
+                } else {
+                    "not found"
+                }
+            );
+        }
+    }
     // Validation on the training photos would measure memory, not restoration.
     if let (Ok(i), Ok(v)) = (a.images.canonicalize(), a.val.canonicalize())
         && (i.starts_with(&v) || v.starts_with(&i))
@@ -516,6 +536,7 @@ fn run_eval(a: EvalArgs) -> Result<()> {
         let mut inputs = a.net.inputs();
         inputs.push(("--val", a.val.as_path()));
         metasplat::guard::refuse_overwrite("--out", out, &inputs)?;
+        metasplat::guard::refuse_file_as_folder("--out", out)?;
     }
     let (native, restorer) = a.net.load()?;
     let photos = load_folder(&a.val, 1)?;

@@ -69,7 +69,7 @@ fn imaging_settings(
                 return Err(TrainError::file(
                     user_psf.expect("given implies a path"),
                     format!(
-                        "this PSF grid ({}x{} of {} px) is not the one {} was made with ({}x{} of {} px, {}); leave out --psf to use the capture's",
+                        "this PSF grid ({}x{} of {} px) is not the one {} was made with ({}x{} of {} px{}, {}); leave out --psf to use the capture's",
                         given.grid(),
                         given.grid(),
                         given.size(),
@@ -77,6 +77,11 @@ fn imaging_settings(
                         own.grid(),
                         own.grid(),
                         own.size(),
+                        if (given.grid(), given.size()) == (own.grid(), own.size()) {
+                            ", the same shape with other values"
+                        } else {
+                            ""
+                        },
                         dir.join(aberrated::PSF_FILE).display()
                     ),
                 ));

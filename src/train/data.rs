@@ -166,11 +166,22 @@ pub fn load(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
 pub fn load_cached(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Dataset> {
     let model = CaptureModel::open(dir, options, mode.needs_psf())?;
     if mode.needs_psf() && model.imaging.is_none() {
+        // A psf.npy without its record: the capture cannot say how its photos were made.
+        let orphan = dir.join(scenes::aberrated::PSF_FILE).is_file()
+            && !dir.join(scenes::aberrated::RECORD_FILE).exists();
         return Err(TrainError::file(
             dir,
-            format!(
-                "mode {mode} needs the PSF grid: pass --psf, or train on a capture made by `metasplat scene aberrate` (it holds psf.npy)"
-            ),
+            if orphan {
+                format!(
+                    "mode {mode} needs the PSF model: the capture holds {} but no {} (how its photos were blurred); pass --psf to use that grid with the default blur, or make the capture again with `metasplat scene aberrate`",
+                    scenes::aberrated::PSF_FILE,
+                    scenes::aberrated::RECORD_FILE
+                )
+            } else {
+                format!(
+                    "mode {mode} needs the PSF grid: pass --psf, or train on a capture made by `metasplat scene aberrate` (it holds psf.npy)"
+                )
+            },
         ));
     }
     let cache = options.iac_cache.as_deref();

@@ -36,7 +36,9 @@ pub fn find_file(dir: &Path, stem: &str) -> Option<(PathBuf, ModelFormat)> {
     [ModelFormat::Binary, ModelFormat::Text]
         .into_iter()
         .map(|f| (dir.join(format!("{stem}.{}", f.extension())), f))
-        .find(|(p, _)| p.is_file())
+        // Anything of the name counts, a folder too: its reader then says what is wrong,
+        // where skipping it would quietly read another file or none.
+        .find(|(p, _)| p.exists())
 }
 
 /// The folder holding a scene's sparse model: `sparse/0`, else `sparse`, if it has cameras.

@@ -108,6 +108,21 @@ fn check_positions(path: &Path, g: &Gaussians) -> Result<(), SplatError> {
     if let Some(i) = g.rotations.iter().position(|q| !q.iter().all(|&v| ok(v))) {
         return Err(bad(i, "rotation", format!("{:?}", g.rotations[i])));
     }
+    // A zero quaternion is no rotation: renderers normalise it to NaN or to the identity,
+    // each differently.
+    if let Some(i) = g
+        .rotations
+        .iter()
+        .position(|q| q.iter().map(|&v| v as f64 * v as f64).sum::<f64>() == 0.0)
+    {
+        return Err(SplatError::Ply {
+            path: path.to_path_buf(),
+            problem: format!(
+                "splat {i} has the rotation quaternion {:?}, of length zero: no rotation",
+                g.rotations[i]
+            ),
+        });
+    }
     if let Some(i) = g.logit_opacities.iter().position(|&v| !ok(v)) {
         return Err(bad(
             i,

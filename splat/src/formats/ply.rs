@@ -172,11 +172,12 @@ fn ply_err(path: &Path, problem: impl Into<String>) -> SplatError {
 }
 
 /// A `ply-rs-bw` error on one line (its messages embed `\n\t`).
+/// The parser's message on one line, without the grammar's internal state it appends
+/// (`Error: ParseError { location: …, expected: … }`), which names nothing a user wrote.
 fn squash(e: &impl std::fmt::Display) -> String {
-    e.to_string()
-        .split_whitespace()
-        .collect::<Vec<_>>()
-        .join(" ")
+    let text = e.to_string();
+    let text = text.split("Error: ParseError").next().unwrap_or(&text);
+    text.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
 /// Buffered reader that counts consumed bytes and, while `log` is set, keeps a copy of them
@@ -354,7 +355,9 @@ fn parse_reader<R: BufRead>(
         Ok(h) => h,
         Err(e) => {
             let at_eof = reader.get_mut().fill_buf().is_ok_and(|b| b.is_empty());
-            return Err(err(if e.line() == Some(1) {
+            let seen = reader.get_ref().log.as_deref().unwrap_or_default();
+            let magic = seen.len() < 3 || seen.starts_with(b"ply");
+            return Err(err(if e.line() == Some(1) || !magic {
                 format!("not a PLY file (missing 'ply' magic line): {}", squash(&e))
             } else if at_eof {
                 format!("truncated: file ends before 'end_header': {}", squash(&e))
