@@ -1199,6 +1199,24 @@ fn hostile_splat_files() {
             }),
         ),
         (
+            "GLB linear colours",
+            edited(&|d| {
+                d["meshes"][0]["primitives"][0]["extensions"]["KHR_gaussian_splatting"]["colorSpace"] =
+                    "lin_rec709_display".into()
+            }),
+        ),
+        (
+            "GLB box kernel",
+            edited(&|d| {
+                d["meshes"][0]["primitives"][0]["extensions"]["KHR_gaussian_splatting"]["kernel"] =
+                    "box".into()
+            }),
+        ),
+        (
+            "GLB triangles",
+            edited(&|d| d["meshes"][0]["primitives"][0]["mode"] = 4.into()),
+        ),
+        (
             "GLB two splat primitives",
             edited(&|d| {
                 let p = d["meshes"][0]["primitives"][0].clone();

@@ -329,12 +329,44 @@ fn print_outputs(dir: &Path, scene: &Path, downsample: u32, splats: usize) {
     );
     println!(
         "Look at the result: metasplat view {} --scene {} --downsample {downsample} --run {}",
-        dir.join(outputs::PLY_FILE).display(),
-        scene.display(),
-        dir.display()
+        shell_word(&dir.join(outputs::PLY_FILE)),
+        shell_word(scene),
+        shell_word(dir)
     );
+}
+
+/// `path` as one word a POSIX shell reads back unchanged, so a suggested command can be
+/// pasted as it is: plain when it holds only safe characters, else in single quotes.
+fn shell_word(path: &std::path::Path) -> String {
+    let text = path.display().to_string();
+    let safe = |c: char| c.is_ascii_alphanumeric() || "/._-+,:@%=".contains(c);
+    if !text.is_empty() && text.chars().all(safe) {
+        text
+    } else {
+        format!("'{}'", text.replace('\'', "'\\''"))
+    }
 }
 
 pub fn run(a: RunRequest) -> Result<()> {
     train_run(&a, false).map(|_| ())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::shell_word;
+
+    /// The shell itself reads each word back as the path it was made from.
+    #[test]
+    fn a_suggested_path_survives_the_shell() {
+        for path in ["runs/plain", "runs/e3 ü", "it's here", "a$b`c\"d", "-x/*"] {
+            let word = shell_word(std::path::Path::new(path));
+            let out = std::process::Command::new("sh")
+                .arg("-c")
+                .arg(format!("printf %s {word}"))
+                .output()
+                .unwrap();
+            assert_eq!(String::from_utf8(out.stdout).unwrap(), path, "{word}");
+        }
+        assert_eq!(shell_word(std::path::Path::new("runs/plain")), "runs/plain");
+    }
 }

@@ -109,6 +109,31 @@ pub(super) fn parse_document(
             )));
         }
     };
+    // Splats are points with an ellipse kernel in display sRGB: anything else would be read
+    // as if it were (linear colours as sRGB, a box as an ellipse). Left out, the extension's
+    // values and POINTS are taken as written by every splat tool we check.
+    if let Some(mode) = prim.get("mode")
+        && mode.as_u64() != Some(0)
+    {
+        return Err(bad(format!(
+            "mesh {mesh}: the splat primitive's mode is {mode}, not 0 (POINTS)"
+        )));
+    }
+    let ext = &prim["extensions"][EXT];
+    for (key, known) in [
+        ("kernel", &["ellipse"][..]),
+        ("colorSpace", &["srgb_rec709_display"][..]),
+        ("projection", &["perspective"][..]),
+    ] {
+        if let Some(v) = ext.get(key)
+            && !known.iter().any(|k| v.as_str() == Some(*k))
+        {
+            return Err(bad(format!(
+                "mesh {mesh}: {EXT} {key} {v} is not read (only {})",
+                known.join(", ")
+            )));
+        }
+    }
     // Every node showing the mesh, and every node above one, must leave it where it is.
     let nodes = doc["nodes"].as_array().map_or(&[][..], |v| v.as_slice());
     let parent = |child: usize| {
