@@ -124,6 +124,42 @@ fn auto_trains_a_random_start_as_mcmc_and_its_splats_never_collapse() {
     assert!(out.model.is_finite());
 }
 
+/// MCMC from random points starts with a stronger opacity penalty that falls linearly to
+/// the paper's weight at its step and holds it; a weight given on the command line holds
+/// from the first step, and a start from SfM points keeps the paper's weight throughout.
+#[test]
+fn mcmc_from_random_points_starts_with_a_stronger_opacity_penalty() {
+    use metasplat::train::config::{MCMC_REG, MCMC_REG_START};
+    let dir = tempfile::tempdir().unwrap();
+    let data = data::load(&around(dir.path()), Mode::Plain, &options()).unwrap();
+    let cfg = config(&data, StrategyChoice::Auto, 3000);
+    assert_eq!(cfg.opacity_reg, MCMC_REG);
+    assert_eq!(cfg.opacity_reg_start, Some(MCMC_REG_START));
+    let (w0, until) = (MCMC_REG_START.weight, MCMC_REG_START.until);
+    assert!(w0 > MCMC_REG);
+    let close = |a: f32, b: f32| (a - b).abs() <= 1e-6 * b.abs().max(1.0);
+    assert!(close(cfg.opacity_reg_at(0), w0));
+    assert!(close(cfg.opacity_reg_at(until / 2), 0.5 * (w0 + MCMC_REG)));
+    for step in [until, until + 1, 2999] {
+        assert_eq!(cfg.opacity_reg_at(step), MCMC_REG, "step {step}");
+    }
+    // Falling, never rising, through the start.
+    for s in 1..until {
+        assert!(cfg.opacity_reg_at(s) <= cfg.opacity_reg_at(s - 1));
+    }
+    let settings = TrainSettings {
+        mode: Mode::Plain,
+        iters: 3000,
+        opacity_reg: Some(0.03),
+        ..Default::default()
+    };
+    let given = TrainConfig::build(&settings, 0, &data);
+    assert_eq!(given.opacity_reg_start, None);
+    assert_eq!(given.opacity_reg_at(0), 0.03);
+    let adaptive = config(&data, StrategyChoice::Adaptive, 3000);
+    assert_eq!(adaptive.opacity_reg_start, None);
+}
+
 #[test]
 fn mcmc_is_deterministic_and_resumes_bit_for_bit() {
     let dir = tempfile::tempdir().unwrap();

@@ -140,6 +140,26 @@ pub enum Strategy {
 /// The penalties' weight MCMC trains with (the paper's, for opacity and scale alike).
 pub const MCMC_REG: f32 = 0.01;
 
+/// A stronger opacity penalty at the start of a run, falling linearly to the run's own weight.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RegStart {
+    /// The weight at step 0.
+    pub weight: f32,
+    /// The step from which the run's own weight holds.
+    pub until: u64,
+}
+
+/// MCMC's start from random points: twenty times the paper's opacity penalty, falling to it
+/// over the first thousand steps. Random points leave floaters between the cameras and the
+/// object that the views' backgrounds hide; the paper's weight fades them over tens of
+/// thousands of steps, this one within the first thousand, after which the paper's weight
+/// keeps the semi-transparent splats fine detail needs. The length is in steps, not a share
+/// of the run: how fast a floater fades is set by the opacity learning rate.
+pub const MCMC_REG_START: RegStart = RegStart {
+    weight: 20.0 * MCMC_REG,
+    until: 1000,
+};
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TrainConfig {
     pub mode: Mode,
@@ -165,6 +185,10 @@ pub struct TrainConfig {
     /// Weight of the mean-opacity penalty (0: none).
     #[serde(default)]
     pub opacity_reg: f32,
+    /// A stronger start of the opacity penalty (MCMC from random points, unless
+    /// `--opacity-reg` is given); None: the weight holds from step 0.
+    #[serde(default)]
+    pub opacity_reg_start: Option<RegStart>,
     /// Weight of the mean-scale penalty (0: none).
     #[serde(default)]
     pub scale_reg: f32,
@@ -310,6 +334,18 @@ impl TrainConfig {
         }
     }
 
+    /// The opacity penalty's weight at `step`: [`TrainConfig::opacity_reg`], after a start
+    /// that falls linearly from a stronger weight when [`TrainConfig::opacity_reg_start`] says
+    /// so.
+    pub fn opacity_reg_at(&self, step: u64) -> f32 {
+        match self.opacity_reg_start {
+            Some(RegStart { weight, until }) if step < until => {
+                weight + (self.opacity_reg - weight) * step as f32 / until as f32
+            }
+            _ => self.opacity_reg,
+        }
+    }
+
     /// The config of a run with `settings` on `data`: the one place where defaults that depend
     /// on the capture (budget, λ for the capture's `I_ac`, evaluation and checkpoint cadence)
     /// are decided.
@@ -364,6 +400,8 @@ impl TrainConfig {
             i_ac: data.restorer.as_ref().map(|r| r.identity()),
             init: settings.init.as_ref().map(|p| p.display().to_string()),
             opacity_reg: settings.opacity_reg.unwrap_or(reg_default),
+            opacity_reg_start: (mcmc && random_start && settings.opacity_reg.is_none())
+                .then_some(MCMC_REG_START),
             scale_reg: settings.scale_reg.unwrap_or(reg_default),
             strategy,
             lambda_fade_until: match settings.lambda_fade {

@@ -310,7 +310,7 @@ impl<'a> Run<'a> {
             PixelGradients::color(&v),
             &lr,
             Regularisers {
-                opacity: self.config.opacity_reg,
+                opacity: self.config.opacity_reg_at(p.step),
                 scale: self.config.scale_reg,
             },
         )?;
