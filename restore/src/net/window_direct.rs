@@ -91,8 +91,10 @@ fn strip<const D: usize>(
     s: &WindowSpec,
 ) -> Vec<f32> {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2.
+    if base::isa::Isa::chosen() != base::isa::Isa::Portable {
+        // SAFETY: `Isa::chosen` names a build the CPU has, and every build past the
+        // portable one has AVX2 (the project's one dispatcher, so `METASPLAT_NO_AVX2` holds
+        // here too).
         return unsafe { strip_avx2::<D>(task, q, k, v, z, s) };
     }
     strip_body::<D>(task, q, k, v, z, s)
