@@ -1,13 +1,15 @@
-//! Restorer speed: inference ms per megapixel for each config, tiled against whole-image
-//! inference (time and error), training steps per second, and peak resident memory.
+//! Restorer memory and tiling: peak resident memory of a forward pass and of a training step
+//! per config, and tiled against whole-image inference (time and error). Forward and step
+//! times are `metasplat bench restorer`'s (restore::speed), not repeated here.
 //!
 //! `cargo bench -p restore --bench restore` (`-- tiny` for the tiny config only).
 
 use burn::module::Module;
-use burn::optim::{AdamWConfig, GradientsParams};
-use burn::tensor::{Device, Distribution, Tensor, TensorData};
+use burn::tensor::Device;
 use criterion::{Criterion, criterion_group, criterion_main};
 use restore::infer::run_tile;
+use restore::net::kernels::Kernels;
+use restore::speed::{Workload, time_workload};
 use restore::tiles::{Planes, tiled};
 use restore::{RestorerConfig, RestorerNet};
 use std::time::Instant;
@@ -35,11 +37,10 @@ fn random_planes(c: usize, h: usize, w: usize) -> Planes {
     restore::speed::planes(c, h, w, 0x1234_5678)
 }
 
-fn inference(c: &mut Criterion) {
+/// Peak resident memory of one forward pass per config (times: `metasplat bench restorer`).
+fn inference_memory(_: &mut Criterion) {
     let device = Device::flex();
     let side = 256;
-    let mut g = c.benchmark_group("restore");
-    g.sample_size(10);
     for cfg in [
         RestorerConfig::tiny(),
         RestorerConfig::small(),
@@ -51,21 +52,13 @@ fn inference(c: &mut Criterion) {
         reset_peak_rss();
         let base = peak_rss_mb();
         let _ = run_tile(&net, &x, &device);
-        let peak = peak_rss_mb() - base;
-        let t = Instant::now();
-        let _ = run_tile(&net, &x, &device);
-        let ms = t.elapsed().as_secs_f64() * 1e3;
         println!(
-            "{:>5}: {} params, {side}x{side} forward {ms:.0} ms = {:.0} ms/MP, peak RSS +{peak:.0} MB",
+            "{:>5}: {} params, {side}x{side} forward: peak RSS +{:.0} MB",
             cfg.name,
             net.num_params(),
-            ms / (side * side) as f64 * 1e6
+            peak_rss_mb() - base
         );
-        g.bench_function(format!("{}_forward_{side}", cfg.name), |b| {
-            b.iter(|| run_tile(&net, &x, &device))
-        });
     }
-    g.finish();
 }
 
 /// The network's global operations (channel attention, per-channel fusion gates) see only
@@ -107,45 +100,31 @@ fn tiled_against_whole(c: &mut Criterion) {
     g.finish();
 }
 
-fn training(c: &mut Criterion) {
-    let device = Device::flex().autodiff();
-    device.seed(0);
-    let mut g = c.benchmark_group("restore");
-    g.sample_size(10);
+/// Peak resident memory of the training step `restorer train` takes (restore::speed's, so
+/// the bench and the binary measure one step), beside the estimate it refuses batches with.
+fn training_memory(_: &mut Criterion) {
     for (cfg, batch) in [(RestorerConfig::tiny(), 4), (RestorerConfig::small(), 2)] {
-        let s = cfg.crop;
-        let mut net = RestorerNet::new(&cfg, &device);
-        let mut optim = AdamWConfig::new().init();
-        let x = Tensor::<4>::random([batch, 39, s, s], Distribution::Default, &device);
-        let y = Tensor::<4>::from_data(
-            TensorData::new(vec![0.5f32; batch * 3 * s * s], [batch, 3, s, s]),
-            &device,
-        );
+        let workload = Workload::TrainStep {
+            batch,
+            side: cfg.crop,
+        };
         reset_peak_rss();
         let base = peak_rss_mb();
-        let t = Instant::now();
-        let steps = 3;
-        for _ in 0..steps {
-            let loss = (net.forward(x.clone()) - y.clone()).abs().mean();
-            let grads = GradientsParams::from_grads(loss.backward(), &net);
-            net = optim.step(3e-4, net, grads);
-        }
-        let per = t.elapsed().as_secs_f64() / steps as f64;
+        time_workload(&cfg, workload, Kernels::Fast, 2, 1, 0).unwrap();
         println!(
-            "{:>5}: training step (batch {batch}, {s}x{s} crops) {per:.2} s = {:.2} steps/s, peak RSS +{:.0} MB",
+            "{:>5}: {}: peak RSS +{:.0} MB (estimate {:.0} MB)",
             cfg.name,
-            1.0 / per,
-            peak_rss_mb() - base
+            workload.describe(),
+            peak_rss_mb() - base,
+            cfg.training_bytes(batch, cfg.crop) as f64 / (1 << 20) as f64
         );
-        g.bench_function(format!("{}_train_step", cfg.name), |b| {
-            b.iter(|| {
-                let loss = (net.forward(x.clone()) - y.clone()).abs().mean();
-                GradientsParams::from_grads(loss.backward(), &net)
-            })
-        });
     }
-    g.finish();
 }
 
-criterion_group!(benches, inference, tiled_against_whole, training);
+criterion_group!(
+    benches,
+    inference_memory,
+    tiled_against_whole,
+    training_memory
+);
 criterion_main!(benches);
