@@ -1846,6 +1846,8 @@ fn hostile_run_files() {
         ("--max-splats", flagged("--max-splats", "0")),
         ("--llffhold", flagged("--llffhold", "1")),
         ("--downsample", flagged("--downsample", "0")),
+        // A downsample that leaves a few pixels a side.
+        ("--downsample", flagged("--downsample", "16")),
         ("--checkpoint-every", flagged("--checkpoint-every", "0")),
         (
             "--llffhold",

@@ -14,8 +14,18 @@ use crate::error::{Result, TrainError};
 use crate::settings::DataOptions;
 use crate::train::iac::{IacSource, OpenedRestorer, open_restorer};
 
+/// The smallest image side a capture trains at.
+pub const MIN_TRAIN_SIDE: u32 = 8;
+
 fn load_psf(path: &Path) -> Result<PsfGrid> {
-    PsfGrid::load_npy(path).map_err(|e| TrainError::file(path, e.to_string()))
+    PsfGrid::load_npy(path).map_err(|e| {
+        // The reader's errors mostly name the file already: once is enough.
+        let problem = e.to_string();
+        match problem.strip_prefix(&format!("{}: ", path.display())) {
+            Some(rest) => TrainError::file(path, rest),
+            None => TrainError::file(path, problem),
+        }
+    })
 }
 
 /// How a capture was imaged: grid, blur mode, sensor size, noise.
@@ -156,6 +166,17 @@ impl CaptureModel {
             ));
         }
         let (width, height) = (capture.cameras[0].width, capture.cameras[0].height);
+        // Smaller images hold too few pixels to fit or score splats on (a downsample too
+        // large for the capture makes them).
+        if width.min(height) < MIN_TRAIN_SIDE {
+            return Err(TrainError::file(
+                &capture.image_dir,
+                format!(
+                    "the images are {width}x{height}: training needs at least {MIN_TRAIN_SIDE} px a side; use a smaller --downsample (now {})",
+                    options.downsample
+                ),
+            ));
+        }
         let settings = imaging_settings(dir, &capture, options.psf.as_deref())?;
         let imaging = match &settings {
             Some((psf, blur, sensor, noise)) => Some(
