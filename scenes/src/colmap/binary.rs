@@ -155,7 +155,7 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>> {
     let n = r.count("images", 73)?;
     let mut images = Vec::with_capacity(n);
     for i in 0..n {
-        let what = || format!("image {i}");
+        let what = || format!("image record {i} (counting from 0)");
         let id = r.u32(&what)?;
         let mut qvec = [0.0; 4];
         for q in &mut qvec {
@@ -169,13 +169,13 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>> {
             .position(|&b| b == 0)
             .ok_or_else(|| SceneError::Truncated {
                 path: path.to_path_buf(),
-                what: format!("the name of image {i} (no terminating NUL)"),
+                what: format!("the name of image record {i} (no terminating NUL)"),
             })?;
         let name = String::from_utf8(rest[..len].to_vec()).map_err(|_| {
-            SceneError::invalid(path, format!("the name of image {i} is not UTF-8"))
+            SceneError::invalid(path, format!("the name of image record {i} is not UTF-8"))
         })?;
         r.pos += len + 1;
-        let points = r.count(&format!("2D points of image {i}"), 24)?;
+        let points = r.count(&format!("2D points of image record {i}"), 24)?;
         let mut points2d = Vec::with_capacity(points);
         for _ in 0..points {
             let xy = [r.f64(&what)?, r.f64(&what)?];
@@ -217,12 +217,12 @@ pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint>> {
     let n = r.count("points", 51)?;
     let mut points = Vec::with_capacity(n);
     for i in 0..n {
-        let what = || format!("point {i}");
+        let what = || format!("point record {i} (counting from 0)");
         let id = r.u64(&what)?;
         let xyz = DVec3::new(r.f64(&what)?, r.f64(&what)?, r.f64(&what)?);
         let rgb = r.array::<3>(&what)?;
         let error = r.f64(&what)?;
-        let len = r.count(&format!("track elements of point {i}"), 8)?;
+        let len = r.count(&format!("track elements of point record {i}"), 8)?;
         let mut track = Vec::with_capacity(len);
         for _ in 0..len {
             track.push(TrackElement {

@@ -160,7 +160,7 @@ pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint>> {
     }?;
     for p in &points {
         limits::check_point(p.xyz.to_array())
-            .map_err(|e| SceneError::invalid(path, format!("point {}: {e}", p.id)))?;
+            .map_err(|e| SceneError::invalid(path, format!("point ID {}: {e}", p.id)))?;
     }
     Ok(points)
 }
