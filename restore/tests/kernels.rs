@@ -201,3 +201,54 @@ fn the_vectorised_gelu_matches_burns_erf_gelu() {
     assert!(err < 1e-6, "max abs difference {err:.2e}");
     assert!(restore::net::gate_direct::gelu(f32::NAN).is_nan());
 }
+
+/// The direct kernels' output bits of a seeded `tiny` network on a small input, under the
+/// build this process chose.
+fn direct_kernel_bits() -> Vec<u32> {
+    let device = Device::flex();
+    device.seed(3);
+    let net = RestorerNet::new(&RestorerConfig::tiny(), &device);
+    let x = restore::speed::planes(39, 64, 96, 11);
+    let y = with_kernels(Kernels::Fast, || run_tile(&net, &x, &device));
+    y.data.iter().map(|v| v.to_bits()).collect()
+}
+
+/// The direct kernels give the same bits in every build: this process's against the
+/// portable loops (`METASPLAT_NO_AVX2`), in a child process since the build is chosen once
+/// per process (`base::isa`).
+#[test]
+fn the_direct_kernels_have_the_same_bits_in_every_build() {
+    const OUT: &str = "METASPLAT_TEST_RESTORE_BITS";
+    if let Some(path) = std::env::var_os(OUT) {
+        let bytes: Vec<u8> = direct_kernel_bits()
+            .iter()
+            .flat_map(|b| b.to_le_bytes())
+            .collect();
+        std::fs::write(path, bytes).unwrap();
+        return;
+    }
+    let here = direct_kernel_bits();
+    eprintln!("this process runs the {:?} build", base::isa::Isa::chosen());
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bits");
+    let status = std::process::Command::new(std::env::current_exe().unwrap())
+        .args([
+            "--exact",
+            "the_direct_kernels_have_the_same_bits_in_every_build",
+            "--test-threads",
+            "1",
+        ])
+        .env("METASPLAT_NO_AVX2", "1")
+        .env(OUT, &path)
+        .status()
+        .unwrap();
+    assert!(status.success(), "the portable child failed");
+    let child: Vec<u32> = std::fs::read(&path)
+        .unwrap()
+        .chunks_exact(4)
+        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    assert_eq!(child.len(), here.len());
+    let differ = child.iter().zip(&here).filter(|(a, b)| a != b).count();
+    assert_eq!(differ, 0, "{differ} of {} outputs differ", here.len());
+}
