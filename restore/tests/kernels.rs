@@ -213,13 +213,15 @@ fn direct_kernel_bits() -> Vec<u32> {
     y.data.iter().map(|v| v.to_bits()).collect()
 }
 
-/// The direct kernels give the same bits in every build: this process's against the
-/// portable loops (`METASPLAT_NO_AVX2`), in a child process since the build is chosen once
-/// per process (`base::isa`).
+/// The direct kernels give the same bits in every build: the build the CPU chose against the
+/// portable loops (`METASPLAT_NO_AVX2`), each in a child process running only this test,
+/// since the build is chosen once per process (`base::isa`) and the network's seeded weights
+/// come from the device's one generator, which tests running beside it would draw from.
 #[test]
 fn the_direct_kernels_have_the_same_bits_in_every_build() {
     const OUT: &str = "METASPLAT_TEST_RESTORE_BITS";
     if let Some(path) = std::env::var_os(OUT) {
+        eprintln!("this child runs the {:?} build", base::isa::Isa::chosen());
         let bytes: Vec<u8> = direct_kernel_bits()
             .iter()
             .flat_map(|b| b.to_le_bytes())
@@ -227,28 +229,35 @@ fn the_direct_kernels_have_the_same_bits_in_every_build() {
         std::fs::write(path, bytes).unwrap();
         return;
     }
-    let here = direct_kernel_bits();
-    eprintln!("this process runs the {:?} build", base::isa::Isa::chosen());
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("bits");
-    let status = std::process::Command::new(std::env::current_exe().unwrap())
-        .args([
-            "--exact",
-            "the_direct_kernels_have_the_same_bits_in_every_build",
-            "--test-threads",
-            "1",
-        ])
-        .env("METASPLAT_NO_AVX2", "1")
-        .env(OUT, &path)
-        .status()
-        .unwrap();
-    assert!(status.success(), "the portable child failed");
-    let child: Vec<u32> = std::fs::read(&path)
-        .unwrap()
-        .chunks_exact(4)
-        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
-    assert_eq!(child.len(), here.len());
-    let differ = child.iter().zip(&here).filter(|(a, b)| a != b).count();
-    assert_eq!(differ, 0, "{differ} of {} outputs differ", here.len());
+    let run = |portable: bool| -> Vec<u32> {
+        let path = dir
+            .path()
+            .join(if portable { "portable" } else { "chosen" });
+        let mut child = std::process::Command::new(std::env::current_exe().unwrap());
+        child
+            .args([
+                "--exact",
+                "the_direct_kernels_have_the_same_bits_in_every_build",
+                "--test-threads",
+                "1",
+            ])
+            .env(OUT, &path)
+            .env_remove("METASPLAT_NO_AVX2")
+            .env_remove("METASPLAT_NO_AVX512");
+        if portable {
+            child.env("METASPLAT_NO_AVX2", "1");
+        }
+        assert!(child.status().unwrap().success(), "the child failed");
+        std::fs::read(&path)
+            .unwrap()
+            .chunks_exact(4)
+            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
+    };
+    let (chosen, portable) = (run(false), run(true));
+    assert_eq!(chosen.len(), portable.len());
+    assert!(!chosen.is_empty());
+    let differ = chosen.iter().zip(&portable).filter(|(a, b)| a != b).count();
+    assert_eq!(differ, 0, "{differ} of {} outputs differ", chosen.len());
 }
