@@ -587,6 +587,14 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
         text.contains("trained to step 1 of 3") && text.contains("stopped early"),
         "{text}"
     );
+    // A resume whose flags say otherwise than the saved run is refused, naming the flag,
+    // rather than run with the saved settings in silence.
+    let mut other = train_args.to_vec();
+    let at = other.iter().position(|a| *a == "--batch").unwrap();
+    other[at + 1] = "2";
+    other.push("--resume");
+    let err = fails(&other);
+    assert!(err.contains("--batch 2 (the run has 1)"), "{err}");
     let mut args = train_args.to_vec();
     args.push("--resume");
     let text = ok(&args);

@@ -60,8 +60,8 @@ pub struct TrainRestorerArgs {
     #[arg(long, conflicts_with = "resume")]
     pub init: Option<PathBuf>,
     /// Continue the interrupted run that writes `--out` exactly where its last checkpoint left
-    /// it (weights, `OUT.state`: optimizer moments, schedule, sampler position); its steps,
-    /// batch, lr and seed come from the state.
+    /// it (weights, `OUT.state`: optimizer moments, schedule, sampler position); --steps,
+    /// --batch, --lr, --seed and --refresh-every must be the run's own (others are refused).
     #[arg(long)]
     pub resume: bool,
     /// Stop after about this many minutes with a checkpoint (continue later with --resume).
@@ -244,7 +244,7 @@ fn refuse_training_memory(cfg: &RestorerConfig, batch: usize, resumed: bool) -> 
         .rev()
         .find(|&b| cfg.training_bytes(b, cfg.crop) <= budget);
     let way_out = match (fits, resumed) {
-        (_, true) => "the batch comes from the saved state: continue on a machine with more memory, or start again with --init and a smaller --batch".to_string(),
+        (_, true) => "the batch is the saved run's: continue on a machine with more memory, or start again with --init and a smaller --batch".to_string(),
         (Some(b), false) => format!("use --batch {b} or less, or a smaller --config"),
         (None, false) => "even one crop does not fit: use a smaller --config".to_string(),
     };
@@ -331,6 +331,43 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
     let start = if a.resume {
         let (net, header) = load(&a.out).context("cannot resume")?;
         let (state, record) = restore::train_state::load(&a.out).context("cannot resume")?;
+        // A flag that says otherwise than the saved run would be ignored: refuse it, naming
+        // each, as `train --resume` does.
+        let saved = &state.schedule;
+        let changed: Vec<String> = [
+            (
+                "--steps",
+                schedule.steps.to_string(),
+                saved.steps.to_string(),
+            ),
+            (
+                "--batch",
+                schedule.batch.to_string(),
+                saved.batch.to_string(),
+            ),
+            (
+                "--lr",
+                format!("{:e}", schedule.lr),
+                format!("{:e}", saved.lr),
+            ),
+            ("--seed", schedule.seed.to_string(), saved.seed.to_string()),
+            (
+                "--refresh-every",
+                schedule.refresh_every.to_string(),
+                saved.refresh_every.to_string(),
+            ),
+        ]
+        .into_iter()
+        .filter(|(_, now, then)| now != then)
+        .map(|(flag, now, then)| format!("{flag} {now} (the run has {then})"))
+        .collect();
+        if !changed.is_empty() {
+            bail!(
+                "{}: cannot resume with other settings: {}; resume with the run's settings, or start a new run from its weights with --init",
+                a.out.display(),
+                changed.join(", ")
+            );
+        }
         schedule = state.schedule.clone();
         let s = &schedule;
         if state.step >= s.steps {
