@@ -217,8 +217,15 @@ pub fn refuse_file_as_folder(flag: &str, path: &Path) -> Result<()> {
 
 /// Refuses, before any work, an image output (given with `flag`) whose name says another
 /// format than the PNG bytes every image command writes (`--out a.jpg` would hold a PNG).
-pub fn refuse_non_png(flag: &str, path: &Path) -> Result<()> {
+fn refuse_non_png(flag: &str, path: &Path) -> Result<()> {
     refuse_other_extension(flag, path, "png", "images are written as PNG")
+}
+
+/// An image output checked as every image command checks it: named `.png`
+/// ([`refuse_non_png`]) and writable where it is named ([`refuse_unwritable_file`]).
+pub fn refuse_unwritable_image(flag: &str, path: &Path) -> Result<()> {
+    refuse_non_png(flag, path)?;
+    refuse_unwritable_file(flag, path)
 }
 
 /// Refuses an output file (given with `flag`) not named with `.ext`, the format written

@@ -1693,6 +1693,12 @@ fn hostile_run_files() {
         a.extend(extra.iter().map(|x| x.to_string()));
         a
     };
+    // `psf simulate` with the flags under test.
+    let simulating = |extra: &[&str]| {
+        let mut a = args(&["psf", "simulate", "--out", &o]);
+        a.extend(extra.iter().map(|x| x.to_string()));
+        a
+    };
     let flagged = |flag: &str, value: &str| {
         args(&[
             "train",
@@ -1789,51 +1795,26 @@ fn hostile_run_files() {
                 "cpu",
             ]),
         ),
-        (
-            "--fft-size",
-            args(&["psf", "simulate", "--out", &o, "--fft-size", "100000"]),
-        ),
-        (
-            "--grid",
-            args(&["psf", "simulate", "--out", &o, "--grid", "100000"]),
-        ),
+        ("--fft-size", simulating(&["--fft-size", "100000"])),
+        ("--grid", simulating(&["--grid", "100000"])),
         // Flags each in range whose product is not.
         (
             "--sensor-pitch-um",
-            args(&["psf", "simulate", "--out", &o, "--sensor-pitch-um", "1e20"]),
+            simulating(&["--sensor-pitch-um", "1e20"]),
         ),
         (
             "--sensor-pitch-um",
-            args(&["psf", "simulate", "--out", &o, "--sensor-pitch-um", "1e6"]),
+            simulating(&["--sensor-pitch-um", "1e6"]),
         ),
-        (
-            "--size",
-            args(&[
-                "psf", "simulate", "--out", &o, "--grid", "33", "--size", "1023",
-            ]),
-        ),
-        (
-            "--size",
-            args(&[
-                "psf", "simulate", "--out", &o, "--grid", "33", "--size", "400",
-            ]),
-        ),
-        (
-            "--aperture-um",
-            args(&["psf", "simulate", "--out", &o, "--aperture-um", "1e-300"]),
-        ),
+        ("--size", simulating(&["--grid", "33", "--size", "1023"])),
+        ("--size", simulating(&["--grid", "33", "--size", "400"])),
+        ("--aperture-um", simulating(&["--aperture-um", "1e-300"])),
         // Optics that describe no imaging system: no light in the crop, or a flat PSF.
-        (
-            "--focal-um",
-            args(&["psf", "simulate", "--out", &o, "--focal-um", "1e300"]),
-        ),
-        (
-            "--focal-um",
-            args(&["psf", "simulate", "--out", &o, "--focal-um", "1e-6"]),
-        ),
+        ("--focal-um", simulating(&["--focal-um", "1e300"])),
+        ("--focal-um", simulating(&["--focal-um", "1e-6"])),
         (
             "--sensor-pitch-um",
-            args(&["psf", "simulate", "--out", &o, "--sensor-pitch-um", "1e-9"]),
+            simulating(&["--sensor-pitch-um", "1e-9"]),
         ),
         (
             "--width",

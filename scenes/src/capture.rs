@@ -460,10 +460,7 @@ fn open_llff(root: &Path, options: &OpenOptions) -> Result<Capture> {
         limits::check_downsample((pose.width, pose.height), (width, height)).map_err(|p| {
             SceneError::invalid(path, format!("{p} (row {row} of {})", poses_path.display()))
         })?;
-        let image_aspect = width as f64 / height as f64;
-        let pose_aspect = pose.width / pose.height;
-        // Downsampling rounds sizes, so allow a pixel's worth of aspect drift, no more.
-        if (image_aspect / pose_aspect - 1.0).abs() > 1.0 / height.min(width) as f64 + 1e-9 {
+        if !limits::same_aspect((pose.width, pose.height), (width, height)) {
             return Err(SceneError::invalid(
                 path,
                 format!(
@@ -682,8 +679,7 @@ fn open_colmap(root: &Path, sparse: &Path, options: &OpenOptions) -> Result<Capt
                 ),
             )
         })?;
-        let aspect_drift = (w as f64 * full.height as f64) / (h as f64 * full.width as f64) - 1.0;
-        if aspect_drift.abs() > 1.0 / h.min(w) as f64 + 1e-9 {
+        if !limits::same_aspect((full.width as f64, full.height as f64), (w, h)) {
             return Err(SceneError::invalid(
                 &path,
                 format!(

@@ -144,6 +144,13 @@ pub fn check_bounds(near: f64, far: f64) -> Result<(), String> {
     }
 }
 
+/// Whether an image of `image` pixels has the aspect of the `recorded` size, within the pixel
+/// of drift that rounding a downsampled size gives (every capture reader's rule).
+pub fn same_aspect(recorded: (f64, f64), image: (u32, u32)) -> bool {
+    let drift = (image.0 as f64 * recorded.1) / (image.1 as f64 * recorded.0) - 1.0;
+    drift.abs() <= 1.0 / image.0.min(image.1) as f64 + 1e-9
+}
+
 /// Checks that images of `image` px are not more than [`MAX_DOWNSAMPLE`] times smaller than
 /// the `recorded` size.
 pub fn check_downsample(recorded: (f64, f64), image: (u32, u32)) -> Result<(), String> {
@@ -193,5 +200,9 @@ mod tests {
         assert!(check_point([1e300, 0.0, 0.0]).is_err());
         assert!(check_downsample((4032.0, 3024.0), (504, 378)).is_ok());
         assert!(check_downsample((64000.0, 48000.0), (32, 24)).is_err());
+        assert!(same_aspect((4032.0, 3024.0), (504, 378)));
+        // Rounding a downsampled side is a pixel of drift; a quarter wider is another aspect.
+        assert!(same_aspect((4032.0, 3024.0), (505, 378)));
+        assert!(!same_aspect((40.0, 24.0), (32, 24)));
     }
 }

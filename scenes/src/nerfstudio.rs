@@ -173,10 +173,8 @@ pub fn read_frames(root: &Path, downsample: u32) -> Result<Vec<Frame>> {
         let (pw, ph) = images::image_size(&photo)?;
         let (sx, sy) = (pw as f64 / w, ph as f64 / h);
         limits::check_downsample((w, h), (pw, ph)).map_err(bad)?;
-        // Downsampling rounds sizes, so a pixel's worth of aspect drift, no more (as the
-        // LLFF and COLMAP readers allow): another aspect would stretch the focal unevenly.
-        let drift = (pw as f64 * h) / (ph as f64 * w) - 1.0;
-        if drift.abs() > 1.0 / pw.min(ph) as f64 + 1e-9 {
+        // Another aspect would stretch the focal unevenly.
+        if !limits::same_aspect((w, h), (pw, ph)) {
             return Err(bad(format!(
                 "the photo {} is {pw}x{ph} but w and h say {w}x{h} (aspect differs)",
                 photo.display()

@@ -50,8 +50,7 @@ impl ImagingArgs {
 
 pub fn run(a: AberrateArgs) -> Result<()> {
     metasplat::guard::refuse_overwrite("--out", &a.out, &[("--in", &a.input), ("--psf", &a.psf)])?;
-    metasplat::guard::refuse_non_png("--out", &a.out)?;
-    metasplat::guard::refuse_unwritable_file("--out", &a.out)?;
+    metasplat::guard::refuse_unwritable_image("--out", &a.out)?;
     let psf = PsfGrid::load_npy(&a.psf)?;
     let clean = Image::load(&a.input)?;
     let im = &a.imaging;

@@ -39,16 +39,10 @@ pub fn run(a: DeconvolveArgs) -> Result<()> {
         inputs.push(("--reference", r));
     }
     metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
-    metasplat::guard::refuse_non_png("--out", &a.out)?;
-    metasplat::guard::refuse_unwritable_file("--out", &a.out)?;
+    metasplat::guard::refuse_unwritable_image("--out", &a.out)?;
     if let Some(bank) = &a.bank {
         metasplat::guard::refuse_overwrite("--bank", bank, &inputs)?;
-        if bank.exists() && !bank.is_dir() {
-            anyhow::bail!(
-                "--bank {} is a file; it names the folder the filters go to",
-                bank.display()
-            );
-        }
+        metasplat::guard::refuse_file_as_folder("--bank", bank)?;
     }
     let native = PsfGrid::load_npy(&a.psf)?;
     let blurred = Image::load(&a.input)?;

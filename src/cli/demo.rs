@@ -55,12 +55,7 @@ fn refuse_foreign_folder(out: &Path) -> Result<()> {
     if !out.exists() {
         return Ok(());
     }
-    if !out.is_dir() {
-        anyhow::bail!(
-            "--out {} is a file; name a folder for the demo",
-            out.display()
-        );
-    }
+    metasplat::guard::refuse_file_as_folder("--out", out)?;
     let empty = std::fs::read_dir(out)
         .with_context(|| format!("--out {}", out.display()))?
         .next()

@@ -139,8 +139,7 @@ pub fn run(cmd: PsfCommand) -> Result<()> {
                 "the grid is written as a NumPy array",
             )?;
             if let Some(p) = &a.picture {
-                metasplat::guard::refuse_unwritable_file("--picture", p)?;
-                metasplat::guard::refuse_non_png("--picture", p)?;
+                metasplat::guard::refuse_unwritable_image("--picture", p)?;
                 metasplat::guard::refuse_overwrite("--picture", p, &[("--out", &a.out)])?;
             }
             let (grid, report) = simulate(&a.lens.config())?;
@@ -155,8 +154,7 @@ pub fn run(cmd: PsfCommand) -> Result<()> {
         }
         PsfCommand::Show(a) => {
             metasplat::guard::refuse_overwrite("--out", &a.out, &[("the PSF file", &a.psf)])?;
-            metasplat::guard::refuse_non_png("--out", &a.out)?;
-            metasplat::guard::refuse_unwritable_file("--out", &a.out)?;
+            metasplat::guard::refuse_unwritable_image("--out", &a.out)?;
             let grid = PsfGrid::load_npy(&a.psf)?;
             save_rgb8_png(&psf_grid_picture(&grid), &a.out)?;
             println!(

@@ -713,8 +713,7 @@ pub fn run_restore(a: RestoreArgs) -> Result<()> {
         inputs.push(("--reference", r));
     }
     metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
-    metasplat::guard::refuse_non_png("--out", &a.out)?;
-    metasplat::guard::refuse_unwritable_file("--out", &a.out)?;
+    metasplat::guard::refuse_unwritable_image("--out", &a.out)?;
     let (native, restorer) = a.net.load()?;
     let blurred =
         Image::load(&a.input).with_context(|| format!("cannot read {}", a.input.display()))?;

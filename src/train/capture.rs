@@ -17,15 +17,9 @@ use crate::train::iac::{IacSource, OpenedRestorer, open_restorer};
 /// The smallest image side a capture trains at.
 pub const MIN_TRAIN_SIDE: u32 = 8;
 
+/// The PSF reader's errors name the file themselves.
 fn load_psf(path: &Path) -> Result<PsfGrid> {
-    PsfGrid::load_npy(path).map_err(|e| {
-        // The reader's errors mostly name the file already: once is enough.
-        let problem = e.to_string();
-        match problem.strip_prefix(&format!("{}: ", path.display())) {
-            Some(rest) => TrainError::file(path, rest),
-            None => TrainError::file(path, problem),
-        }
-    })
+    Ok(PsfGrid::load_npy(path)?)
 }
 
 /// How a capture was imaged: grid, blur mode, sensor size, noise.
