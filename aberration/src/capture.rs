@@ -39,6 +39,14 @@ impl ImagingModel {
         &self.plan
     }
 
+    /// Blurs through `psf` from now on (a grid at this image's scale, as [`Self::psf`]
+    /// returns, e.g. one being refined during training).
+    pub fn set_psf(&mut self, psf: PsfGrid) -> Result<()> {
+        self.plan.set_psf(&psf)?;
+        self.psf = psf;
+        Ok(())
+    }
+
     /// Blur only.
     pub fn blur(&self, clean: &Image) -> Result<Image> {
         self.plan.apply(clean)

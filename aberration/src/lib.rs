@@ -5,6 +5,7 @@
 //! - [`blur`]: the spatially varying blur (`tiled` as the paper, or seamless `blend`) and
 //!   its exact adjoint.
 //! - [`noise`]: Poisson + Gaussian sensor noise.
+//! - [`refine`]: a PSF grid refined from the photos it blurred, kept non-negative and unit-sum.
 //! - [`wiener`]: tile-wise Wiener deconvolution and the 13-filter MAFG bank.
 
 pub mod blur;
@@ -16,6 +17,7 @@ pub mod noise;
 pub mod optics;
 pub mod picture;
 pub mod psf_grid;
+pub mod refine;
 pub mod resample;
 pub mod wiener;
 

@@ -245,6 +245,74 @@ impl BlurPlan {
         Ok(interleave(&self.adjoint_with(|ch, i| y[i][ch])))
     }
 
+    /// Replaces the PSFs the plan blurs with (same grid and size, at the image's scale): only
+    /// the spectra are recomputed, the FFT plans and the layout stay.
+    pub fn set_psf(&mut self, psf: &PsfGrid) -> Result<()> {
+        if psf.size() != self.ksize || psf.grid() != self.groups.len() {
+            return Err(AberrationError::BadParameter(format!(
+                "a {g}x{g} grid of {} px PSFs cannot replace the {}x{} grid of {} px PSFs the blur was planned with",
+                psf.size(),
+                self.groups.len(),
+                self.groups.len(),
+                self.ksize,
+                g = psf.grid(),
+            )));
+        }
+        let k = self.ksize;
+        self.groups.par_iter_mut().flatten().for_each(|t| {
+            t.spectra =
+                std::array::from_fn(|ch| t.fft.kernel_spectrum(psf.kernel(t.g, ch), k, false));
+        });
+        Ok(())
+    }
+
+    /// `∂⟨g, A x⟩/∂h`: how a loss whose gradient with respect to the blurred image `A x` is
+    /// `g` changes with every PSF value, in [`PsfGrid::planar`]'s layout (grid point, channel,
+    /// row, column). The blur is linear in the PSF, so each kernel's gradient is the
+    /// correlation of `g` with the (weighted, padded) input that kernel acted on, over the
+    /// output the kernel wrote: `Σ_p g[p] · u[p + c − k]`, computed through the plan's own FFTs
+    /// (the input's spectrum, conjugated, times the gradient's). The values are raw: a PSF
+    /// constrained to unit sum projects them itself.
+    pub fn psf_gradient_pixels(&self, x: &[Vec3], g: &[Vec3]) -> Result<Vec<f32>> {
+        self.check_pixels(x)?;
+        self.check_pixels(g)?;
+        let (w, h, k) = (self.width, self.height, self.ksize);
+        let c = (k / 2) as isize;
+        let padded: Vec<Padded> = (0..3)
+            .into_par_iter()
+            .map(|ch| Padded::from_fn(|i| x[i][ch], w, h, self.pad()))
+            .collect();
+        let jobs = self.jobs();
+        let kernels: Vec<Vec<(usize, Vec<f32>)>> = jobs
+            .par_iter()
+            .map(|&(ch, gi)| {
+                let mut work = Work::default();
+                let mut input_spec = Vec::new();
+                self.groups[gi]
+                    .iter()
+                    .map(|t| {
+                        let grad = psf_gradient_term(
+                            t,
+                            &padded[ch],
+                            &|i| g[i][ch],
+                            c,
+                            k,
+                            &mut input_spec,
+                            &mut work,
+                        );
+                        (t.g * 3 + ch, grad)
+                    })
+                    .collect()
+            })
+            .collect();
+        let grid = self.groups.len();
+        let mut out = vec![0.0f32; grid * grid * 3 * k * k];
+        for (idx, grad) in kernels.into_iter().flatten() {
+            out[idx * k * k..(idx + 1) * k * k].copy_from_slice(&grad);
+        }
+        Ok(out)
+    }
+
     /// The forward pass over any layout: `value(ch, i)` reads pixel `i` (row-major) of channel
     /// `ch`; returns the three output planes.
     fn apply_with(&self, value: impl Fn(usize, usize) -> f32 + Sync) -> [Vec<f32>; 3] {
@@ -448,6 +516,72 @@ fn forward_term(
         },
         s,
     );
+}
+
+/// One term's share of [`BlurPlan::psf_gradient_pixels`]: the `K×K` correlation of the output
+/// gradient (zero outside the rows and columns the term writes) with the term's input. No
+/// circular wrap reaches the kernel's lags: the tiles' kept outputs start `K − 1` rows in, and
+/// the blend terms' transforms are zero-padded by `K − 1` beyond their input.
+fn psf_gradient_term(
+    t: &Term,
+    xp: &Padded,
+    g: &impl Fn(usize) -> f32,
+    c: isize,
+    k: usize,
+    input_spec: &mut Vec<Complex32>,
+    work: &mut Work,
+) -> Vec<f32> {
+    let fft = &t.fft;
+    let w = xp.width;
+    let (s, spec) = work.get(fft);
+    input_spec.resize(fft.spectrum_len(), Complex32::ZERO);
+    let stride = xp.stride();
+    let pad = xp.pad as isize;
+    fft.forward(
+        0..t.in_h,
+        |r, row| {
+            row.fill(0.0);
+            let base = (t.in_y + r as isize + pad) as usize * stride + (t.in_x + pad) as usize;
+            let src = &xp.data[base..base + t.in_w];
+            match &t.weights {
+                None => row[..t.in_w].copy_from_slice(src),
+                Some((wy, wx)) => {
+                    let a = wy[r];
+                    for ((d, v), b) in row.iter_mut().zip(src).zip(wx) {
+                        *d = v * a * b;
+                    }
+                }
+            }
+        },
+        input_spec,
+        s,
+    );
+    let x0 = (t.out_n.start as isize + t.in_x - c) as usize;
+    fft.forward(
+        t.out_m.clone(),
+        |m, row| {
+            row.fill(0.0);
+            let y = (m as isize + t.in_y - c) as usize;
+            let src = y * w + x0;
+            for (j, d) in row[t.out_n.clone()].iter_mut().enumerate() {
+                *d = g(src + j);
+            }
+        },
+        spec,
+        s,
+    );
+    let scale = 1.0 / (fft.rows * fft.cols) as f32;
+    spec.iter_mut()
+        .zip(input_spec.iter())
+        .for_each(|(a, b)| *a *= b.conj() * scale);
+    let mut grad = vec![0.0f32; k * k];
+    fft.inverse(
+        spec,
+        0..k,
+        |r, row| grad[r * k..(r + 1) * k].copy_from_slice(&row[..k]),
+        s,
+    );
+    grad
 }
 
 #[allow(clippy::too_many_arguments)]

@@ -102,6 +102,19 @@ impl Default for Lens {
 }
 
 impl Lens {
+    /// The same design scaled to focal length `scale · f` at the same aperture: the designed
+    /// phase is scaled by `1 / scale` (a paraxial lens's phase is inversely proportional to
+    /// its focal length; the hyperbolic profile follows `focal_um` itself). What a lens whose
+    /// focal length came out a few percent off looks like.
+    pub fn with_focal_scale(&self, scale: f64) -> Self {
+        let mut lens = self.clone();
+        lens.focal_um *= scale;
+        if let PhaseProfile::EvenPolynomial(a) = &mut lens.profile {
+            a.iter_mut().for_each(|v| *v /= scale);
+        }
+        lens
+    }
+
     /// An ideal lens: hyperbolic at `design_nm`, no dispersion.
     pub fn ideal(aperture_um: f64, focal_um: f64, pitch_um: f64, design_nm: f64) -> Self {
         Self {

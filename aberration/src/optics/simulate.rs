@@ -45,6 +45,12 @@ pub struct SimConfig {
     pub max_field_deg: f64,
     /// Sub-samples per pixel side when integrating the focal-plane intensity.
     pub supersample: usize,
+    /// How far behind the focal plane the sensor sits (µm; negative: in front): the defocus
+    /// of a sensor set a little off.
+    pub sensor_offset_um: f64,
+    /// Every PSF turned by this angle about its centre (degrees, clockwise on the image): a
+    /// calibration rig rotated against the sensor.
+    pub rotation_deg: f64,
 }
 
 impl Default for SimConfig {
@@ -60,6 +66,8 @@ impl Default for SimConfig {
             grid: 9,
             max_field_deg: 20.0,
             supersample: 4,
+            sensor_offset_um: 0.0,
+            rotation_deg: 0.0,
         }
     }
 }
@@ -107,6 +115,17 @@ impl SimConfig {
             return bad(format!(
                 "max field angle {} must be in [0, 90)",
                 self.max_field_deg
+            ));
+        }
+        if !self.rotation_deg.is_finite()
+            || !self.sensor_offset_um.is_finite()
+            || self.sensor_um() <= 0.0
+        {
+            return bad(format!(
+                "a sensor {} um off a {} um focal length, turned {} degrees, is not a sensor position",
+                num(self.sensor_offset_um),
+                num(l.focal_um),
+                num(self.rotation_deg)
             ));
         }
         if self
@@ -198,6 +217,11 @@ impl SimConfig {
         Ok(())
     }
 
+    /// Distance from the lens to the sensor (µm).
+    pub fn sensor_um(&self) -> f64 {
+        self.lens.focal_um + self.sensor_offset_um
+    }
+
     /// Half-width, in propagation samples, of the focal window a rotated PSF needs (with a
     /// bilinear margin); f64 so that absurd flags give infinity instead of a wrapped index.
     fn window_reach(&self) -> f64 {
@@ -278,9 +302,9 @@ pub fn simulate_grid(
         radial.iter().map(|_| [None, None, None]).collect();
     let mut done = 0;
     for (ch, &lambda) in cfg.wavelengths_nm.iter().enumerate() {
-        let transfer = prop.transfer(lambda, cfg.lens.focal_um);
+        let transfer = prop.transfer(lambda, cfg.sensor_um());
         for (ri, &(_, theta)) in radial.iter().enumerate() {
-            let spot = cfg.lens.focal_um * theta.tan();
+            let spot = cfg.sensor_um() * theta.tan();
             windows[ri][ch] =
                 Some(prop.focal_window(&cfg.lens, lambda, theta, &transfer, spot, half));
             done += 1;
@@ -303,8 +327,9 @@ pub fn simulate_grid(
             let (gi, ch) = (idx / 3, idx % 3);
             let p = points[gi];
             let w = &windows[index_of[&p.key]][ch];
-            let spot = cfg.lens.focal_um * p.theta.tan();
-            sample_psf(w, spot, k, cfg.sensor_pitch_um, p.azimuth, cfg.supersample)
+            let spot = cfg.sensor_um() * p.theta.tan();
+            let azimuth = p.azimuth + cfg.rotation_deg.to_radians();
+            sample_psf(w, spot, k, cfg.sensor_pitch_um, azimuth, cfg.supersample)
         })
         .collect();
     let mut report = SimReport {
@@ -315,7 +340,7 @@ pub fn simulate_grid(
         seconds: 0.0,
     };
     for (ri, ws) in windows.iter().enumerate() {
-        let spot = cfg.lens.focal_um * radial[ri].1.tan();
+        let spot = cfg.sensor_um() * radial[ri].1.tan();
         for (ch, w) in ws.iter().enumerate() {
             let psf = sample_psf(w, spot, k, cfg.sensor_pitch_um, 0.0, cfg.supersample);
             let sum: f64 = psf.iter().sum();

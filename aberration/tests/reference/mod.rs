@@ -49,8 +49,24 @@ pub fn hat(i: usize, p: i64, n: usize, g: usize) -> f64 {
 /// Direct evaluation of the blur at one output pixel and channel:
 /// `y[p] = Σ_k h_{r}[k]·w_r[q]·x[q]`, `q = p + c − k`, in f64.
 pub fn direct_pixel(x: &Image, psf: &PsfGrid, tiled: bool, py: usize, px: usize, ch: usize) -> f64 {
+    let kernel = |gi: usize, ch: usize, i: usize| psf.kernel(gi, ch)[i] as f64;
+    direct_pixel_with(x, &kernel, psf.grid(), psf.size(), tiled, py, px, ch)
+}
+
+/// [`direct_pixel`] through any kernel values `kernel(grid point, channel, index)` (raw f64,
+/// not normalised): what a finite difference on one PSF value perturbs.
+#[allow(clippy::too_many_arguments)]
+pub fn direct_pixel_with(
+    x: &Image,
+    kernel: &dyn Fn(usize, usize, usize) -> f64,
+    g: usize,
+    k: usize,
+    tiled: bool,
+    py: usize,
+    px: usize,
+    ch: usize,
+) -> f64 {
     let (w, h) = (x.width, x.height);
-    let (g, k) = (psf.grid(), psf.size());
     let c = (k / 2) as i64;
     let mut acc = 0.0;
     for ky in 0..k {
@@ -60,7 +76,7 @@ pub fn direct_pixel(x: &Image, psf: &PsfGrid, tiled: bool, py: usize, px: usize,
             let v = x.get(reflect(qx, w), reflect(qy, h), ch) as f64;
             if tiled {
                 let gi = tile(py, h, g) * g + tile(px, w, g);
-                acc += psf.kernel(gi, ch)[ky * k + kx] as f64 * v;
+                acc += kernel(gi, ch, ky * k + kx) * v;
             } else {
                 for i in 0..g {
                     let wy = hat(i, qy, h, g);
@@ -72,7 +88,7 @@ pub fn direct_pixel(x: &Image, psf: &PsfGrid, tiled: bool, py: usize, px: usize,
                         if wx == 0.0 {
                             continue;
                         }
-                        acc += psf.kernel(i * g + j, ch)[ky * k + kx] as f64 * wy * wx * v;
+                        acc += kernel(i * g + j, ch, ky * k + kx) * wy * wx * v;
                     }
                 }
             }
