@@ -22,8 +22,14 @@ pub const LOG_FILE: &str = "train_log.csv";
 pub const CHECKPOINT_FILE: &str = "checkpoint.bin";
 pub const CONFIG_FILE: &str = "config.json";
 pub const PSNR_PLOT: &str = "psnr_vs_time.png";
+/// The refined PSF grid (`--refine-psf`), at the images' scale, in the paper's layout.
+pub const PSF_REFINED_FILE: &str = "psf_refined.npy";
+/// The supplied grid above the refined one.
+pub const PSF_REFINED_PICTURE: &str = "psf_refined.png";
 /// Everything a run writes into its folder (folders end in `/`).
-pub const RUN_FILES: [&str; 8] = [
+pub const RUN_FILES: [&str; 10] = [
+    PSF_REFINED_FILE,
+    PSF_REFINED_PICTURE,
     PLY_FILE,
     CHECKPOINT_FILE,
     METRICS_FILE,
@@ -133,6 +139,10 @@ pub struct RunSummary {
     pub metrics: Option<Metrics>,
     /// Mean PSNR of the observed (aberrated) test images against the clean ones.
     pub observed_psnr: Option<f64>,
+    /// With `--refine-psf`: how far the refined grid moved from the supplied one (mean over
+    /// grid cells of the relative L2 distance).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub psf_change: Option<f64>,
 }
 
 /// Images side by side with a white gutter.
@@ -233,7 +243,20 @@ pub fn write_run(
         }
         _ => None,
     };
+    let psf_change = match &outcome.psf {
+        Some((supplied, refined)) => {
+            refined.save_npy(&dir.join(PSF_REFINED_FILE))?;
+            save_rgb8_png(
+                &aberration::picture::psf_grids_picture(&[supplied, refined]),
+                &dir.join(PSF_REFINED_PICTURE),
+            )?;
+            let cells = aberration::refine::cell_errors(refined, supplied)?;
+            Some(cells.iter().sum::<f64>() / cells.len() as f64)
+        }
+        None => None,
+    };
     let summary = RunSummary {
+        psf_change,
         mode: config.mode.to_string(),
         iters: config.iters,
         train_seconds: outcome.train_seconds,

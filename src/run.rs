@@ -151,6 +151,9 @@ fn refuse_unused_settings(request: &RunRequest) -> Result<()> {
         if t.lambda_fade != LambdaFade::Auto {
             return unused("--lambda-fade".into(), "aware runs");
         }
+        if t.refine_psf.is_some() {
+            return unused("--refine-psf".into(), "aware runs");
+        }
     }
     if t.mode == Mode::Plain && request.data.restorer != RestorerChoice::Auto {
         return unused("--restorer".into(), "restored and aware runs");

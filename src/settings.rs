@@ -216,6 +216,13 @@ pub struct TrainSettings {
     /// Start from this splat scene (.ply, .glb or .spz) instead of the capture's points.
     #[arg(long)]
     pub init: Option<PathBuf>,
+    /// Learn a correction of the PSF grid with the splats (aware mode), for a lens whose PSFs
+    /// were measured or simulated a little off: `warp` (the bare flag: seven numbers, per
+    /// colour a scale of the PSFs varying over the field, and a rotation) or `free` (every
+    /// PSF value). Writes the refined grid as psf_refined.npy and a picture of it beside the
+    /// supplied one.
+    #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "warp")]
+    pub refine_psf: Option<crate::train::psf_refine::PsfModel>,
 }
 
 /// Parses `args` into `T` alone: the defaults of its clap attributes, with `args` on top.
@@ -295,6 +302,15 @@ pub struct DataOptions {
     /// [`crate::train::iac_cache`].
     #[arg(skip)]
     pub iac_cache: Option<PathBuf>,
+    /// A PSF grid the run takes for the capture's own: what a user whose calibration is off
+    /// believes (the mis-calibration experiment). The blur of `L_abr` and `I_ac` both use it,
+    /// unless [`Self::restorer_psf`] says otherwise.
+    #[arg(skip)]
+    pub assumed_psf: Option<PathBuf>,
+    /// The grid `I_ac` is restored through, when it is not the blur's (the experiment's split
+    /// of what a wrong grid costs through `L_abr` and through `I_ac`).
+    #[arg(skip)]
+    pub restorer_psf: Option<PathBuf>,
 }
 
 impl Default for DataOptions {

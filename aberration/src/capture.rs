@@ -39,6 +39,22 @@ impl ImagingModel {
         &self.plan
     }
 
+    /// The same model (image size, blur mode, noise) through another grid at this image's
+    /// scale.
+    pub fn with_psf(&self, psf: PsfGrid) -> Result<Self> {
+        let plan = BlurPlan::new(
+            &psf,
+            self.plan.width(),
+            self.plan.height(),
+            self.plan.mode(),
+        )?;
+        Ok(Self {
+            psf,
+            plan,
+            noise: self.noise,
+        })
+    }
+
     /// Blurs through `psf` from now on (a grid at this image's scale, as [`Self::psf`]
     /// returns, e.g. one being refined during training).
     pub fn set_psf(&mut self, psf: PsfGrid) -> Result<()> {

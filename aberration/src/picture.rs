@@ -54,3 +54,18 @@ pub fn psf_grid_picture(psf: &PsfGrid) -> RgbImage {
     }
     img
 }
+
+/// Grids of one shape as [`psf_grid_picture`]s stacked top to bottom (e.g. supplied, refined,
+/// true), 8 px apart, for the eye to compare.
+pub fn psf_grids_picture(grids: &[&PsfGrid]) -> RgbImage {
+    let pictures: Vec<RgbImage> = grids.iter().map(|g| psf_grid_picture(g)).collect();
+    let width = pictures.iter().map(|p| p.width()).max().unwrap_or(1);
+    let height = pictures.iter().map(|p| p.height() + 8).sum::<u32>().max(9) - 8;
+    let mut out = RgbImage::from_pixel(width, height, Rgb([255, 255, 255]));
+    let mut y = 0;
+    for p in &pictures {
+        image::imageops::replace(&mut out, p, 0, y as i64);
+        y += p.height() + 8;
+    }
+    out
+}

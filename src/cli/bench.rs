@@ -70,6 +70,10 @@ pub struct StepArgs {
     /// Where to train: as `train --device` (`auto`, `cpu`, `gpu`).
     #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
     pub device: DeviceChoice,
+    /// Also time the same steps with `--refine-psf` updating the PSF grid on every step (aware
+    /// mode), side by side: what refining the PSF adds to a step.
+    #[arg(long)]
+    pub refine_psf: bool,
     #[command(flatten)]
     pub data: DataOptions,
 }
@@ -277,6 +281,43 @@ fn step(a: StepArgs) -> Result<()> {
             last.threads,
             one.step / last.step
         );
+    }
+    if a.refine_psf {
+        if a.mode != Mode::Aware {
+            bail!("--refine-psf: only aware steps blur through the PSF grid");
+        }
+        let defaults = metasplat::train::psf_refine::PsfRefineConfig::for_iters(
+            a.steps,
+            metasplat::train::psf_refine::PsfModel::Warp,
+        );
+        let refining = TrainConfig {
+            refine_psf: Some(metasplat::train::psf_refine::PsfRefineConfig {
+                from: 0,
+                every: 1,
+                ..defaults
+            }),
+            ..config.clone()
+        };
+        println!(
+            "\nThe same steps with the PSF grid refined on every step, beside the plain aware ones (medians of alternated rounds):"
+        );
+        for &t in &a.threads {
+            let (mut plain, mut refined, mut parts) = (Vec::new(), Vec::new(), Vec::new());
+            for _ in 0..3 {
+                plain.push(time_steps(&data, &config, &device, t)?.step);
+                let r = time_steps(&data, &refining, &device, t)?;
+                parts.push(r.phase("PSF gradient") + r.phase("PSF update"));
+                refined.push(r.step);
+            }
+            let (p, r, g) = (median(plain), median(refined), median(parts));
+            println!(
+                "{t} thread{}: aware {p:.1} ms, with the PSF refined {r:.1} ms (+{:.0} %); the PSF gradient and update take {g:.1} ms, so updating every {} steps (the default) adds {:.0} %.",
+                if t == 1 { "" } else { "s" },
+                100.0 * (r - p) / p,
+                defaults.every,
+                100.0 * g / defaults.every.max(1) as f64 / p
+            );
+        }
     }
     Ok(())
 }

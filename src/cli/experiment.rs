@@ -21,6 +21,10 @@ pub enum ExperimentCommand {
     /// Held-out PSNR and training time against the splat budget: how many splats a scene
     /// needs.
     Budget(BudgetArgs),
+    /// Aware training with a mis-calibrated PSF grid, one error at a time (focal length, the
+    /// calibration lasers' wavelengths, defocus, rotation, measurement noise, a pedestal),
+    /// with and without --refine-psf.
+    PsfMismatch(super::psf_mismatch::PsfMismatchArgs),
 }
 
 /// A splat budget: a count, or `unbounded` (3DGS densification without a cap).
@@ -123,6 +127,7 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
     match cmd {
         ExperimentCommand::Llff(a) => llff(a),
         ExperimentCommand::Budget(a) => budget(a),
+        ExperimentCommand::PsfMismatch(a) => super::psf_mismatch::run(a),
     }
 }
 
@@ -244,7 +249,10 @@ fn refuse_other_copy(
 }
 
 /// Refuses a list flag that names one value twice: both would train into one run folder.
-fn refuse_repeats<T: PartialEq + std::fmt::Display>(flag: &str, values: &[T]) -> Result<()> {
+pub(super) fn refuse_repeats<T: PartialEq + std::fmt::Display>(
+    flag: &str,
+    values: &[T],
+) -> Result<()> {
     for (i, v) in values.iter().enumerate() {
         if values[..i].contains(v) {
             anyhow::bail!(
@@ -356,7 +364,7 @@ fn budget(a: BudgetArgs) -> Result<()> {
 
 impl ExperimentRuns {
     /// The aberrated copy of the capture the runs train on (made once under --out).
-    fn aberrated(&self) -> Result<(PathBuf, base::FolderLock)> {
+    pub(super) fn aberrated(&self) -> Result<(PathBuf, base::FolderLock)> {
         aberrated_capture(
             &self.scene,
             &self.out,
@@ -386,7 +394,12 @@ impl ExperimentRuns {
     }
 
     /// A run of `mode` on the aberrated capture into `run_dir`.
-    fn run(&self, aberrated: &std::path::Path, run_dir: PathBuf, mode: Mode) -> RunRequest {
+    pub(super) fn run(
+        &self,
+        aberrated: &std::path::Path,
+        run_dir: PathBuf,
+        mode: Mode,
+    ) -> RunRequest {
         let (resume, overwrite) = match (
             self.resume,
             run_dir.join(metasplat::outputs::CHECKPOINT_FILE).exists(),

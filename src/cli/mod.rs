@@ -8,6 +8,7 @@ mod experiment;
 mod export;
 mod progress;
 mod psf;
+mod psf_mismatch;
 mod render;
 mod restorer;
 mod scene;

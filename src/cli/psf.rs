@@ -72,6 +72,18 @@ pub struct LensArgs {
     /// Sub-samples per pixel side when integrating the focal plane.
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(1..=16))]
     pub supersample: u64,
+    /// The lens design scaled to this many times its focal length at the same aperture (its
+    /// phase scaled inversely, the sensor at the new focal plane): a lens that came out a
+    /// little off.
+    #[arg(long, default_value_t = 1.0, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
+    pub focal_scale: f64,
+    /// The sensor this far behind the focal plane (µm; negative: in front): defocus.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub sensor_offset_um: f64,
+    /// Every PSF turned by this angle about its centre (degrees): a calibration rotated
+    /// against the sensor.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub rotation_deg: f64,
 }
 
 impl LensArgs {
@@ -83,6 +95,8 @@ impl LensArgs {
             sensor_pitch_um: self.sensor_pitch_um,
             max_field_deg: self.max_field_deg,
             supersample: self.supersample as usize,
+            sensor_offset_um: self.sensor_offset_um,
+            rotation_deg: self.rotation_deg,
             ..SimConfig::default()
         };
         cfg.lens.aperture_um = self.aperture_um;
@@ -101,6 +115,7 @@ impl LensArgs {
             },
             DispersionArg::None => Dispersion::None,
         };
+        cfg.lens = cfg.lens.with_focal_scale(self.focal_scale);
         cfg
     }
 }

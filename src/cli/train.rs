@@ -138,6 +138,12 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
                     }
                     (None, _) => println!("lambda {lambda} for L(render, I_ac)"),
                 }
+                if let Some(r) = &config.refine_psf {
+                    println!(
+                        "The PSF grid is refined with the splats from step {} on, every {} steps (learning rate {}, pull towards the supplied grid {}, smoothness across cells {}).",
+                        r.from, r.every, r.lr, r.anchor, r.smooth
+                    );
+                }
             }
         }
         let masked = data.train.iter().filter(|v| v.mask.is_some()).count();
@@ -281,6 +287,14 @@ fn print_summary(dir: &Path, s: &RunSummary, outcome: &train::Outcome) {
         outcome.final_pruned,
         dir.join(outputs::PLY_FILE).display()
     );
+    if let Some(change) = s.psf_change {
+        println!(
+            "The refined PSF grid moved {:.2} % from the supplied one (mean over grid cells of the relative L2 distance): {} and {} (supplied above, refined below).",
+            100.0 * change,
+            dir.join(outputs::PSF_REFINED_FILE).display(),
+            dir.join(outputs::PSF_REFINED_PICTURE).display()
+        );
+    }
 }
 
 fn size(bytes: u64) -> String {

@@ -30,6 +30,7 @@ fn imaging_settings(
     dir: &Path,
     capture: &Capture,
     user_psf: Option<&Path>,
+    assumed: Option<&Path>,
 ) -> Result<Option<ImagingSettings>> {
     let record = AberrationRecord::read(dir)?;
     let (w, h) = (capture.cameras[0].width, capture.cameras[0].height);
@@ -95,6 +96,10 @@ fn imaging_settings(
         (Some(p), None) | (None, Some(p)) => p,
         (None, None) => return Ok(None),
     };
+    let psf = match assumed {
+        Some(path) => load_psf(path)?,
+        None => psf,
+    };
     let (mode, sensor, noise) = match &record {
         Some(r) => (
             r.blur_mode(&dir.join(aberrated::RECORD_FILE))?,
@@ -135,6 +140,8 @@ pub struct CaptureModel {
     network: Option<OpenedRestorer>,
     /// Names cached `I_ac` images (None without a restorer).
     keyer: Option<crate::train::iac_cache::Keyer>,
+    /// The model `I_ac` is restored through when it is not [`Self::imaging`].
+    restoring: Option<ImagingModel>,
 }
 
 impl CaptureModel {
@@ -171,7 +178,12 @@ impl CaptureModel {
                 ),
             ));
         }
-        let settings = imaging_settings(dir, &capture, options.psf.as_deref())?;
+        let settings = imaging_settings(
+            dir,
+            &capture,
+            options.psf.as_deref(),
+            options.assumed_psf.as_deref(),
+        )?;
         let imaging = match &settings {
             Some((psf, blur, sensor, noise)) => Some(
                 ImagingModel::new(psf, width as usize, height as usize, *blur, *sensor, *noise)
@@ -184,8 +196,34 @@ impl CaptureModel {
             ),
             None => None,
         };
-        let (network, restorer_note) = match (&settings, &imaging, with_restorer) {
-            (Some((psf, ..)), Some(model), true) => {
+        // `I_ac` through another grid than the blur's (the mis-calibration experiment).
+        let restoring = match (&options.restorer_psf, &settings) {
+            (Some(path), Some((_, blur, sensor, noise))) => {
+                let native = load_psf(path)?;
+                let model = ImagingModel::new(
+                    &native,
+                    width as usize,
+                    height as usize,
+                    *blur,
+                    *sensor,
+                    *noise,
+                )
+                .map_err(|e| {
+                    TrainError::file(
+                        path,
+                        format!("PSF grid does not fit {width}x{height} images: {e}"),
+                    )
+                })?;
+                Some((native, model))
+            }
+            _ => None,
+        };
+        let restorer_grid = restoring
+            .as_ref()
+            .map(|(native, model)| (native, model))
+            .or(settings.as_ref().map(|s| &s.0).zip(imaging.as_ref()));
+        let (network, restorer_note) = match (restorer_grid, with_restorer) {
+            (Some((psf, model)), true) => {
                 open_restorer(&options.restorer, psf, model.psf().size()).map_err(|e| {
                     // A weights file's error is the flag's, not the capture's.
                     match &options.restorer {
@@ -198,6 +236,7 @@ impl CaptureModel {
             }
             _ => (None, None),
         };
+        let restoring = restoring.map(|(_, model)| model);
         let restorer = (with_restorer && imaging.is_some()).then(|| match &network {
             Some((r, source)) => IacSource::Network {
                 config: r.config().name.clone(),
@@ -206,7 +245,7 @@ impl CaptureModel {
             },
             None => IacSource::Wiener,
         });
-        let keyer = match (&restorer, &imaging) {
+        let keyer = match (&restorer, restoring.as_ref().or(imaging.as_ref())) {
             (Some(r), Some(m)) => Some(crate::train::iac_cache::Keyer::new(&r.identity(), m.psf())),
             _ => None,
         };
@@ -219,6 +258,7 @@ impl CaptureModel {
             restorer_note,
             network,
             keyer,
+            restoring,
         })
     }
 
@@ -259,7 +299,10 @@ impl CaptureModel {
     /// `I_ac` for an observed image: the restorer's output, or None when no restorer was
     /// asked for or the capture has no PSF grid.
     pub fn restore(&self, observed: &[Vec3]) -> Result<Option<Vec<Vec3>>> {
-        let (Some(_), Some(model)) = (&self.restorer, &self.imaging) else {
+        let (Some(_), Some(model)) = (
+            &self.restorer,
+            self.restoring.as_ref().or(self.imaging.as_ref()),
+        ) else {
             return Ok(None);
         };
         let blurred = pixels_to_image(observed, self.width, self.height);

@@ -16,7 +16,9 @@ use crate::error::{Result, TrainError};
 use crate::train::LogRow;
 use crate::train::config::TrainConfig;
 use crate::train::densify::DensifyState;
+use crate::train::psf_refine::PsfRefinement;
 use crate::train::sh::ShState;
+use aberration::refine::RefineState;
 
 /// Version 2 ends with the FNV-1a checksum of everything before it; version 1 (no checksum)
 /// still loads.
@@ -33,11 +35,17 @@ struct Header {
     splats: usize,
     sh_degree: u32,
     adam_step: u64,
+    /// Values of the PSF grid being refined (`--refine-psf`; 0: none), and its steps; the
+    /// logits and their two Adam moments follow the other arrays.
+    #[serde(default)]
+    psf_values: usize,
+    #[serde(default)]
+    psf_steps: u64,
 }
 
 /// The loop's state between two steps, but for the model and its optimiser (which the
 /// trainer holds).
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct Progress {
     pub step: u64,
     /// Training time so far (evaluation and checkpoint writing excluded).
@@ -45,6 +53,8 @@ pub struct Progress {
     pub densify: DensifyState,
     pub sh: ShState,
     pub log: Vec<LogRow>,
+    /// The PSF grid being refined (`--refine-psf`).
+    pub psf: Option<PsfRefinement>,
 }
 
 /// A checkpoint read back: the run's config, its progress, the model and its optimiser.
@@ -53,6 +63,9 @@ pub struct State {
     pub progress: Progress,
     pub model: Gaussians,
     pub adam: Adam,
+    /// The refinement's state (`--refine-psf`), for [`PsfRefinement::new`] to continue with
+    /// the capture's grid.
+    pub psf: Option<RefineState>,
 }
 
 fn put_f32s(out: &mut Vec<u8>, v: impl IntoIterator<Item = f32>) {
@@ -87,6 +100,8 @@ pub fn save(
         splats: model.len(),
         sh_degree: model.sh_degree,
         adam_step: adam.steps_taken(),
+        psf_values: p.psf.as_ref().map_or(0, |r| r.state().logits.len()),
+        psf_steps: p.psf.as_ref().map_or(0, |r| r.state().steps),
     };
     let json = serde_json::to_vec(&header).map_err(|e| TrainError::file(path, e.to_string()))?;
     let mut out = Vec::with_capacity(model.param_bytes() * 3 + json.len() + 64);
@@ -104,6 +119,12 @@ pub fn save(
     }
     put_f32s(&mut out, st.max_radius.iter().copied());
     out.extend(p.densify.seen.iter().map(|&b| b as u8));
+    if let Some(r) = &p.psf {
+        let st = r.state();
+        for v in [&st.logits, &st.m, &st.v] {
+            put_f32s(&mut out, v.iter().copied());
+        }
+    }
     let sum = base::hash::fnv1a64(&out);
     out.extend_from_slice(&sum.to_le_bytes());
 
@@ -243,6 +264,17 @@ pub fn load(path: &Path) -> Result<State> {
         .collect();
     let max_radius = r.f32s(n, "densification statistics")?;
     let seen = r.take(n, "visibility")?.iter().map(|&b| b != 0).collect();
+    let psf = if h.psf_values > 0 {
+        let what = "the refined PSF grid";
+        Some(RefineState {
+            logits: r.f32s(h.psf_values, what)?,
+            m: r.f32s(h.psf_values, what)?,
+            v: r.f32s(h.psf_values, what)?,
+            steps: h.psf_steps,
+        })
+    } else {
+        None
+    };
     if r.at != r.bytes.len() {
         return Err(TrainError::file(
             path,
@@ -269,8 +301,10 @@ pub fn load(path: &Path) -> Result<State> {
             densify,
             sh: h.sh,
             log: h.log,
+            psf: None,
         },
         model,
         adam,
+        psf,
     })
 }

@@ -8,6 +8,7 @@ pub use crate::settings::Mode;
 use crate::settings::{Background, LambdaFade, StrategyChoice, Toggle, TrainSettings};
 use crate::train::data::Dataset;
 use crate::train::iac::IacSource;
+use crate::train::psf_refine::PsfRefineConfig;
 
 /// The 3DGS schedule (INRIA defaults at 30k steps) and thresholds.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -209,6 +210,9 @@ pub struct TrainConfig {
     /// Steps after which the splats are kept as they are then (`--save-at`), ascending.
     #[serde(default)]
     pub save_at: Vec<u64>,
+    /// The PSF grid learnt with the splats (`--refine-psf`, aware mode).
+    #[serde(default)]
+    pub refine_psf: Option<PsfRefineConfig>,
 }
 
 /// The capture a run trains on, in a sentence ending in a hash of its cameras (names, sizes,
@@ -417,6 +421,10 @@ impl TrainConfig {
                 _ => 0,
             },
             capture: Some(capture_fingerprint(data)),
+            refine_psf: settings
+                .refine_psf
+                .filter(|_| settings.mode == Mode::Aware)
+                .map(|m| PsfRefineConfig::for_iters(iters, m)),
             save_at: {
                 let mut at = settings.save_at.clone();
                 at.sort_unstable();

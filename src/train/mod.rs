@@ -11,6 +11,7 @@ pub mod eval;
 pub mod iac;
 pub mod iac_cache;
 pub mod objective;
+pub mod psf_refine;
 pub mod sh;
 
 use std::path::Path;
@@ -31,6 +32,7 @@ use data::Dataset;
 use densify::{DensifyStrategy, Edit, Mcmc, Unseen};
 use eval::Metrics;
 use objective::{LossParts, Objective};
+use psf_refine::PsfRefinement;
 use sh::{ShEvent, ShSchedule, ShState};
 
 /// One line of `train_log.csv`.
@@ -97,6 +99,8 @@ pub struct Outcome {
     pub final_pruned: usize,
     pub sh_events: Vec<ShEvent>,
     pub resumed_from: Option<u64>,
+    /// With `--refine-psf`: the supplied grid and the refined one, at the image's scale.
+    pub psf: Option<(aberration::PsfGrid, aberration::PsfGrid)>,
 }
 
 /// View `step` visits: a fresh seeded permutation of the training views each epoch.
@@ -178,9 +182,11 @@ fn fresh_start(config: &TrainConfig, data: &Dataset, densify: &DensifyStrategy) 
             densify: densify.initialize_state(model.len()),
             sh: ShState::default(),
             log: Vec::new(),
+            psf: None,
         },
         adam: Adam::new(&model),
         model,
+        psf: None,
     })
 }
 
@@ -246,10 +252,12 @@ impl<'a> Run<'a> {
         }
     }
 
-    /// The objective step `step` minimises (λ may fade).
-    fn objective_at(&self, step: u64) -> Objective<'a> {
+    /// The objective step `step` minimises (λ may fade), through the PSF grid as refined so
+    /// far when it is.
+    fn objective_at<'b>(&'b self, step: u64, psf: Option<&'b PsfRefinement>) -> Objective<'b> {
         Objective {
             lambda: self.config.lambda_at(step),
+            imaging: psf.map(PsfRefinement::imaging).or(self.objective.imaging),
             ..self.objective
         }
     }
@@ -264,8 +272,12 @@ impl<'a> Run<'a> {
 
     /// What an SH band is judged on after `step` steps: the mean loss of the probe views
     /// rendered with `degree` bands, under the objective the next step minimises.
-    fn band_loss(&self, step: u64) -> impl FnMut(&Gaussians, u32) -> Result<f64> + '_ {
-        let objective = self.objective_at(step);
+    fn band_loss<'b>(
+        &'b self,
+        step: u64,
+        psf: Option<&'b PsfRefinement>,
+    ) -> impl FnMut(&Gaussians, u32) -> Result<f64> + 'b {
+        let objective = self.objective_at(step, psf);
         move |model, degree| {
             let mut sum = 0.0;
             for &i in &self.probe {
@@ -293,7 +305,13 @@ impl<'a> Run<'a> {
             ))
         };
         let (out, saved) = t.render(&view.camera, &self.settings(t.sh_degree()))?;
-        let (parts, v) = self.objective_at(p.step).evaluate(&out.color, view)?;
+        let refine_now = self
+            .config
+            .refine_psf
+            .is_some_and(|r| p.psf.is_some() && r.updates_at(p.step));
+        let (parts, v, psf_gradient) = self
+            .objective_at(p.step, p.psf.as_ref())
+            .evaluate_with_psf(&out.color, view, refine_now)?;
         if !parts.total.is_finite() {
             return Err(at(
                 "the loss",
@@ -326,6 +344,9 @@ impl<'a> Run<'a> {
                 "a learning rate too large for the scene is the likely cause",
             ));
         }
+        if let (Some(g), Some(psf)) = (psf_gradient, p.psf.as_mut()) {
+            tracing::info_span!("PSF update").in_scope(|| psf.update(&g))?;
+        }
         let _span = tracing::info_span!("densification statistics").entered();
         self.densify
             .after_backward(&mut p.densify, p.step, &report.means2d, &out);
@@ -347,10 +368,13 @@ impl<'a> Run<'a> {
         // every band would look worthless.
         if self.sh.acts_at(&p.sh, step) {
             let (model, adam) = t.host_mut()?;
-            for event in
-                self.sh
-                    .after_step(&mut p.sh, step, model, adam, &mut self.band_loss(step))?
-            {
+            for event in self.sh.after_step(
+                &mut p.sh,
+                step,
+                model,
+                adam,
+                &mut self.band_loss(step, p.psf.as_ref()),
+            )? {
                 sh_events.push(event);
                 on_event(Event::Sh { step, event });
             }
@@ -481,10 +505,12 @@ impl<'a> Run<'a> {
         let (mut model, mut adam) = t.into_host()?;
         let final_pruned = self.densify.finish(&mut p.densify, &mut model, &mut adam)?;
         let step = p.step;
-        for event in self
-            .sh
-            .finish(&mut p.sh, &mut model, &mut adam, &mut self.band_loss(step))?
-        {
+        for event in self.sh.finish(
+            &mut p.sh,
+            &mut model,
+            &mut adam,
+            &mut self.band_loss(step, p.psf.as_ref()),
+        )? {
             sh_events.push(event);
             on_event(Event::Sh { step, event });
         }
@@ -520,16 +546,27 @@ pub fn train(
         _ => (fresh_start(config, data, &run.densify)?, None),
     };
     let State {
-        progress,
+        mut progress,
         model,
         adam,
+        psf,
         ..
     } = start;
+    if let Some(refine) = &config.refine_psf {
+        let supplied = data.imaging.as_ref().ok_or_else(|| {
+            TrainError::Invalid("--refine-psf needs the capture's PSF grid (aware mode)".into())
+        })?;
+        progress.psf = Some(PsfRefinement::new(refine, supplied, psf)?);
+    }
     let (model, progress, sh_events, final_pruned) = match device {
         Device::Cpu => run.train(CpuTrainer::new(model, adam)?, progress, on_event)?,
         Device::Gpu(gpu) => run.train(GpuTrainer::new(gpu, model, adam)?, progress, on_event)?,
     };
     Ok(Outcome {
+        psf: progress
+            .psf
+            .as_ref()
+            .map(|r| (r.supplied().clone(), r.current().clone())),
         settings: run.settings(model.sh_degree),
         model,
         log: progress.log,

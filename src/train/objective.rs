@@ -137,6 +137,19 @@ impl Objective<'_> {
     /// Loss and `∂loss/∂rendered`. Its stages are `tracing` spans ("PSF blur", "loss", "blur
     /// adjoint"), which `metasplat bench step` times.
     pub fn evaluate(&self, rendered: &[Vec3], view: &View) -> Result<(LossParts, Vec<Vec3>)> {
+        let (parts, grad, _) = self.evaluate_with_psf(rendered, view, false)?;
+        Ok((parts, grad))
+    }
+
+    /// [`Self::evaluate`], with (when `psf_gradient` and in aware mode) `∂loss/∂PSF` too, in
+    /// the layout of [`aberration::PsfGrid::planar`] at the image's scale: only `L_abr` sees
+    /// the PSF. Its stage is the span "PSF gradient".
+    pub fn evaluate_with_psf(
+        &self,
+        rendered: &[Vec3],
+        view: &View,
+        psf_gradient: bool,
+    ) -> Result<(LossParts, Vec<Vec3>, Option<Vec<f32>>)> {
         let restored = || {
             view.restored.as_deref().ok_or_else(|| {
                 TrainError::Invalid(format!("view {} has no restored image", view.name))
@@ -158,6 +171,7 @@ impl Objective<'_> {
                         psnr: p,
                     },
                     g,
+                    None,
                 ))
             }
             Mode::Aware => {
@@ -168,6 +182,18 @@ impl Objective<'_> {
                 let g_abr = tracing::info_span!("blur adjoint").in_scope(|| -> Result<_> {
                     Ok(self.blur()?.plan().adjoint_pixels(&g_blurred)?)
                 })?;
+                let g_psf = if psf_gradient {
+                    Some(
+                        tracing::info_span!("PSF gradient").in_scope(|| -> Result<_> {
+                            Ok(self
+                                .blur()?
+                                .plan()
+                                .psf_gradient_pixels(rendered, &g_blurred)?)
+                        })?,
+                    )
+                } else {
+                    None
+                };
                 let (v_ac, g_ac) = tracing::info_span!("loss").in_scope(|| {
                     if self.lambda != 0.0 {
                         self.term_without_psnr(rendered, restored()?, view.mask.as_deref())
@@ -187,7 +213,7 @@ impl Objective<'_> {
                     restored: Some(v_ac),
                     psnr: p,
                 };
-                Ok((parts, grad))
+                Ok((parts, grad, g_psf))
             }
         }
     }

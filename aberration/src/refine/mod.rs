@@ -12,6 +12,8 @@
 //! Both are relative to the supplied kernels' energy, so their weights do not depend on the
 //! PSF size. The logits take Adam steps of their own learning rate.
 
+pub mod warp;
+
 use crate::error::{AberrationError, Result};
 use crate::psf_grid::PsfGrid;
 use rayon::prelude::*;
@@ -112,7 +114,14 @@ impl PsfRefiner {
             .chunks(kk)
             .map(|k| k.iter().map(|v| (*v as f64).powi(2)).sum::<f64>())
             .collect();
-        let current = softmax_grid(&supplied, &state.logits)?;
+        // Before the first step the grid is the supplied one bit for bit (the softmax of its
+        // logarithm rounds a little differently), so a run whose PSF is not yet freed blurs
+        // exactly as one that never refines.
+        let current = if state.steps == 0 {
+            supplied.clone()
+        } else {
+            softmax_grid(&supplied, &state.logits)?
+        };
         Ok(Self {
             settings,
             supplied,
@@ -216,11 +225,13 @@ impl PsfRefiner {
                 r.map(move |j| h[j] * (total(j) - mean as f32))
             })
             .collect();
-        self.state.steps += 1;
-        let t = self.state.steps as i32;
+        // The step is made on a copy and kept only when every value stays finite: a gradient
+        // whose square overflows would leave moments no later step recovers from.
+        let mut s = self.state.clone();
+        s.steps += 1;
+        let t = s.steps.min(i32::MAX as u64) as i32;
         let (c1, c2) = (1.0 - BETA1.powi(t), 1.0 - BETA2.powi(t));
         let lr = self.settings.lr;
-        let s = &mut self.state;
         s.logits
             .par_iter_mut()
             .zip(s.m.par_iter_mut().zip(s.v.par_iter_mut()))
@@ -230,7 +241,18 @@ impl PsfRefiner {
                 *v = BETA2 * *v + (1.0 - BETA2) * g * g;
                 *x -= lr * (*m / c1) / ((*v / c2).sqrt() + EPS);
             });
-        let next = softmax_grid(&self.supplied, &self.state.logits)?;
+        if s.logits
+            .iter()
+            .chain(&s.m)
+            .chain(&s.v)
+            .any(|v| !v.is_finite())
+        {
+            return Err(AberrationError::BadParameter(
+                "the PSF gradient is too large to take a step with (its square overflows)".into(),
+            ));
+        }
+        let next = softmax_grid(&self.supplied, &s.logits)?;
+        self.state = s;
         let largest_change = next
             .planar()
             .chunks(kk)

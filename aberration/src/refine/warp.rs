@@ -1,0 +1,258 @@
+//! A low-dimensional correction of a PSF grid: every supplied PSF scaled about its centre
+//! by a factor per channel that varies quadratically over the field, and the whole grid turned
+//! by one angle.
+//!
+//! The errors a calibration makes most (a focal length or a sensor distance a little off,
+//! lasers at other wavelengths than the design's, a rig rotated against the sensor) change a
+//! metalens PSF mostly in size, differently per colour, and in orientation. Seven numbers
+//! describe that: per channel `c` the scale `exp(a_c + b_c·ρ²)` at normalised field radius
+//! `ρ` (corners at 1), and the angle. Being few, they cannot take up scene detail, and every
+//! view's every pixel constrains them; they cannot correct a PSF's shape beyond size and
+//! orientation, which the free-form refiner ([`super::PsfRefiner`]) can.
+//!
+//! The gradient with respect to the parameters is the PSF-value gradient pushed through the
+//! warp by central differences (the warp is cheap: a bilinear resampling of every kernel).
+
+use super::{BETA1, BETA2, EPS, RefineReport, RefineState};
+use crate::error::{AberrationError, Result};
+use crate::psf_grid::PsfGrid;
+use rayon::prelude::*;
+
+/// Parameters: `a_R a_G a_B b_R b_G b_B angle` (log-scales and radians).
+pub const PARAMS: usize = 7;
+
+/// Step of the central differences through the warp.
+const DELTA: f64 = 1e-3;
+
+/// `supplied` warped by `p` (see the module documentation), each kernel renormalised.
+pub fn warp_grid(supplied: &PsfGrid, p: &[f64]) -> Result<PsfGrid> {
+    if p.len() != PARAMS || p.iter().any(|v| !v.is_finite()) {
+        return Err(AberrationError::BadParameter(format!(
+            "a PSF warp takes {PARAMS} finite parameters, not {p:?}"
+        )));
+    }
+    let (g, k) = (supplied.grid(), supplied.size());
+    let kk = k * k;
+    let c = (k / 2) as f64;
+    let (sin, cos) = p[6].sin_cos();
+    let data: Vec<f32> = (0..g * g * 3)
+        .into_par_iter()
+        .flat_map_iter(|idx| {
+            let (gi, ch) = (idx / 3, idx % 3);
+            let rho2 = field_radius2(gi / g, gi % g, g);
+            let s = (p[ch] + p[3 + ch] * rho2).exp();
+            let src = supplied.kernel(gi, ch);
+            let sample = |y: f64, x: f64| -> f64 {
+                let (y0, x0) = (y.floor(), x.floor());
+                let (fy, fx) = (y - y0, x - x0);
+                let at = |yy: f64, xx: f64| -> f64 {
+                    if yy < 0.0 || xx < 0.0 || yy >= k as f64 || xx >= k as f64 {
+                        0.0
+                    } else {
+                        src[yy as usize * k + xx as usize] as f64
+                    }
+                };
+                at(y0, x0) * (1.0 - fy) * (1.0 - fx)
+                    + at(y0, x0 + 1.0) * (1.0 - fy) * fx
+                    + at(y0 + 1.0, x0) * fy * (1.0 - fx)
+                    + at(y0 + 1.0, x0 + 1.0) * fy * fx
+            };
+            let mut out = vec![0.0f64; kk];
+            for y in 0..k {
+                for x in 0..k {
+                    // The output pixel's offset, turned back and shrunk onto the source.
+                    let (dy, dx) = (y as f64 - c, x as f64 - c);
+                    let (ry, rx) = ((dy * cos - dx * sin) / s, (dy * sin + dx * cos) / s);
+                    out[y * k + x] = sample(c + ry, c + rx);
+                }
+            }
+            let sum: f64 = out.iter().sum();
+            // A warp that leaves nothing of the kernel in the crop keeps the kernel.
+            let ok = sum > 1e-12;
+            out.into_iter()
+                .enumerate()
+                .map(move |(i, v)| if ok { (v / sum) as f32 } else { src[i] })
+        })
+        .collect();
+    PsfGrid::from_planar(g, k, data)
+}
+
+/// `ρ²` of grid point (row i, column j): 0 at the centre, 1 at the corners.
+fn field_radius2(i: usize, j: usize, g: usize) -> f64 {
+    if g < 2 {
+        return 0.0;
+    }
+    let (u, v) = (
+        (2 * j) as f64 / (g - 1) as f64 - 1.0,
+        (2 * i) as f64 / (g - 1) as f64 - 1.0,
+    );
+    (u * u + v * v) / 2.0
+}
+
+/// Refines the seven warp parameters with Adam from the PSF-value gradient.
+pub struct WarpRefiner {
+    supplied: PsfGrid,
+    lr: f32,
+    /// Weight of `Σ p²`: keeps the warp near identity when the photos do not ask for more.
+    anchor: f32,
+    state: RefineState,
+    current: PsfGrid,
+}
+
+impl WarpRefiner {
+    pub fn new(supplied: PsfGrid, lr: f32, anchor: f32) -> Result<Self> {
+        let state = RefineState {
+            logits: vec![0.0; PARAMS],
+            m: vec![0.0; PARAMS],
+            v: vec![0.0; PARAMS],
+            steps: 0,
+        };
+        Self::resume(supplied, lr, anchor, state)
+    }
+
+    pub fn resume(supplied: PsfGrid, lr: f32, anchor: f32, state: RefineState) -> Result<Self> {
+        if !(lr.is_finite() && lr > 0.0 && anchor.is_finite() && anchor >= 0.0) {
+            return Err(AberrationError::BadParameter(format!(
+                "PSF warp refinement needs a positive learning rate and a non-negative anchor (lr {lr}, anchor {anchor})"
+            )));
+        }
+        if state.logits.len() != PARAMS || state.m.len() != PARAMS || state.v.len() != PARAMS {
+            return Err(AberrationError::BadParameter(format!(
+                "a PSF warp state has {PARAMS} parameters, not {}",
+                state.logits.len()
+            )));
+        }
+        if state
+            .logits
+            .iter()
+            .chain(&state.m)
+            .chain(&state.v)
+            .any(|v| !v.is_finite())
+        {
+            return Err(AberrationError::BadParameter(
+                "the refinement state holds a non-finite value".into(),
+            ));
+        }
+        let current = if state.steps == 0 {
+            supplied.clone()
+        } else {
+            warp_grid(&supplied, &params(&state))?
+        };
+        Ok(Self {
+            supplied,
+            lr,
+            anchor,
+            state,
+            current,
+        })
+    }
+
+    pub fn supplied(&self) -> &PsfGrid {
+        &self.supplied
+    }
+
+    pub fn current(&self) -> &PsfGrid {
+        &self.current
+    }
+
+    pub fn state(&self) -> &RefineState {
+        &self.state
+    }
+
+    /// The parameters now: `a_R a_G a_B b_R b_G b_B angle`.
+    pub fn params(&self) -> Vec<f64> {
+        params(&self.state)
+    }
+
+    /// The gradient of `⟨data_grad, warp(p)⟩` with respect to the parameters, by central
+    /// differences through the warp.
+    pub fn param_gradient(&self, data_grad: &[f32]) -> Result<Vec<f64>> {
+        let p = self.params();
+        (0..PARAMS)
+            .map(|i| {
+                let (mut up, mut down) = (p.clone(), p.clone());
+                up[i] += DELTA;
+                down[i] -= DELTA;
+                let (a, b) = (
+                    warp_grid(&self.supplied, &up)?,
+                    warp_grid(&self.supplied, &down)?,
+                );
+                let d: f64 = a
+                    .planar()
+                    .iter()
+                    .zip(b.planar())
+                    .zip(data_grad)
+                    .map(|((x, y), g)| (*x as f64 - *y as f64) * *g as f64)
+                    .sum();
+                Ok(d / (2.0 * DELTA))
+            })
+            .collect()
+    }
+
+    /// One Adam step on the parameters from the loss's gradient with respect to the PSF
+    /// values.
+    pub fn step(&mut self, data_grad: &[f32]) -> Result<RefineReport> {
+        let n = self.supplied.planar().len();
+        if data_grad.len() != n {
+            return Err(AberrationError::BadParameter(format!(
+                "a PSF gradient of {} values for a grid of {n}",
+                data_grad.len()
+            )));
+        }
+        if let Some(bad) = data_grad.iter().find(|v| !v.is_finite()) {
+            return Err(AberrationError::BadParameter(format!(
+                "the PSF gradient holds a non-finite value ({bad})"
+            )));
+        }
+        let p = self.params();
+        let penalty: f64 = self.anchor as f64 * p.iter().map(|v| v * v).sum::<f64>();
+        let mut grad = self.param_gradient(data_grad)?;
+        for (g, v) in grad.iter_mut().zip(&p) {
+            *g += 2.0 * self.anchor as f64 * v;
+        }
+        let mut s = self.state.clone();
+        s.steps += 1;
+        let t = s.steps.min(i32::MAX as u64) as i32;
+        let (c1, c2) = (1.0 - BETA1.powi(t), 1.0 - BETA2.powi(t));
+        for (((x, m), v), g) in s.logits.iter_mut().zip(&mut s.m).zip(&mut s.v).zip(&grad) {
+            let g = *g as f32;
+            *m = BETA1 * *m + (1.0 - BETA1) * g;
+            *v = BETA2 * *v + (1.0 - BETA2) * g * g;
+            *x -= self.lr * (*m / c1) / ((*v / c2).sqrt() + EPS);
+        }
+        if s.logits
+            .iter()
+            .chain(&s.m)
+            .chain(&s.v)
+            .any(|v| !v.is_finite())
+        {
+            return Err(AberrationError::BadParameter(
+                "the PSF gradient is too large to take a step with (its square overflows)".into(),
+            ));
+        }
+        let next = warp_grid(&self.supplied, &params(&s))?;
+        let kk = self.supplied.size() * self.supplied.size();
+        let largest_change = next
+            .planar()
+            .chunks(kk)
+            .zip(self.current.planar().chunks(kk))
+            .map(|(a, b)| {
+                let peak = b.iter().cloned().fold(f32::MIN_POSITIVE, f32::max);
+                a.iter()
+                    .zip(b)
+                    .map(|(x, y)| (x - y).abs() / peak)
+                    .fold(0.0, f32::max)
+            })
+            .fold(0.0, f32::max);
+        self.state = s;
+        self.current = next;
+        Ok(RefineReport {
+            penalty,
+            largest_change,
+        })
+    }
+}
+
+fn params(s: &RefineState) -> Vec<f64> {
+    s.logits.iter().map(|v| *v as f64).collect()
+}
