@@ -22,12 +22,15 @@ pub struct CaptureComparison {
     views: HashMap<usize, (View, Option<Vec<Vec3>>)>,
     /// A run's cache of `I_ac` to read from.
     cache: Option<PathBuf>,
+    /// The blur through a run's refined PSF grid (`train --refine-psf`).
+    refined: Option<aberration::ImagingModel>,
 }
 
 /// Panel names, in the order they are shown.
 pub const PHOTO: &str = "metalens photo";
 pub const RENDER: &str = "our render";
 pub const REBLURRED: &str = "render through the PSF";
+pub const REFINED: &str = "render through the refined PSF";
 pub const RESTORED: &str = "I_ac (restorer)";
 pub const CLEAN: &str = "clean";
 
@@ -38,7 +41,35 @@ impl CaptureComparison {
             model: CaptureModel::open(dir, options, true)?,
             views: HashMap::new(),
             cache: options.iac_cache.clone(),
+            refined: None,
         })
+    }
+
+    /// Also shows the render through the grid a run refined (its `psf_refined.npy`, at the
+    /// capture's image scale), beside the render through the capture's own.
+    pub fn with_refined_psf(&mut self, path: &Path) -> Result<()> {
+        let Some(model) = &self.model.imaging else {
+            return Err(crate::error::TrainError::file(
+                path,
+                "the capture has no PSF grid to compare a refined one with",
+            ));
+        };
+        let grid = aberration::PsfGrid::load_npy(path)?;
+        let here = model.psf();
+        if (grid.grid(), grid.size()) != (here.grid(), here.size()) {
+            return Err(crate::error::TrainError::file(
+                path,
+                format!(
+                    "a {g}x{g} grid of {} px PSFs; the capture's at its image size is {h}x{h} of {} px: the run was trained at another --downsample",
+                    grid.size(),
+                    here.size(),
+                    g = grid.grid(),
+                    h = here.grid()
+                ),
+            ));
+        }
+        self.refined = Some(model.with_psf(grid)?);
+        Ok(())
     }
 
     pub fn capture(&self) -> &scenes::Capture {
@@ -76,9 +107,16 @@ impl CaptureComparison {
             Some(m) => Some(m.blur_pixels(render)?),
             None => None,
         };
+        let refined = match &self.refined {
+            Some(m) => Some(m.blur_pixels(render)?),
+            None => None,
+        };
         let mut images: Vec<(&str, &[Vec3])> = vec![(PHOTO, &view.observed), (RENDER, render)];
         if let Some(b) = &reblurred {
             images.push((REBLURRED, b));
+        }
+        if let Some(b) = &refined {
+            images.push((REFINED, b));
         }
         if let Some(r) = restored {
             images.push((RESTORED, r));

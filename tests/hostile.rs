@@ -1812,6 +1812,42 @@ fn hostile_run_files() {
         // Optics that describe no imaging system: no light in the crop, or a flat PSF.
         ("--focal-um", simulating(&["--focal-um", "1e300"])),
         ("--focal-um", simulating(&["--focal-um", "1e-6"])),
+        // Mis-calibrated hardware that is no hardware.
+        (
+            "--sensor-offset-um",
+            simulating(&["--sensor-offset-um", "-2000"]),
+        ),
+        ("--rotation-deg", simulating(&["--rotation-deg", "inf"])),
+        ("--focal-scale", simulating(&["--focal-scale", "1e-6"])),
+        ("--focal-scale", simulating(&["--focal-scale", "-1"])),
+        ("--refine-psf", flagged("--refine-psf", "warp")),
+        ("--refine-psf", flagged("--refine-psf", "blind")),
+        (
+            "--errors",
+            args(&[
+                "experiment",
+                "psf-mismatch",
+                "--scene",
+                &s(&scene),
+                "--out",
+                &o,
+                "--errors",
+                "focal:0",
+            ]),
+        ),
+        (
+            "--errors",
+            args(&[
+                "experiment",
+                "psf-mismatch",
+                "--scene",
+                &s(&scene),
+                "--out",
+                &o,
+                "--errors",
+                "tilt:3",
+            ]),
+        ),
         (
             "--sensor-pitch-um",
             simulating(&["--sensor-pitch-um", "1e-9"]),

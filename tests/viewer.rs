@@ -16,7 +16,7 @@ use metasplat::settings::{self, DataOptions};
 use metasplat::train::config::Mode;
 use metasplat::train::data;
 use metasplat::train::objective::Objective;
-use metasplat::view::{CLEAN, CaptureComparison, PHOTO, REBLURRED, RENDER, RESTORED};
+use metasplat::view::{CLEAN, CaptureComparison, PHOTO, REBLURRED, REFINED, RENDER, RESTORED};
 
 const W: u32 = 128;
 const H: u32 = 96;
@@ -116,6 +116,38 @@ fn comparison_images_are_the_training_pipelines_pixels() {
     assert!(photo_vs_reblurred > get(REBLURRED).psnr_vs_clean.unwrap() + 3.0);
     // A render of the wrong size is refused, not compared.
     assert!(comparison.panels_for(index, &render[1..]).is_err());
+
+    // A run's refined grid adds the render through it, beside the one through the capture's.
+    let tmp = tempfile::tempdir().unwrap();
+    let supplied = dataset.imaging.as_ref().unwrap().psf();
+    let mut p = [0.0; aberration::refine::warp::PARAMS];
+    p[0] = 0.2;
+    let refined = aberration::refine::warp::warp_grid(supplied, &p).unwrap();
+    let path = tmp.path().join("psf_refined.npy");
+    refined.save_npy(&path).unwrap();
+    comparison.with_refined_psf(&path).unwrap();
+    let panels = comparison.panels_for(index, &render).unwrap();
+    let through = panels
+        .iter()
+        .find(|p| p.name == REFINED)
+        .expect("a refined panel");
+    let want = dataset
+        .imaging
+        .as_ref()
+        .unwrap()
+        .with_psf(refined)
+        .unwrap()
+        .blur_pixels(&render)
+        .unwrap();
+    assert_eq!(through.pixels, want);
+    assert_ne!(through.pixels, get(REBLURRED).pixels);
+    // A grid of another size (a run at another --downsample) is refused, naming the file.
+    aberration::PsfGrid::delta(3, 5).save_npy(&path).unwrap();
+    let err = comparison.with_refined_psf(&path).unwrap_err().to_string();
+    assert!(
+        err.contains("psf_refined.npy") && err.contains("--downsample"),
+        "{err}"
+    );
 }
 
 fn run(args: &[&str], display: Option<&str>) -> Output {

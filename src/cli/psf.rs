@@ -187,7 +187,7 @@ pub fn run(cmd: PsfCommand) -> Result<()> {
 
 fn check_lens(cfg: &SimConfig) -> Result<()> {
     cfg.validate().context(
-        "the lens flags (--grid, --size, --fft-size, --pitch-um, --sensor-pitch-um, --aperture-um, --focal-um) do not make a simulation",
+        "the lens flags (--grid, --size, --fft-size, --pitch-um, --sensor-pitch-um, --aperture-um, --focal-um, --focal-scale, --sensor-offset-um, --rotation-deg) do not make a simulation",
     )
 }
 

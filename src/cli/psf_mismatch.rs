@@ -78,20 +78,26 @@ impl std::str::FromStr for PsfError {
     }
 }
 
+/// As written on the command line (`focal:+3`), so that it parses back.
 impl std::fmt::Display for PsfError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Self::Focal(v) => write!(f, "focal{v:+}"),
+            Self::Focal(v) => write!(f, "focal:{v:+}"),
             Self::Lasers => write!(f, "lasers"),
-            Self::Defocus(v) => write!(f, "defocus{v:+}"),
-            Self::Rotate(v) => write!(f, "rotate{v}"),
-            Self::Noise(v) => write!(f, "noise{v}"),
-            Self::Pedestal(v) => write!(f, "pedestal{v}"),
+            Self::Defocus(v) => write!(f, "defocus:{v:+}"),
+            Self::Rotate(v) => write!(f, "rotate:{v}"),
+            Self::Noise(v) => write!(f, "noise:{v}"),
+            Self::Pedestal(v) => write!(f, "pedestal:{v}"),
         }
     }
 }
 
 impl PsfError {
+    /// The error in file and folder names (`focal+3`).
+    pub fn slug(&self) -> String {
+        self.to_string().replace(':', "")
+    }
+
     fn describe(&self) -> String {
         match self {
             Self::Focal(v) => format!("focal length {v:+} %"),
@@ -255,7 +261,7 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
     let cfg = SimConfig::default();
     let mut wrong_error = Vec::new();
     for e in &a.errors {
-        let path = grids.join(format!("{e}.npy"));
+        let path = grids.join(format!("{}.npy", e.slug()));
         if !path.exists() {
             println!("simulating the grid with {}", e.describe());
             e.grid(&cfg, &truth, a.seed)?.save_npy(&path)?;
@@ -326,13 +332,16 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
     };
     let mut results: Vec<Vec<Figures>> = Vec::new();
     for e in &a.errors {
-        let wrong = grids.join(format!("{e}.npy"));
+        let wrong = grids.join(format!("{}.npy", e.slug()));
         let mut row = Vec::new();
         for v in &a.variants {
             println!("training {e} ({}), {v}", e.describe());
             let dir = match v {
-                Variant::Refined => a.out.join(format!("run_{e}_refined-{}", a.refine_model)),
-                _ => a.out.join(format!("run_{e}_{v}")),
+                Variant::Refined => {
+                    a.out
+                        .join(format!("run_{}_refined-{}", e.slug(), a.refine_model))
+                }
+                _ => a.out.join(format!("run_{}_{v}", e.slug())),
             };
             let (assumed, iac) = match v {
                 Variant::Wrong | Variant::Refined => (Some(wrong.as_path()), None),
@@ -372,7 +381,7 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
     )?;
     writeln!(
         table,
-        "| | aware, true grid | restored, true grid |{} |",
+        "| | aware, true grid | restored, true grid |{}",
         matched_refined
             .as_ref()
             .map_or("", |_| " aware, true grid, refined |")
@@ -514,4 +523,37 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
     }
     println!("wrote {} and the plots beside it", table_path.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn errors_parse_back_from_what_they_print_and_bad_ones_say_why() {
+        for e in [
+            PsfError::Focal(-5.0),
+            PsfError::Focal(2.5),
+            PsfError::Lasers,
+            PsfError::Defocus(-2.0),
+            PsfError::Rotate(1.5),
+            PsfError::Noise(0.02),
+            PsfError::Pedestal(0.05),
+        ] {
+            assert_eq!(e.to_string().parse::<PsfError>(), Ok(e), "{e}");
+            assert!(!e.slug().contains(':'));
+        }
+        for (bad, says) in [
+            ("focal", "not a PSF error"),
+            ("focal:0", "out of range"),
+            ("focal:x", "not a number"),
+            ("defocus:inf", "not a number"),
+            ("noise:2", "out of range"),
+            ("pedestal:1", "out of range"),
+            ("tilt:1", "not a kind"),
+        ] {
+            let err = bad.parse::<PsfError>().unwrap_err();
+            assert!(err.contains(says), "{bad}: {err}");
+        }
+    }
 }

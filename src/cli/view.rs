@@ -124,10 +124,21 @@ pub fn run(mut a: ViewArgs) -> Result<()> {
                     .map(|r| r.join(metasplat::train::iac_cache::CACHE_DIR)),
                 ..Default::default()
             };
-            Some(
-                CaptureComparison::open(dir, &options)
-                    .with_context(|| format!("cannot open the scene {}", dir.display()))?,
-            )
+            let mut c = CaptureComparison::open(dir, &options)
+                .with_context(|| format!("cannot open the scene {}", dir.display()))?;
+            if let Some(path) = a
+                .run
+                .as_ref()
+                .map(|r| r.join(metasplat::outputs::PSF_REFINED_FILE))
+                .filter(|p| p.is_file())
+            {
+                c.with_refined_psf(&path)?;
+                println!(
+                    "The comparison also shows the render through the run's refined PSF grid ({}).",
+                    path.display()
+                );
+            }
+            Some(c)
         }
         None => None,
     };
