@@ -363,6 +363,18 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
                     &aberration::picture::psf_grids_picture(&[&supplied, &refined, &truth_here]),
                     &dir.join("psf_supplied_refined_true.png"),
                 )?;
+                let (before, after) = (
+                    aberration::refine::cell_errors(&supplied, &truth_here)?,
+                    aberration::refine::cell_errors(&refined, &truth_here)?,
+                );
+                let g = truth_here.grid();
+                let mut csv = String::from("row,column,supplied_error,refined_error\n");
+                for (i, (b, r)) in before.iter().zip(&after).enumerate() {
+                    writeln!(csv, "{},{},{b:.6},{r:.6}", i / g, i % g)?;
+                }
+                let path = dir.join("psf_cell_errors.csv");
+                base::write_bytes_atomically(&path, csv.as_bytes())
+                    .with_context(|| format!("cannot write {}", path.display()))?;
             }
             row.push(Figures::of(&s, err));
         }
