@@ -143,6 +143,9 @@ pub struct RunSummary {
     /// grid cells of the relative L2 distance).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub psf_change: Option<f64>,
+    /// With `--refine-psf warp`: the warp learnt.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub psf_warp: Option<crate::train::psf_refine::WarpSummary>,
 }
 
 /// Images side by side with a white gutter.
@@ -257,6 +260,7 @@ pub fn write_run(
     };
     let summary = RunSummary {
         psf_change,
+        psf_warp: outcome.psf_warp.clone(),
         mode: config.mode.to_string(),
         iters: config.iters,
         train_seconds: outcome.train_seconds,

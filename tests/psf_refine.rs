@@ -144,7 +144,7 @@ fn the_run_folder_holds_the_refined_grid_and_the_flag_needs_aware() {
         "--out",
         s(&run),
         "--iters",
-        "60",
+        "100",
         "--spiral",
         "0",
         "--refine-psf",
@@ -164,6 +164,17 @@ fn the_run_folder_holds_the_refined_grid_and_the_flag_needs_aware() {
         serde_json::from_slice(&std::fs::read(run.join(metasplat::outputs::METRICS_FILE)).unwrap())
             .unwrap();
     assert!(metrics["psf_change"].as_f64().is_some_and(|c| c > 0.0));
+    // The bare flag learns the warp, and says what it learnt.
+    let scales = metrics["psf_warp"]["scale_centre"]
+        .as_array()
+        .expect("a warp summary");
+    assert!(
+        scales
+            .iter()
+            .all(|v| v.as_f64().is_some_and(|s| s > 0.5 && s < 2.0))
+    );
+    assert!(metrics["psf_warp"]["rotation_deg"].as_f64().is_some());
+    assert!(out.contains("Learnt: PSF scale"), "{out}");
 
     for mode in ["plain", "restored"] {
         let err = fails(&[

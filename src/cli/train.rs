@@ -294,6 +294,9 @@ fn print_summary(dir: &Path, s: &RunSummary, outcome: &train::Outcome) {
             dir.join(outputs::PSF_REFINED_FILE).display(),
             dir.join(outputs::PSF_REFINED_PICTURE).display()
         );
+        if let Some(w) = &s.psf_warp {
+            println!("Learnt: {}.", w.sentence());
+        }
     }
 }
 

@@ -101,6 +101,8 @@ pub struct Outcome {
     pub resumed_from: Option<u64>,
     /// With `--refine-psf`: the supplied grid and the refined one, at the image's scale.
     pub psf: Option<(aberration::PsfGrid, aberration::PsfGrid)>,
+    /// With `--refine-psf warp`: the warp learnt.
+    pub psf_warp: Option<psf_refine::WarpSummary>,
 }
 
 /// View `step` visits: a fresh seeded permutation of the training views each epoch.
@@ -567,6 +569,11 @@ pub fn train(
             .psf
             .as_ref()
             .map(|r| (r.supplied().clone(), r.current().clone())),
+        psf_warp: progress
+            .psf
+            .as_ref()
+            .and_then(|r| r.warp_params())
+            .and_then(|p| psf_refine::WarpSummary::of(&p)),
         settings: run.settings(model.sh_degree),
         model,
         log: progress.log,

@@ -8,7 +8,7 @@
 //! taking up the scene's detail), and every view constrains the same grid.
 
 use aberration::refine::warp::WarpRefiner;
-use aberration::refine::{PsfRefiner, RefineReport, RefineSettings, RefineState};
+use aberration::refine::{PsfRefiner, RefineSettings, RefineState};
 use aberration::{ImagingModel, PsfGrid};
 use serde::{Deserialize, Serialize};
 
@@ -101,7 +101,6 @@ enum Refiner {
 pub struct PsfRefinement {
     refiner: Refiner,
     imaging: ImagingModel,
-    pub last: Option<RefineReport>,
 }
 
 impl std::fmt::Debug for PsfRefinement {
@@ -142,11 +141,7 @@ impl PsfRefinement {
             Refiner::Warp(r) => r.current(),
         };
         let imaging = supplied.with_psf(current.clone())?;
-        Ok(Self {
-            refiner,
-            imaging,
-            last: None,
-        })
+        Ok(Self { refiner, imaging })
     }
 
     /// The blur through the grid as refined so far.
@@ -186,13 +181,47 @@ impl PsfRefinement {
 
     /// One step from the loss's gradient with respect to the PSF values.
     pub fn update(&mut self, gradient: &[f32]) -> Result<()> {
-        let report = match &mut self.refiner {
+        match &mut self.refiner {
             Refiner::Free(r) => r.step(gradient),
             Refiner::Warp(r) => r.step(gradient),
         }
         .map_err(|e| TrainError::Invalid(format!("--refine-psf: {e}")))?;
         self.imaging.set_psf(self.current().clone())?;
-        self.last = Some(report);
         Ok(())
+    }
+}
+
+/// The warp a run learnt, as people read it (`metrics.json`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct WarpSummary {
+    /// Per colour (R, G, B), the scale of the PSFs at the centre of the field.
+    pub scale_centre: [f64; 3],
+    /// Per colour, the scale at the corners.
+    pub scale_corner: [f64; 3],
+    pub rotation_deg: f64,
+}
+
+impl WarpSummary {
+    pub fn of(p: &[f64]) -> Option<Self> {
+        (p.len() == aberration::refine::warp::PARAMS).then(|| Self {
+            scale_centre: std::array::from_fn(|c| p[c].exp()),
+            scale_corner: std::array::from_fn(|c| (p[c] + p[3 + c]).exp()),
+            rotation_deg: p[6].to_degrees(),
+        })
+    }
+
+    pub fn sentence(&self) -> String {
+        let f = |v: [f64; 3]| {
+            v.iter()
+                .map(|s| format!("{:+.1} %", 100.0 * (s - 1.0)))
+                .collect::<Vec<_>>()
+                .join(" / ")
+        };
+        format!(
+            "PSF scale (R / G / B) {} at the centre, {} at the corners, rotation {:+.2} degrees",
+            f(self.scale_centre),
+            f(self.scale_corner),
+            self.rotation_deg
+        )
     }
 }
