@@ -47,6 +47,95 @@ pub struct RefineState {
     pub steps: u64,
 }
 
+impl RefineState {
+    /// Refuses a state of another length than `n` or with a non-finite value.
+    fn check(&self, n: usize) -> Result<()> {
+        if self.logits.len() != n || self.m.len() != n || self.v.len() != n {
+            return Err(AberrationError::BadParameter(format!(
+                "a refinement state of {} values does not belong to a refinement of {n}",
+                self.logits.len()
+            )));
+        }
+        if self
+            .logits
+            .iter()
+            .chain(&self.m)
+            .chain(&self.v)
+            .any(|v| !v.is_finite())
+        {
+            return Err(AberrationError::BadParameter(
+                "the refinement state holds a non-finite value".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The state after one Adam step of `lr` on `grad`. It is made on a copy and returned
+    /// only when every value stays finite: a gradient whose square overflows would leave
+    /// moments no later step recovers from.
+    fn adam_step(&self, grad: &[f32], lr: f32) -> Result<Self> {
+        let mut s = self.clone();
+        s.steps += 1;
+        let t = s.steps.min(i32::MAX as u64) as i32;
+        let (c1, c2) = (1.0 - BETA1.powi(t), 1.0 - BETA2.powi(t));
+        s.logits
+            .par_iter_mut()
+            .zip(s.m.par_iter_mut().zip(s.v.par_iter_mut()))
+            .zip(grad)
+            .for_each(|((x, (m, v)), g)| {
+                *m = BETA1 * *m + (1.0 - BETA1) * g;
+                *v = BETA2 * *v + (1.0 - BETA2) * g * g;
+                *x -= lr * (*m / c1) / ((*v / c2).sqrt() + EPS);
+            });
+        if s.logits
+            .iter()
+            .chain(&s.m)
+            .chain(&s.v)
+            .any(|v| !v.is_finite())
+        {
+            return Err(AberrationError::BadParameter(
+                "the PSF gradient is too large to take a step with (its square overflows)".into(),
+            ));
+        }
+        Ok(s)
+    }
+}
+
+/// Refuses a PSF-value gradient of another length than the grid's `n` values, or with a
+/// non-finite value, before anything changes.
+fn check_gradient(data_grad: &[f32], n: usize) -> Result<()> {
+    if data_grad.len() != n {
+        return Err(AberrationError::BadParameter(format!(
+            "a PSF gradient of {} values for a grid of {n}",
+            data_grad.len()
+        )));
+    }
+    if let Some(bad) = data_grad.iter().find(|v| !v.is_finite()) {
+        return Err(AberrationError::BadParameter(format!(
+            "the PSF gradient holds a non-finite value ({bad})"
+        )));
+    }
+    Ok(())
+}
+
+/// The largest change of a PSF value between two grids of one shape, relative to its
+/// kernel's peak in `before`.
+fn largest_change(after: &PsfGrid, before: &PsfGrid) -> f32 {
+    let kk = before.size() * before.size();
+    after
+        .planar()
+        .chunks(kk)
+        .zip(before.planar().chunks(kk))
+        .map(|(a, b)| {
+            let peak = b.iter().cloned().fold(f32::MIN_POSITIVE, f32::max);
+            a.iter()
+                .zip(b)
+                .map(|(x, y)| (x - y).abs() / peak)
+                .fold(0.0, f32::max)
+        })
+        .fold(0.0, f32::max)
+}
+
 pub struct PsfRefiner {
     settings: RefineSettings,
     supplied: PsfGrid,
@@ -90,24 +179,7 @@ impl PsfRefiner {
     /// Continues from a saved state (of a refiner of the same grid and settings).
     pub fn resume(supplied: PsfGrid, settings: RefineSettings, state: RefineState) -> Result<Self> {
         check(&settings)?;
-        let n = supplied.planar().len();
-        if state.logits.len() != n || state.m.len() != n || state.v.len() != n {
-            return Err(AberrationError::BadParameter(format!(
-                "a refinement state of {} values does not belong to a grid of {n} PSF values",
-                state.logits.len()
-            )));
-        }
-        if state
-            .logits
-            .iter()
-            .chain(&state.m)
-            .chain(&state.v)
-            .any(|v| !v.is_finite())
-        {
-            return Err(AberrationError::BadParameter(
-                "the refinement state holds a non-finite value".into(),
-            ));
-        }
+        state.check(supplied.planar().len())?;
         let kk = supplied.size() * supplied.size();
         let energy = supplied
             .planar()
@@ -201,17 +273,7 @@ impl PsfRefiner {
     /// here. A non-finite gradient is refused before anything changes.
     pub fn step(&mut self, data_grad: &[f32]) -> Result<RefineReport> {
         let n = self.state.logits.len();
-        if data_grad.len() != n {
-            return Err(AberrationError::BadParameter(format!(
-                "a PSF gradient of {} values for a grid of {n}",
-                data_grad.len()
-            )));
-        }
-        if let Some(bad) = data_grad.iter().find(|v| !v.is_finite()) {
-            return Err(AberrationError::BadParameter(format!(
-                "the PSF gradient holds a non-finite value ({bad})"
-            )));
-        }
+        check_gradient(data_grad, n)?;
         let (penalty, reg) = self.penalty();
         let kk = self.supplied.size() * self.supplied.size();
         let h = self.current.planar();
@@ -225,46 +287,10 @@ impl PsfRefiner {
                 r.map(move |j| h[j] * (total(j) - mean as f32))
             })
             .collect();
-        // The step is made on a copy and kept only when every value stays finite: a gradient
-        // whose square overflows would leave moments no later step recovers from.
-        let mut s = self.state.clone();
-        s.steps += 1;
-        let t = s.steps.min(i32::MAX as u64) as i32;
-        let (c1, c2) = (1.0 - BETA1.powi(t), 1.0 - BETA2.powi(t));
-        let lr = self.settings.lr;
-        s.logits
-            .par_iter_mut()
-            .zip(s.m.par_iter_mut().zip(s.v.par_iter_mut()))
-            .zip(&logit_grad)
-            .for_each(|((x, (m, v)), g)| {
-                *m = BETA1 * *m + (1.0 - BETA1) * g;
-                *v = BETA2 * *v + (1.0 - BETA2) * g * g;
-                *x -= lr * (*m / c1) / ((*v / c2).sqrt() + EPS);
-            });
-        if s.logits
-            .iter()
-            .chain(&s.m)
-            .chain(&s.v)
-            .any(|v| !v.is_finite())
-        {
-            return Err(AberrationError::BadParameter(
-                "the PSF gradient is too large to take a step with (its square overflows)".into(),
-            ));
-        }
-        let next = softmax_grid(&self.supplied, &s.logits)?;
-        self.state = s;
-        let largest_change = next
-            .planar()
-            .chunks(kk)
-            .zip(self.current.planar().chunks(kk))
-            .map(|(a, b)| {
-                let peak = b.iter().cloned().fold(f32::MIN_POSITIVE, f32::max);
-                a.iter()
-                    .zip(b)
-                    .map(|(x, y)| (x - y).abs() / peak)
-                    .fold(0.0, f32::max)
-            })
-            .fold(0.0, f32::max);
+        let next_state = self.state.adam_step(&logit_grad, self.settings.lr)?;
+        let next = softmax_grid(&self.supplied, &next_state.logits)?;
+        self.state = next_state;
+        let largest_change = largest_change(&next, &self.current);
         self.current = next;
         Ok(RefineReport {
             penalty,

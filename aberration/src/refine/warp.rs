@@ -13,7 +13,7 @@
 //! The gradient with respect to the parameters is the PSF-value gradient pushed through the
 //! warp analytically in one pass (checked against central differences through the warp).
 
-use super::{BETA1, BETA2, EPS, RefineReport, RefineState};
+use super::{RefineReport, RefineState, check_gradient, largest_change};
 use crate::error::{AberrationError, Result};
 use crate::psf_grid::PsfGrid;
 use rayon::prelude::*;
@@ -116,23 +116,7 @@ impl WarpRefiner {
                 "PSF warp refinement needs a positive learning rate and a non-negative anchor (lr {lr}, anchor {anchor})"
             )));
         }
-        if state.logits.len() != PARAMS || state.m.len() != PARAMS || state.v.len() != PARAMS {
-            return Err(AberrationError::BadParameter(format!(
-                "a PSF warp state has {PARAMS} parameters, not {}",
-                state.logits.len()
-            )));
-        }
-        if state
-            .logits
-            .iter()
-            .chain(&state.m)
-            .chain(&state.v)
-            .any(|v| !v.is_finite())
-        {
-            return Err(AberrationError::BadParameter(
-                "the refinement state holds a non-finite value".into(),
-            ));
-        }
+        state.check(PARAMS)?;
         let current = if state.steps == 0 {
             supplied.clone()
         } else {
@@ -199,59 +183,18 @@ impl WarpRefiner {
     /// One Adam step on the parameters from the loss's gradient with respect to the PSF
     /// values.
     pub fn step(&mut self, data_grad: &[f32]) -> Result<RefineReport> {
-        let n = self.supplied.planar().len();
-        if data_grad.len() != n {
-            return Err(AberrationError::BadParameter(format!(
-                "a PSF gradient of {} values for a grid of {n}",
-                data_grad.len()
-            )));
-        }
-        if let Some(bad) = data_grad.iter().find(|v| !v.is_finite()) {
-            return Err(AberrationError::BadParameter(format!(
-                "the PSF gradient holds a non-finite value ({bad})"
-            )));
-        }
+        check_gradient(data_grad, self.supplied.planar().len())?;
         let p = self.params();
         let penalty: f64 = self.anchor as f64 * p.iter().map(|v| v * v).sum::<f64>();
-        let mut grad = param_gradient(&self.supplied, &p, data_grad)?;
-        for (g, v) in grad.iter_mut().zip(&p) {
-            *g += 2.0 * self.anchor as f64 * v;
-        }
-        let mut s = self.state.clone();
-        s.steps += 1;
-        let t = s.steps.min(i32::MAX as u64) as i32;
-        let (c1, c2) = (1.0 - BETA1.powi(t), 1.0 - BETA2.powi(t));
-        for (((x, m), v), g) in s.logits.iter_mut().zip(&mut s.m).zip(&mut s.v).zip(&grad) {
-            let g = *g as f32;
-            *m = BETA1 * *m + (1.0 - BETA1) * g;
-            *v = BETA2 * *v + (1.0 - BETA2) * g * g;
-            *x -= self.lr * (*m / c1) / ((*v / c2).sqrt() + EPS);
-        }
-        if s.logits
+        let grad: Vec<f32> = param_gradient(&self.supplied, &p, data_grad)?
             .iter()
-            .chain(&s.m)
-            .chain(&s.v)
-            .any(|v| !v.is_finite())
-        {
-            return Err(AberrationError::BadParameter(
-                "the PSF gradient is too large to take a step with (its square overflows)".into(),
-            ));
-        }
-        let next = warp_grid(&self.supplied, &params(&s))?;
-        let kk = self.supplied.size() * self.supplied.size();
-        let largest_change = next
-            .planar()
-            .chunks(kk)
-            .zip(self.current.planar().chunks(kk))
-            .map(|(a, b)| {
-                let peak = b.iter().cloned().fold(f32::MIN_POSITIVE, f32::max);
-                a.iter()
-                    .zip(b)
-                    .map(|(x, y)| (x - y).abs() / peak)
-                    .fold(0.0, f32::max)
-            })
-            .fold(0.0, f32::max);
-        self.state = s;
+            .zip(&p)
+            .map(|(g, v)| (g + 2.0 * self.anchor as f64 * v) as f32)
+            .collect();
+        let next_state = self.state.adam_step(&grad, self.lr)?;
+        let next = warp_grid(&self.supplied, &params(&next_state))?;
+        let largest_change = largest_change(&next, &self.current);
+        self.state = next_state;
         self.current = next;
         Ok(RefineReport {
             penalty,
