@@ -1224,6 +1224,31 @@ fn hostile_splat_files() {
             }),
         ),
         (
+            "GLB unused buffer view beyond the buffer",
+            edited(&|d| {
+                d["bufferViews"].as_array_mut().unwrap().push(
+                    serde_json::json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": 64}),
+                )
+            }),
+        ),
+        (
+            "GLB COLOR_0 accessor beyond its view",
+            edited(&|d| {
+                let a = d["meshes"][0]["primitives"][0]["attributes"]["COLOR_0"]
+                    .as_u64()
+                    .unwrap() as usize;
+                d["accessors"][a]["byteOffset"] = (1u64 << 40).into();
+            }),
+        ),
+        (
+            "GLB unused accessor of an unknown type",
+            edited(&|d| {
+                d["accessors"].as_array_mut().unwrap().push(
+                    serde_json::json!({"bufferView": 0, "componentType": 5126, "count": 1, "type": "VEC5"}),
+                )
+            }),
+        ),
+        (
             "GLB buffer longer than the chunk",
             edited(&|d| d["buffers"][0]["byteLength"] = (bin.len() + 64).into()),
         ),

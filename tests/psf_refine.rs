@@ -208,8 +208,6 @@ fn the_run_folder_holds_the_refined_grid_and_the_flag_needs_aware() {
 fn refining_wins_back_half_of_what_a_wrong_calibration_costs() {
     use aberration::optics::{SimConfig, simulate_grid};
     let tmp = tempfile::tempdir().unwrap();
-    let o = ProceduralOptions::default();
-    let clean = metasplat::procedural::write_capture(&tmp.path().join("clean"), &o).unwrap();
     let cfg = SimConfig::default();
     let (truth, _) = simulate_grid(&cfg, &|_, _| {}).unwrap();
     let wrong_cfg = SimConfig {
@@ -217,26 +215,10 @@ fn refining_wins_back_half_of_what_a_wrong_calibration_costs() {
         ..cfg
     };
     let (wrong, _) = simulate_grid(&wrong_cfg, &|_, _| {}).unwrap();
-    let (true_path, wrong_path) = (tmp.path().join("true.npy"), tmp.path().join("wrong.npy"));
-    truth.save_npy(&true_path).unwrap();
+    let wrong_path = tmp.path().join("wrong.npy");
     wrong.save_npy(&wrong_path).unwrap();
-    let capture = scenes::open(
-        &clean,
-        &scenes::OpenOptions {
-            resolution: scenes::Resolution::Downsample(1),
-            ..Default::default()
-        },
-    )
-    .unwrap();
-    let aberrated = tmp.path().join("aberrated");
-    scenes::make_aberrated(
-        &capture,
-        &true_path,
-        &aberrated,
-        &scenes::AberrateOptions::default(),
-        &|| {},
-    )
-    .unwrap();
+    let (_, aberrated, _) =
+        common::aberrated_procedural_through(tmp.path(), &ProceduralOptions::default(), &truth);
     let run = |assumed: Option<&std::path::Path>, refine: bool| {
         let options = DataOptions {
             downsample: 1,

@@ -13,8 +13,17 @@ use metasplat::procedural::{ProceduralOptions, write_capture};
 /// 21 px PSFs) to `dir/psf.npy` and aberrates the capture through it into `dir/aberrated`.
 /// Returns the clean capture, the aberrated one and the PSF file.
 pub fn aberrated_procedural(dir: &Path, o: &ProceduralOptions) -> (PathBuf, PathBuf, PathBuf) {
-    let clean = write_capture(&dir.join("clean"), o).unwrap();
     let (psf, _) = simulate_grid(&SimConfig::small(21), &|_, _| {}).unwrap();
+    aberrated_procedural_through(dir, o, &psf)
+}
+
+/// As [`aberrated_procedural`], through the grid `psf`.
+pub fn aberrated_procedural_through(
+    dir: &Path,
+    o: &ProceduralOptions,
+    psf: &aberration::PsfGrid,
+) -> (PathBuf, PathBuf, PathBuf) {
+    let clean = write_capture(&dir.join("clean"), o).unwrap();
     let psf_path = dir.join("psf.npy");
     psf.save_npy(&psf_path).unwrap();
     let capture = scenes::open(

@@ -466,22 +466,12 @@ impl Work {
     }
 }
 
-#[allow(clippy::too_many_arguments)]
-fn forward_term(
-    t: &Term,
-    ch: usize,
-    xp: &Padded,
-    c: isize,
-    y0: usize,
-    band: &mut [f32],
-    w: usize,
-    work: &mut Work,
-) {
-    let fft = &t.fft;
-    let (s, spec) = work.get(fft);
+/// The spectrum of a term's input: its rows of the padded image, weighted when the term
+/// blends. The forward blur and the PSF gradient read the same input.
+fn input_spectrum(t: &Term, xp: &Padded, spec: &mut [Complex32], s: &mut Fft2Scratch) {
     let stride = xp.stride();
     let pad = xp.pad as isize;
-    fft.forward(
+    t.fft.forward(
         0..t.in_h,
         |r, row| {
             row.fill(0.0);
@@ -500,6 +490,48 @@ fn forward_term(
         spec,
         s,
     );
+}
+
+/// The spectrum of the output gradient over the rows and columns a term writes (zero
+/// elsewhere). The adjoint and the PSF gradient read the same gradient.
+fn gradient_spectrum(
+    t: &Term,
+    g: &impl Fn(usize) -> f32,
+    w: usize,
+    c: isize,
+    spec: &mut [Complex32],
+    s: &mut Fft2Scratch,
+) {
+    let x0 = (t.out_n.start as isize + t.in_x - c) as usize;
+    t.fft.forward(
+        t.out_m.clone(),
+        |m, row| {
+            row.fill(0.0);
+            let y = (m as isize + t.in_y - c) as usize;
+            let src = y * w + x0;
+            for (j, d) in row[t.out_n.clone()].iter_mut().enumerate() {
+                *d = g(src + j);
+            }
+        },
+        spec,
+        s,
+    );
+}
+
+#[allow(clippy::too_many_arguments)]
+fn forward_term(
+    t: &Term,
+    ch: usize,
+    xp: &Padded,
+    c: isize,
+    y0: usize,
+    band: &mut [f32],
+    w: usize,
+    work: &mut Work,
+) {
+    let fft = &t.fft;
+    let (s, spec) = work.get(fft);
+    input_spectrum(t, xp, spec, s);
     spec.iter_mut()
         .zip(&t.spectra[ch])
         .for_each(|(a, b)| *a *= b);
@@ -532,44 +564,10 @@ fn psf_gradient_term(
     work: &mut Work,
 ) -> Vec<f32> {
     let fft = &t.fft;
-    let w = xp.width;
     let (s, spec) = work.get(fft);
     input_spec.resize(fft.spectrum_len(), Complex32::ZERO);
-    let stride = xp.stride();
-    let pad = xp.pad as isize;
-    fft.forward(
-        0..t.in_h,
-        |r, row| {
-            row.fill(0.0);
-            let base = (t.in_y + r as isize + pad) as usize * stride + (t.in_x + pad) as usize;
-            let src = &xp.data[base..base + t.in_w];
-            match &t.weights {
-                None => row[..t.in_w].copy_from_slice(src),
-                Some((wy, wx)) => {
-                    let a = wy[r];
-                    for ((d, v), b) in row.iter_mut().zip(src).zip(wx) {
-                        *d = v * a * b;
-                    }
-                }
-            }
-        },
-        input_spec,
-        s,
-    );
-    let x0 = (t.out_n.start as isize + t.in_x - c) as usize;
-    fft.forward(
-        t.out_m.clone(),
-        |m, row| {
-            row.fill(0.0);
-            let y = (m as isize + t.in_y - c) as usize;
-            let src = y * w + x0;
-            for (j, d) in row[t.out_n.clone()].iter_mut().enumerate() {
-                *d = g(src + j);
-            }
-        },
-        spec,
-        s,
-    );
+    input_spectrum(t, xp, input_spec, s);
+    gradient_spectrum(t, g, xp.width, c, spec, s);
     let scale = 1.0 / (fft.rows * fft.cols) as f32;
     spec.iter_mut()
         .zip(input_spec.iter())
@@ -598,20 +596,7 @@ fn adjoint_term(
 ) {
     let fft = &t.fft;
     let (s, spec) = work.get(fft);
-    let x0 = (t.out_n.start as isize + t.in_x - c) as usize;
-    fft.forward(
-        t.out_m.clone(),
-        |m, row| {
-            row.fill(0.0);
-            let y = (m as isize + t.in_y - c) as usize;
-            let src = y * w + x0;
-            for (k, d) in row[t.out_n.clone()].iter_mut().enumerate() {
-                *d = g(src + k);
-            }
-        },
-        spec,
-        s,
-    );
+    gradient_spectrum(t, g, w, c, spec, s);
     spec.iter_mut()
         .zip(&t.spectra[ch])
         .for_each(|(a, b)| *a *= b.conj());

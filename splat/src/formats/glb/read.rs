@@ -1,8 +1,8 @@
 //! Reading a `KHR_gaussian_splatting` primitive as the glTF 2.0 specification defines the
 //! parts we read, checked as Khronos' validator checks them: every index resolves, every
-//! accessor has the type and component type its attribute needs and lies inside its buffer
-//! view, which lies inside the buffer (sums checked, never wrapped), and every value is one a
-//! splat can have. Interpretations, stated: exactly one primitive may carry the extension;
+//! accessor has the type and component type its attribute needs, every accessor and buffer
+//! view in the file (read or not) lies inside what holds it (sums checked, never wrapped),
+//! and every value is one a splat can have. Interpretations, stated: exactly one primitive may carry the extension;
 //! the node that shows it must not move it (a transform is refused, not applied, since
 //! splats would need their covariances turned with it); an extension the file requires and
 //! we do not know is refused; sparse accessors are refused.
@@ -51,6 +51,137 @@ fn moves(node: &Value) -> Option<&'static str> {
     }
 }
 
+/// Bytes of one accessor component, by the spec's `componentType` codes.
+fn component_bytes(code: u64) -> Option<u64> {
+    match code {
+        5120 | 5121 => Some(1),
+        5122 | 5123 => Some(2),
+        5125 | 5126 => Some(4),
+        _ => None,
+    }
+}
+
+/// Components of one accessor element, by the spec's `type` names.
+fn type_components(name: &str) -> Option<u64> {
+    match name {
+        "SCALAR" => Some(1),
+        "VEC2" => Some(2),
+        "VEC3" => Some(3),
+        "VEC4" | "MAT2" => Some(4),
+        "MAT3" => Some(9),
+        "MAT4" => Some(16),
+        _ => None,
+    }
+}
+
+/// "accessor N", with the attributes that read it: a broken POSITION is named as such.
+fn accessor_name(doc: &Value, a: usize) -> String {
+    let mut users = Vec::new();
+    for mesh in doc["meshes"].as_array().into_iter().flatten() {
+        for prim in mesh["primitives"].as_array().into_iter().flatten() {
+            for (name, index) in prim["attributes"].as_object().into_iter().flatten() {
+                if index.as_u64() == Some(a as u64) && !users.contains(name) {
+                    users.push(name.clone());
+                }
+            }
+        }
+    }
+    if users.is_empty() {
+        format!("accessor {a}")
+    } else {
+        format!("{} (accessor {a})", users.join(", "))
+    }
+}
+
+/// Every buffer view inside its buffer and every accessor inside its view, including those
+/// the splat primitive does not use: the validator reports a broken file as broken whichever
+/// part of it is broken, and a file another tool reads in full must not pass here.
+fn check_layout(
+    doc: &Value,
+    bin_len: u64,
+    bad: &dyn Fn(String) -> SplatError,
+) -> Result<(), SplatError> {
+    let buffers = doc["buffers"].as_array().map_or(&[][..], |v| v.as_slice());
+    let views = doc["bufferViews"]
+        .as_array()
+        .map_or(&[][..], |v| v.as_slice());
+    for (v, view) in views.iter().enumerate() {
+        let b = view["buffer"].as_u64().unwrap_or(u64::MAX);
+        let Some(buffer) = buffers.get(b as usize) else {
+            return Err(bad(format!(
+                "buffer view {v} reads buffer {}, which does not exist",
+                view["buffer"]
+            )));
+        };
+        // Buffer 0 is the file's own bytes; another buffer is held to what it declares.
+        let len = if b == 0 {
+            bin_len
+        } else {
+            buffer["byteLength"]
+                .as_u64()
+                .ok_or_else(|| bad(format!("buffer {b} has no byteLength")))?
+        };
+        let view_len = view["byteLength"]
+            .as_u64()
+            .ok_or_else(|| bad(format!("buffer view {v} has no byteLength")))?;
+        let start = view["byteOffset"].as_u64().unwrap_or(0);
+        if start.checked_add(view_len).is_none_or(|e| e > len) {
+            return Err(bad(format!(
+                "buffer view {v} ({view_len} bytes from byte {start}) does not fit buffer {b} ({len} bytes)"
+            )));
+        }
+    }
+    for (a, acc) in doc["accessors"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .enumerate()
+    {
+        let at = |problem: String| bad(format!("{}: {problem}", accessor_name(doc, a)));
+        let component = acc["componentType"]
+            .as_u64()
+            .and_then(component_bytes)
+            .ok_or_else(|| {
+                at(format!(
+                    "component type {} is not glTF's",
+                    acc["componentType"]
+                ))
+            })?;
+        let width = acc["type"]
+            .as_str()
+            .and_then(type_components)
+            .ok_or_else(|| at(format!("type {} is not glTF's", acc["type"])))?;
+        let count = acc["count"].as_u64().ok_or_else(|| at("no count".into()))?;
+        if count == 0 {
+            return Err(at(
+                "count 0; glTF accessors hold at least one element".into()
+            ));
+        }
+        // An accessor without a view is all zeros (or sparse): nothing to lie outside.
+        let Some(v) = acc.get("bufferView") else {
+            continue;
+        };
+        let view = v
+            .as_u64()
+            .and_then(|v| views.get(v as usize))
+            .ok_or_else(|| at(format!("buffer view {v} does not exist")))?;
+        let element = component * width;
+        let stride = view["byteStride"].as_u64().unwrap_or(element).max(element);
+        let offset = acc["byteOffset"].as_u64().unwrap_or(0);
+        let view_len = view["byteLength"].as_u64().unwrap_or(0);
+        let used = (count - 1)
+            .checked_mul(stride)
+            .and_then(|u| u.checked_add(element))
+            .and_then(|u| u.checked_add(offset));
+        if used.is_none_or(|u| u > view_len) {
+            return Err(at(format!(
+                "{count} elements of {element} bytes (stride {stride}) from byte {offset} do not fit buffer view {v} ({view_len} bytes)"
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// The scene of a glTF document with its buffer 0 in `bin`.
 pub(super) fn parse_document(
     path: &Path,
@@ -81,6 +212,7 @@ pub(super) fn parse_document(
         None => return Err(bad("buffer 0 has no byteLength".into())),
     };
     let bin = &bin[..buffer_len];
+    check_layout(doc, bin.len() as u64, &bad)?;
     // (mesh, primitive) of every primitive with the extension.
     let mut found = Vec::new();
     for (m, mesh) in doc["meshes"].as_array().into_iter().flatten().enumerate() {
