@@ -171,6 +171,8 @@ pub fn background(s: &str) -> Result<crate::settings::Background, String> {
     use crate::settings::Background;
     if s.trim() == "auto" {
         Ok(Background::Auto)
+    } else if s.trim() == "random" {
+        Ok(Background::Random)
     } else {
         colour(s).map(Background::Colour)
     }
@@ -235,5 +237,10 @@ mod tests {
             background("auto").unwrap(),
             crate::settings::Background::Auto
         );
+        assert_eq!(
+            background("random").unwrap(),
+            crate::settings::Background::Random
+        );
+        assert!(background("randomly").is_err());
     }
 }

@@ -137,6 +137,8 @@ impl std::fmt::Display for LambdaFade {
 pub enum Background {
     Auto,
     Colour([f32; 3]),
+    /// A new colour every training step; the run's renders use `auto`'s.
+    Random,
 }
 
 /// The densification strategy asked for.
@@ -196,7 +198,9 @@ pub struct TrainSettings {
     pub scale_reg: Option<f32>,
     /// Colour behind the splats, in training and in the run's renders: `auto` (for a capture
     /// taken all around an object, the median colour of the photos' borders, where its
-    /// backdrop shows; black otherwise), `black`, `white`, or `R,G,B` in [0, 1].
+    /// backdrop shows; black otherwise), `black`, `white`, `R,G,B` in [0, 1], or `random`
+    /// (a seeded colour each training step, so that no pixel can be matched by showing the
+    /// background through splats; renders and evaluation use `auto`'s colour).
     #[arg(long, default_value = "auto", value_parser = crate::flags::background)]
     pub background: Background,
     /// An SH band stays when dropping it raises the training loss by at least this fraction

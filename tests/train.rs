@@ -803,3 +803,47 @@ fn masked_pixels_leave_the_loss_and_the_gradient_matches_finite_differences() {
         }
     }
 }
+
+/// `--background random`: a render can no longer match a pixel by letting the background
+/// show through, so the model ends opaque where one trained on black leaves it see-through
+/// (measured as the mean transmittance: a render on white minus the same render on black).
+#[test]
+fn a_random_background_leaves_no_see_through_pixels() {
+    let data = data::load(&fixture().clean, Mode::Plain, &options()).unwrap();
+    let run = |random: bool| {
+        let mut cfg = config(Mode::Plain, 400, &data);
+        cfg.background = [0.0; 3];
+        cfg.random_background = random;
+        let out = train::train(&cfg, &data, &Device::Cpu, None, false, &mut |_| {}).unwrap();
+        assert_eq!(out.settings.background, glam::Vec3::ZERO);
+        let on = |c: f32| RenderSettings {
+            background: glam::Vec3::splat(c),
+            ..out.settings
+        };
+        let (mut sum, mut n) = (0.0f64, 0usize);
+        for v in data.train.iter().chain(&data.test) {
+            let black = render(&out.model, &v.camera, &on(0.0)).unwrap().color;
+            let white = render(&out.model, &v.camera, &on(1.0)).unwrap().color;
+            for (b, w) in black.iter().zip(&white) {
+                sum += ((*w - *b).element_sum() / 3.0) as f64;
+                n += 1;
+            }
+        }
+        let psnr =
+            metasplat::train::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu)
+                .unwrap()
+                .map(|m| m.mean_psnr);
+        (sum / n as f64, psnr)
+    };
+    let (black, black_psnr) = run(false);
+    let (random, random_psnr) = run(true);
+    eprintln!(
+        "mean transmittance: trained on black {black:.4} (held-out {black_psnr:?}), on random colours {random:.4} ({random_psnr:?})"
+    );
+    assert!(random < 0.5 * black, "{random} vs {black}");
+    let a = metasplat::train::config::random_background(0, 7);
+    assert!(a.iter().all(|c| (0.0..1.0).contains(c)));
+    assert_ne!(a, metasplat::train::config::random_background(0, 8));
+    assert_ne!(a, metasplat::train::config::random_background(1, 7));
+    assert_eq!(a, metasplat::train::config::random_background(0, 7));
+}

@@ -84,7 +84,12 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             ),
             (Strategy::Adaptive, _) => {}
         }
-        if config.background.iter().any(|c| *c >= 5e-4) {
+        if config.random_background {
+            let [r, g, b] = config.background;
+            println!(
+                "Background: a random colour every training step; renders and evaluation use {r:.3},{g:.3},{b:.3}."
+            );
+        } else if config.background.iter().any(|c| *c >= 5e-4) {
             let [r, g, b] = config.background;
             println!(
                 "Background {r:.3},{g:.3},{b:.3}{}.",

@@ -213,6 +213,18 @@ pub struct TrainConfig {
     /// The PSF grid learnt with the splats (`--refine-psf`, aware mode).
     #[serde(default)]
     pub refine_psf: Option<PsfRefineConfig>,
+    /// Every training step renders on a colour of its own ([`random_background`]);
+    /// [`Self::background`] is then only the renders' and the evaluation's.
+    #[serde(default)]
+    pub random_background: bool,
+}
+
+/// The background of training step `step` under `--background random`: uniform in the RGB
+/// cube, a function of the seed and the step alone, so that a resumed run draws what the
+/// uninterrupted one drew.
+pub fn random_background(seed: u64, step: u64) -> [f32; 3] {
+    let mut rng = base::rng::SplitMix64::new(base::rng::mix64(seed ^ 0x6267) ^ step);
+    [0; 3].map(|_| rng.next_f64() as f32)
 }
 
 /// The capture a run trains on, in a sentence ending in a hash of its cameras (names, sizes,
@@ -396,9 +408,10 @@ impl TrainConfig {
             max_sh_degree: settings.max_sh_degree,
             seed,
             background: match settings.background {
-                Background::Auto => auto_background(data),
+                Background::Auto | Background::Random => auto_background(data),
                 Background::Colour(c) => c,
             },
+            random_background: settings.background == Background::Random,
             eval_every: settings.eval_every.unwrap_or((iters / 10).max(1)),
             checkpoint_every: settings.checkpoint_every.unwrap_or((iters / 5).max(100)),
             i_ac: data.restorer.as_ref().map(|r| r.identity()),

@@ -272,6 +272,16 @@ impl<'a> Run<'a> {
         }
     }
 
+    /// What training step `step` renders with: the run's background, or that step's own
+    /// under `--background random`.
+    fn step_settings(&self, sh_degree: u32, step: u64) -> RenderSettings {
+        let mut s = self.settings(sh_degree);
+        if self.config.random_background {
+            s.background = Vec3::from_array(config::random_background(self.config.seed, step));
+        }
+        s
+    }
+
     /// What an SH band is judged on after `step` steps: the mean loss of the probe views
     /// rendered with `degree` bands, under the objective the next step minimises.
     fn band_loss<'b>(
@@ -306,7 +316,7 @@ impl<'a> Run<'a> {
                 view.name
             ))
         };
-        let (out, saved) = t.render(&view.camera, &self.settings(t.sh_degree()))?;
+        let (out, saved) = t.render(&view.camera, &self.step_settings(t.sh_degree(), p.step))?;
         let refine_now = self
             .config
             .refine_psf
