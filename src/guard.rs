@@ -96,6 +96,15 @@ impl Inputs {
         }
     }
 
+    /// Adds the files of `--scene` a folder walk would not find: the photos its model file
+    /// names and the point file (a `ply_file_path` may lie anywhere in the capture).
+    pub fn add_capture(&mut self, capture: &scenes::Capture) {
+        self.add_files("a photo of --scene", &capture.image_paths);
+        if let scenes::PointSource::Sparse(p) = &capture.point_source {
+            self.add("the points of --scene", p);
+        }
+    }
+
     fn push(&mut self, label: String, real: PathBuf) -> bool {
         if !self.seen.insert(real.clone()) {
             return false;

@@ -92,7 +92,7 @@ fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String
         data.initial = Some(g);
     }
     // The photos the capture's model names, wherever they are.
-    inputs.add_files("a photo of --scene", &data.capture.image_paths);
+    inputs.add_capture(&data.capture);
     inputs.refuse("--out", out)?;
     let config = TrainConfig::build(&request.training, request.data.seed, &data);
     if let Some(&last) = config.save_at.last()

@@ -9,6 +9,7 @@
 //! DIR2/psf.npy                   the PSF grid the images were made with (a byte copy)
 //! DIR2/aberration.json           how: blur mode, sensor size, noise, seed
 //! DIR2/sparse/0/{cameras,points3D}.*  copied from the source when it has them
+//! DIR2/sparse/0/points3D.bin     else the points of a transforms.json's ply_file_path
 //! ```
 
 use std::path::{Path, PathBuf};
@@ -370,6 +371,27 @@ pub fn make_aberrated(
 /// cloud and distortion report.
 fn copy_sparse(capture: &Capture, staging: &Path) -> Result<()> {
     let Some(sparse) = colmap::sparse_dir(&capture.root) else {
+        // Points read from a file that is not a COLMAP model: the LLFF copy keeps them in
+        // COLMAP's binary points file, which it reads back.
+        if let crate::capture::PointSource::Sparse(_) = &capture.point_source {
+            let out = staging.join("sparse").join("0");
+            std::fs::create_dir_all(&out).map_err(|e| SceneError::io(&out, e))?;
+            let points: Vec<colmap::ColmapPoint> = capture
+                .points
+                .positions
+                .iter()
+                .zip(&capture.points.colors)
+                .enumerate()
+                .map(|(i, (xyz, c))| colmap::ColmapPoint {
+                    id: i as u64 + 1,
+                    xyz: *xyz,
+                    rgb: c.map(|v| (v * 255.0).round().clamp(0.0, 255.0) as u8),
+                    error: 0.0,
+                    track: Vec::new(),
+                })
+                .collect();
+            colmap::binary::write_points3d(&out.join("points3D.bin"), &points)?;
+        }
         return Ok(());
     };
     let out = staging.join("sparse").join("0");

@@ -523,7 +523,10 @@ fn open_transforms(root: &Path, options: &OpenOptions) -> Result<Capture> {
             (folder_downsample(&dir).unwrap_or(1), shrink)
         }
     };
-    let mut frames = nerfstudio::read_frames(root, folder)?;
+    let nerfstudio::Transforms {
+        mut frames,
+        ply_file,
+    } = nerfstudio::read_transforms(root, folder)?;
     if shrink > 1 {
         for f in &mut frames {
             let (w, h) = shrunk_size(&f.path, (f.camera.width, f.camera.height), shrink)?;
@@ -539,7 +542,13 @@ fn open_transforms(root: &Path, options: &OpenOptions) -> Result<Capture> {
     images::common_size(&image_paths)?;
     let cameras: Vec<Camera> = frames.into_iter().map(|f| f.camera).collect();
     let bounds = nerfstudio::rig_bounds(&cameras);
-    let (points, point_source) = initial_points(None, None, &cameras, &bounds, options)?;
+    let (points, point_source) = match ply_file {
+        Some(ply) => (
+            crate::point_ply::read_points_ply(&ply)?,
+            PointSource::Sparse(ply),
+        ),
+        None => initial_points(None, None, &cameras, &bounds, options)?,
+    };
     let distortion_source = cameras
         .iter()
         .any(|c| c.distortion.is_some())

@@ -9,11 +9,12 @@
 //! intrinsics are scaled to the size the photo has. `file_path`s that leave the capture's
 //! folder (`..`, absolute paths) are refused, as COLMAP image names are.
 //!
-//! Bounds: the format has no near/far and `ply_file_path`'s points are not read here, so
-//! each camera's bounds come from the rig: with `r` the largest distance of a camera from the
-//! cameras' centroid, near is `r / 100` and far `4 r` (`r` 1 for a single camera), wide
-//! enough for a ring around an object or a forward-facing sweep; the initial points are then
-//! random in the frusta.
+//! Points: `ply_file_path` (relative to the file, inside the capture) names the initial
+//! points, in the frames' world ([`crate::point_ply`]); without it they are random in the
+//! frusta. Bounds: the format has no near/far, so each camera's bounds come from the rig:
+//! with `r` the largest distance of a camera from the cameras' centroid, near is `r / 100`
+//! and far `4 r` (`r` 1 for a single camera), wide enough for a ring around an object or a
+//! forward-facing sweep.
 
 use std::path::{Component, Path, PathBuf};
 
@@ -27,6 +28,13 @@ use crate::limits;
 
 /// The file's name in a capture folder.
 pub const TRANSFORMS: &str = "transforms.json";
+
+/// What a `transforms.json` holds: its frames, in the order of the file, and the point
+/// cloud it names.
+pub struct Transforms {
+    pub frames: Vec<Frame>,
+    pub ply_file: Option<PathBuf>,
+}
 
 /// One frame: its photo and its camera at the photo's size.
 pub struct Frame {
@@ -59,7 +67,7 @@ fn frame_path(root: &Path, file: &str, downsample: u32) -> std::result::Result<P
         .any(|c| !matches!(c, Component::Normal(_) | Component::CurDir))
     {
         return Err(format!(
-            "file_path {file:?} leaves the capture's folder (absolute or with ..); only files inside it are read"
+            "{file:?} leaves the capture's folder (absolute or with ..); only files inside it are read"
         ));
     }
     let mut parts = rel
@@ -77,15 +85,16 @@ fn frame_path(root: &Path, file: &str, downsample: u32) -> std::result::Result<P
         }
         (n, Some(_)) => {
             return Err(format!(
-                "file_path {file:?} is not under images/, so there is no images_{n}/ copy of it"
+                "{file:?} is not under images/, so there is no images_{n}/ copy of it"
             ));
         }
     })
 }
 
 /// Reads `root/transforms.json`: each frame's photo path (at `downsample`) and camera, in the
-/// order of the file. Errors name the file, the frame and the problem.
-pub fn read_frames(root: &Path, downsample: u32) -> Result<Vec<Frame>> {
+/// order of the file, and the point cloud it names. Errors name the file, the frame and the
+/// problem.
+pub fn read_transforms(root: &Path, downsample: u32) -> Result<Transforms> {
     let path = root.join(TRANSFORMS);
     SceneError::check_file_size(&path, base::limits::MAX_TEXT_FILE_BYTES)?;
     let text = std::fs::read_to_string(&path).map_err(|e| SceneError::io(&path, e))?;
@@ -103,6 +112,26 @@ pub fn read_frames(root: &Path, downsample: u32) -> Result<Vec<Frame>> {
             model: format!("{model} (camera_model; OPENCV and PINHOLE are read)"),
         });
     }
+    let ply_file = match &doc["ply_file_path"] {
+        Value::Null => None,
+        Value::String(file) => {
+            let ply = frame_path(root, file, 1)
+                .map_err(|p| SceneError::invalid(&path, format!("ply_file_path {p}")))?;
+            if !ply.is_file() {
+                return Err(SceneError::NotFound {
+                    path: ply,
+                    what: format!("point cloud named by ply_file_path in {}", path.display()),
+                });
+            }
+            Some(ply)
+        }
+        v => {
+            return Err(SceneError::invalid(
+                &path,
+                format!("ply_file_path is {v}, not a file name"),
+            ));
+        }
+    };
     let mut out = Vec::with_capacity(frames.len());
     let mut seen = std::collections::HashMap::new();
     for (i, frame) in frames.iter().enumerate() {
@@ -110,7 +139,8 @@ pub fn read_frames(root: &Path, downsample: u32) -> Result<Vec<Frame>> {
         let file = frame["file_path"]
             .as_str()
             .ok_or_else(|| bad("no file_path".into()))?;
-        let photo = frame_path(root, file, downsample).map_err(bad)?;
+        let photo =
+            frame_path(root, file, downsample).map_err(|p| bad(format!("file_path {p}")))?;
         if !photo.is_file() {
             return Err(SceneError::NotFound {
                 path: photo,
@@ -205,7 +235,10 @@ pub fn read_frames(root: &Path, downsample: u32) -> Result<Vec<Frame>> {
             },
         });
     }
-    Ok(out)
+    Ok(Transforms {
+        frames: out,
+        ply_file,
+    })
 }
 
 /// Near/far bounds for cameras without scene points (see the module docs).

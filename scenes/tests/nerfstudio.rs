@@ -182,3 +182,159 @@ fn transforms_json_that_lies_is_refused_naming_the_frame() {
     assert_eq!(c.cameras[0].distortion.unwrap().k1, 0.02);
     assert!(c.distortion_source.unwrap().ends_with("transforms.json"));
 }
+
+/// A point cloud as `ns-process-data` writes it (binary, float positions, 8-bit colours), or
+/// in ASCII with double positions; `header_extra` goes before `end_header`.
+fn cloud_ply(points: &[([f64; 3], [u8; 3])], ascii: bool, header_extra: &str) -> Vec<u8> {
+    let (format, real) = if ascii {
+        ("ascii", "double")
+    } else {
+        ("binary_little_endian", "float")
+    };
+    let mut out = format!(
+        "ply\nformat {format} 1.0\nelement vertex {}\nproperty {real} x\nproperty {real} y\nproperty {real} z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n{header_extra}end_header\n",
+        points.len()
+    )
+    .into_bytes();
+    for (p, c) in points {
+        if ascii {
+            out.extend(format!("{} {} {} {} {} {}\n", p[0], p[1], p[2], c[0], c[1], c[2]).bytes());
+        } else {
+            for v in p {
+                out.extend((*v as f32).to_le_bytes());
+            }
+            out.extend(c);
+        }
+    }
+    out
+}
+
+/// `ply_file_path` names the initial points: read in binary and ASCII as written, reported
+/// as their file, and kept by the aberrated copy (which is LLFF) in COLMAP's points file.
+#[test]
+fn ply_file_path_gives_the_initial_points_and_the_aberrated_copy_keeps_them() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (cameras, _) = common::arc_cameras(4, 40, 30, 7);
+    let points: Vec<([f64; 3], [u8; 3])> = (0..50)
+        .map(|i| {
+            let t = i as f64 * 0.37;
+            (
+                [t.sin() * 0.5, t.cos() * 0.25, 0.1 * t - 1.0],
+                [(i * 5) as u8, 255 - i as u8, 128],
+            )
+        })
+        .collect();
+    for ascii in [false, true] {
+        let dir = tmp.path().join(if ascii { "ascii" } else { "binary" });
+        write_capture(&dir, &cameras, json!({"ply_file_path": "sparse_pc.ply"}));
+        std::fs::write(dir.join("sparse_pc.ply"), cloud_ply(&points, ascii, "")).unwrap();
+        let capture = open(&dir, 1).unwrap();
+        assert!(
+            matches!(&capture.point_source, scenes::PointSource::Sparse(p) if p.ends_with("sparse_pc.ply"))
+        );
+        assert_eq!(capture.points.len(), points.len());
+        for ((xyz, rgb), (p, c)) in points
+            .iter()
+            .zip(capture.points.positions.iter().zip(&capture.points.colors))
+        {
+            let tol = if ascii { 1e-12 } else { 1e-6 };
+            assert!((glam::DVec3::from_array(*xyz) - *p).abs().max_element() < tol);
+            for k in 0..3 {
+                assert!((rgb[k] as f32 / 255.0 - c[k]).abs() < 1e-6);
+            }
+        }
+        if ascii {
+            continue;
+        }
+        let psf = tmp.path().join("psf.npy");
+        let (grid, _) =
+            aberration::optics::simulate_grid(&aberration::optics::SimConfig::small(9), &|_, _| {})
+                .unwrap();
+        grid.save_npy(&psf).unwrap();
+        let abr = tmp.path().join("aberrated");
+        scenes::make_aberrated(
+            &capture,
+            &psf,
+            &abr,
+            &scenes::AberrateOptions::default(),
+            &|| {},
+        )
+        .unwrap();
+        let copy = open(&abr, 1).unwrap();
+        assert!(matches!(copy.point_source, scenes::PointSource::Sparse(_)));
+        assert_eq!(copy.points.positions, capture.points.positions);
+        assert_eq!(copy.points.colors, capture.points.colors);
+    }
+}
+
+/// A `ply_file_path` that leaves the capture, is missing, or holds a cloud that lies is
+/// refused naming the file and the problem.
+#[test]
+fn a_bad_ply_file_path_is_refused_naming_the_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (cameras, _) = common::arc_cameras(3, 40, 30, 5);
+    let good = [
+        ([0.0, 0.0, -1.0], [1u8, 2, 3]),
+        ([0.5, 0.5, -2.0], [4, 5, 6]),
+    ];
+    let case = |name: &str, file: &str, bytes: Vec<u8>| {
+        let dir = tmp.path().join(name);
+        write_capture(&dir, &cameras, json!({"ply_file_path": file}));
+        if !bytes.is_empty() {
+            std::fs::write(dir.join("points.ply"), bytes).unwrap();
+        }
+        open(&dir, 1)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default()
+    };
+    let e = case("outside", "../points.ply", Vec::new());
+    assert!(
+        e.contains("ply_file_path") && e.contains("leaves the capture"),
+        "{e}"
+    );
+    let e = case("missing", "points.ply", Vec::new());
+    assert!(
+        e.contains("points.ply") && e.contains("ply_file_path"),
+        "{e}"
+    );
+    let mut cut = cloud_ply(&good, false, "");
+    cut.truncate(cut.len() - 4);
+    let e = case("cut", "points.ply", cut);
+    assert!(e.contains("points.ply") && e.contains("truncated"), "{e}");
+    let lying = String::from_utf8(cloud_ply(&good, true, ""))
+        .unwrap()
+        .replace("element vertex 2", "element vertex 2000000000");
+    let e = case("count", "points.ply", lying.into_bytes());
+    assert!(e.contains("points.ply") && e.contains("2000000000"), "{e}");
+    let lying = String::from_utf8(cloud_ply(&good, true, ""))
+        .unwrap()
+        .replace("element vertex 2", "element vertex 2000");
+    let e = case("more", "points.ply", lying.into_bytes());
+    assert!(e.contains("points.ply") && e.contains("truncated"), "{e}");
+    let e = case(
+        "nan",
+        "points.ply",
+        cloud_ply(&[good[0], ([0.0, f64::NAN, 1.0], [0, 0, 0])], false, ""),
+    );
+    assert!(
+        e.contains("points.ply") && e.contains("point 1") && e.contains("finite"),
+        "{e}"
+    );
+    let partial = String::from_utf8(cloud_ply(&good, true, ""))
+        .unwrap()
+        .replace("property uchar blue\n", "")
+        .replace(" 3\n", "\n")
+        .replace(" 6\n", "\n");
+    let e = case("partial colour", "points.ply", partial.into_bytes());
+    assert!(e.contains("red, green and blue"), "{e}");
+    let twice = String::from_utf8(cloud_ply(&good, true, "property uchar red\n")).unwrap();
+    let e = case("twice", "points.ply", twice.into_bytes());
+    assert!(e.contains("twice"), "{e}");
+    let e = case("not ply", "points.ply", b"solid mesh\n".to_vec());
+    assert!(e.contains("points.ply") && e.contains("not a PLY"), "{e}");
+    let dir = tmp.path().join("number");
+    write_capture(&dir, &cameras, json!({"ply_file_path": 3}));
+    let e = open(&dir, 1).err().unwrap().to_string();
+    assert!(e.contains("ply_file_path is 3"), "{e}");
+}

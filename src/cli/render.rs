@@ -75,7 +75,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
         Some(dir) => {
             let capture = super::open_scene(dir, super::downsample_for(dir, a.downsample))?;
             // The photos the capture names, wherever its model file says they are.
-            inputs.add_files("a photo of --scene", &capture.image_paths);
+            inputs.add_capture(&capture);
             inputs.refuse("--out", &a.out)?;
             Some(capture)
         }

@@ -124,7 +124,7 @@ fn aberrate(a: SceneAberrateArgs) -> Result<()> {
     super::refuse_aberrated_source("--scene", &a.scene)?;
     let capture = super::open_scene(&a.scene, a.downsample)?;
     let mut inputs = metasplat::guard::Inputs::of(&[("--scene", &a.scene), ("--psf", &a.psf)]);
-    inputs.add_files("a photo of --scene", &capture.image_paths);
+    inputs.add_capture(&capture);
     inputs.refuse("--out", &a.out)?;
     let options = scenes::AberrateOptions {
         mode: a.imaging.mode,
