@@ -75,12 +75,12 @@ fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String
     check_run_folder(request)?;
     let (device, device_note) = Device::choose(request.device)?;
     // Every input is checked before the run folder is made.
-    // I_ac is read from (and, once the run folder exists, written to) a cache: the run's own
-    // unless the caller shares one between runs.
+    // I_ac is read from (and, once the run folder exists, written to) a cache: the capture's,
+    // else the run's own (`iac_cache::for_run`), unless the caller shares one between runs.
     let mut data_options = request.data.clone();
     data_options
         .iac_cache
-        .get_or_insert_with(|| out.join(crate::train::iac_cache::CACHE_DIR));
+        .get_or_insert_with(|| crate::train::iac_cache::for_run(&request.scene, out));
     let mut data = data::load_cached(&request.scene, request.training.mode, &data_options)
         .map_err(|e| e.context(format!("cannot load the scene {}", request.scene.display())))?;
     if let Some(path) = &request.training.init {

@@ -399,36 +399,47 @@ fn train_then_render_and_clear_errors() {
         log.lines().count() >= 2 && log.starts_with("step,seconds"),
         "{log}"
     );
-    assert_ordinary_modes(&run, &["ply", "png", "json", "csv", "bin", "iac"]);
-    assert_ordinary_modes(&abr, &["npy", "png", "json"]);
+    assert_ordinary_modes(&run, &["ply", "png", "json", "csv", "bin"]);
+    assert_ordinary_modes(&abr, &["npy", "png", "json", "iac"]);
 
-    // I_ac was computed once and cached in the run; a rerun reads it and trains identically.
+    // I_ac was computed once and cached beside the capture; a run into another folder reads
+    // it and trains identically, and so does a rerun over the first.
+    let cache = abr.join(metasplat::train::iac_cache::CACHE_DIR);
     assert!(
-        text.contains("I_ac: restored all 7 training views and cached them"),
+        text.contains(&format!(
+            "I_ac: restored all 7 training views and cached them in {}",
+            cache.display()
+        )),
         "{text}"
     );
+    assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 7);
+    assert!(!run.join(metasplat::train::iac_cache::CACHE_DIR).exists());
     let first = std::fs::read(run.join("point_cloud.ply")).unwrap();
-    let again = ok(&[
-        "train",
-        "--scene",
-        s(&abr),
-        "--out",
-        s(&run),
-        "--mode",
-        "restored",
-        "--iters",
-        "40",
-        "--downsample",
-        "1",
-        "--spiral",
-        "3",
-        "--overwrite",
-    ]);
-    assert!(
-        again.contains("I_ac: read all 7 training views from the cache"),
-        "{again}"
-    );
-    assert_eq!(std::fs::read(run.join("point_cloud.ply")).unwrap(), first);
+    for (out, extra) in [(d.join("second"), None), (run.clone(), Some("--overwrite"))] {
+        let mut args = vec![
+            "train",
+            "--scene",
+            s(&abr),
+            "--out",
+            s(&out),
+            "--mode",
+            "restored",
+            "--iters",
+            "40",
+            "--downsample",
+            "1",
+            "--spiral",
+            "3",
+        ];
+        args.extend(extra);
+        let again = ok(&args);
+        assert!(
+            again.contains("I_ac: read all 7 training views from the cache"),
+            "{again}"
+        );
+        assert_eq!(std::fs::read(out.join("point_cloud.ply")).unwrap(), first);
+    }
+    std::fs::remove_dir_all(d.join("second")).unwrap();
 
     let frames = d.join("frames");
     let text = ok(&[

@@ -476,7 +476,7 @@ fn ctrl_c_while_i_ac_is_made_keeps_the_views_restored_so_far() {
     args[at + 1] = "restored".into();
     let at = args.iter().position(|x| x == "--iters").unwrap();
     args[at + 1] = "2".into();
-    let cache = run.join(metasplat::train::iac_cache::CACHE_DIR);
+    let cache = abr.join(metasplat::train::iac_cache::CACHE_DIR);
     let entries = || {
         std::fs::read_dir(&cache).map_or(0, |d| {
             d.flatten()

@@ -118,10 +118,7 @@ pub fn run(mut a: ViewArgs) -> Result<()> {
             let options = DataOptions {
                 downsample,
                 restorer: a.restorer.clone(),
-                iac_cache: a
-                    .run
-                    .as_ref()
-                    .map(|r| r.join(metasplat::train::iac_cache::CACHE_DIR)),
+                iac_cache: metasplat::train::iac_cache::for_viewing(dir, a.run.as_deref()),
                 ..Default::default()
             };
             let mut c = CaptureComparison::open(dir, &options)

@@ -1,7 +1,9 @@
 //! A cache of `I_ac`, the restorer's images of the training views: they cost seconds per view
 //! on a CPU and are the same for every run that uses the same restorer on the same photos.
-//! A run keeps its own (`RUN/i_ac_cache/`, reused by `--resume` and by `metasplat view
-//! --run`), and an experiment shares one between its restored and aware runs.
+//! A run keeps it beside the capture (`CAPTURE/i_ac_cache/`, [`for_run`]), so that every later
+//! run on that capture with that restorer, and `metasplat view --scene CAPTURE`, reads it;
+//! in its own folder (`RUN/i_ac_cache/`) when the capture's folder cannot be written or the
+//! run already has one there. An experiment shares one between its restored and aware runs.
 //!
 //! An entry is named by a hash of everything that decides its pixels: the restorer's identity
 //! (its config and the hash of its weights, or the Wiener stand-in), the PSF grid it was given,
@@ -9,7 +11,7 @@
 //! key (an entry copied or renamed onto another view's name belongs to that other view) and
 //! ends with a checksum; one that does not check out is ignored and recomputed.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use aberration::PsfGrid;
 use glam::Vec3;
@@ -19,6 +21,38 @@ const MAGIC: &[u8; 16] = b"METASPLAT-IAC 2\n";
 pub const CACHE_VERSION: u32 = 1;
 /// The folder a run keeps its cache in.
 pub const CACHE_DIR: &str = "i_ac_cache";
+
+/// Where a run on the capture `scene` into the folder `run` keeps `I_ac`: beside the capture,
+/// unless the run folder already holds a cache (a run resumed from before caches were kept
+/// beside captures) or the capture's folder cannot be written (a shared read-only data set),
+/// when it is the run's own. Nothing is written here: the entries come once the run's inputs
+/// are checked.
+pub fn for_run(scene: &Path, run: &Path) -> PathBuf {
+    let own = run.join(CACHE_DIR);
+    if own.is_dir() {
+        return own;
+    }
+    let beside = scene.join(CACHE_DIR);
+    // Whether a file can be made there, tried with a temporary one that is gone at once:
+    // permission bits do not tell (a read-only mount, or root, which ignores them).
+    let probe = if beside.is_dir() { &beside } else { scene };
+    if tempfile::NamedTempFile::new_in(probe).is_ok() {
+        beside
+    } else {
+        own
+    }
+}
+
+/// Where `I_ac` of the capture `scene` is read from for viewing: the capture's cache when it
+/// has one, else that of the run followed.
+pub fn for_viewing(scene: &Path, run: Option<&Path>) -> Option<PathBuf> {
+    let beside = scene.join(CACHE_DIR);
+    if beside.is_dir() {
+        Some(beside)
+    } else {
+        run.map(|r| r.join(CACHE_DIR))
+    }
+}
 
 /// Names a restorer's entries: what a key holds besides the photo (the restorer's identity,
 /// the PSF grid, [`CACHE_VERSION`]) hashed once, since it is the same for every view.
@@ -107,6 +141,33 @@ pub fn put(dir: &Path, key: u64, image: &[Vec3]) -> std::io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_run_keeps_its_cache_beside_the_capture_unless_it_cannot() {
+        let tmp = tempfile::tempdir().unwrap();
+        let (scene, run) = (tmp.path().join("scene"), tmp.path().join("run"));
+        std::fs::create_dir_all(&scene).unwrap();
+        assert_eq!(for_run(&scene, &run), scene.join(CACHE_DIR));
+        // Deciding wrote nothing.
+        assert_eq!(std::fs::read_dir(&scene).unwrap().count(), 0);
+        assert_eq!(for_viewing(&scene, Some(&run)), Some(run.join(CACHE_DIR)));
+        std::fs::create_dir_all(scene.join(CACHE_DIR)).unwrap();
+        assert_eq!(for_viewing(&scene, Some(&run)), Some(scene.join(CACHE_DIR)));
+        // A run folder with a cache of its own keeps using it.
+        std::fs::create_dir_all(run.join(CACHE_DIR)).unwrap();
+        assert_eq!(for_run(&scene, &run), run.join(CACHE_DIR));
+        std::fs::remove_dir_all(run.join(CACHE_DIR)).unwrap();
+        // A capture that cannot be written: the run's own.
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::remove_dir_all(scene.join(CACHE_DIR)).unwrap();
+        std::fs::set_permissions(&scene, std::fs::Permissions::from_mode(0o555)).unwrap();
+        if tempfile::NamedTempFile::new_in(&scene).is_ok() {
+            eprintln!("SKIP: a read-only folder is writable here (running as root)");
+        } else {
+            assert_eq!(for_run(&scene, &run), run.join(CACHE_DIR));
+        }
+        std::fs::set_permissions(&scene, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
 
     #[test]
     fn an_entry_comes_back_exactly_and_a_damaged_one_not_at_all() {
