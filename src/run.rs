@@ -94,7 +94,37 @@ fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String
     // The photos the capture's model names, wherever they are.
     inputs.add_capture(&data.capture);
     inputs.refuse("--out", out)?;
-    let config = TrainConfig::build(&request.training, request.data.seed, &data);
+    let mut config = TrainConfig::build(&request.training, request.data.seed, &data);
+    let ckpt = out.join(CHECKPOINT_FILE);
+    let saved = if request.resume {
+        Some(crate::train::checkpoint::load_config(&ckpt)?)
+    } else {
+        None
+    };
+    if let Some(saved) = &saved {
+        // `--resume --iters N` past the run's length extends it: the settings are the run's,
+        // built for the length its schedules were made for, and only the length grows.
+        let base = saved.schedule_iters.unwrap_or(saved.iters);
+        if config.iters < saved.iters {
+            return Err(TrainError::file(
+                &ckpt,
+                format!(
+                    "--iters {}: the run has {} steps; --resume can extend a run (a larger --iters), not shorten it",
+                    config.iters, saved.iters
+                ),
+            ));
+        }
+        if config.iters != base {
+            let settings = crate::settings::TrainSettings {
+                iters: base,
+                ..request.training.clone()
+            };
+            let iters = config.iters;
+            config = TrainConfig::build(&settings, request.data.seed, &data);
+            config.iters = iters;
+            config.schedule_iters = Some(base);
+        }
+    }
     if let Some(&last) = config.save_at.last()
         && last > config.iters
     {
@@ -119,10 +149,8 @@ fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String
     }
     // A resume with other settings (or on another capture) is refused before config.json is
     // replaced. The lock below is not held yet, so the checkpoint is read again by the run.
-    let ckpt = out.join(CHECKPOINT_FILE);
-    if request.resume {
-        let saved = crate::train::checkpoint::load_config(&ckpt)?;
-        let diff = crate::train::config_differences(&config, &saved);
+    if let Some(saved) = &saved {
+        let diff = crate::train::config_differences(&config, saved);
         if !diff.is_empty() {
             return Err(TrainError::file(
                 &ckpt,

@@ -1641,3 +1641,60 @@ fn restorer_benchmark_times_both_kernels_and_refuses_bad_sizes() {
     let err = fails(&["bench", "restorer", "--train-only", "--batch", "0"]);
     assert!(err.contains("nothing to time"), "{err}");
 }
+
+/// `--resume --iters N` extends a finished run: one extension to 600 steps and two (to 400,
+/// then 600) give the same splats byte for byte, the log reaches the new end, a shorter
+/// `--iters` and a changed setting are refused naming them.
+#[test]
+fn resume_with_more_iters_extends_a_run_as_one_extension_would() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let clean = d.join("clean");
+    procedural(&clean, 48, 32, 9);
+    let train = |out: &Path, iters: &str, extra: &[&str]| {
+        let mut args = vec![
+            "train",
+            "--scene",
+            s(&clean),
+            "--out",
+            s(out),
+            "--mode",
+            "plain",
+            "--iters",
+            iters,
+            "--downsample",
+            "1",
+            "--spiral",
+            "0",
+            "--device",
+            "cpu",
+        ];
+        args.extend(extra);
+        args.iter().map(|a| a.to_string()).collect::<Vec<_>>()
+    };
+    let (a, b) = (d.join("a"), d.join("b"));
+    ok(&train(&a, "200", &[]));
+    let text = ok(&train(&a, "600", &["--resume"]));
+    assert!(
+        text.contains("extended to 600 steps") && text.contains("made for 200"),
+        "{text}"
+    );
+    ok(&train(&b, "200", &[]));
+    ok(&train(&b, "400", &["--resume"]));
+    ok(&train(&b, "600", &["--resume"]));
+    let ply = |r: &Path| std::fs::read(r.join("point_cloud.ply")).unwrap();
+    assert_eq!(ply(&a), ply(&b), "two extensions differ from one");
+    let log = std::fs::read_to_string(a.join("train_log.csv")).unwrap();
+    assert!(log.lines().last().unwrap().starts_with("600,"), "{log}");
+    // The same splats as the 200-step run would not do: the extension trained.
+    let c = d.join("c");
+    ok(&train(&c, "200", &[]));
+    assert_ne!(ply(&a), ply(&c));
+    let err = fails(&train(&a, "300", &["--resume"]));
+    assert!(
+        err.contains("--iters 300") && err.contains("600 steps") && err.contains("not shorten"),
+        "{err}"
+    );
+    let err = fails(&train(&a, "800", &["--resume", "--max-sh-degree", "1"]));
+    assert!(err.contains("max_sh_degree"), "{err}");
+}

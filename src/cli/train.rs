@@ -84,6 +84,12 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             ),
             (Strategy::Adaptive, _) => {}
         }
+        if let Some(base) = config.schedule_iters {
+            println!(
+                "The run is extended to {} steps; its schedules stay as made for {base} (densification, lambda, SH bands, PSF refinement), and the position learning rate holds its final value after step {base}.",
+                config.iters
+            );
+        }
         if config.random_background {
             let [r, g, b] = config.background;
             println!(

@@ -213,6 +213,11 @@ pub struct TrainConfig {
     /// The PSF grid learnt with the splats (`--refine-psf`, aware mode).
     #[serde(default)]
     pub refine_psf: Option<PsfRefineConfig>,
+    /// The length every schedule was made for, when the run was extended past it
+    /// (`--resume --iters N`): densification, λ, SH bands and the PSF keep their steps, and
+    /// the position learning rate holds its final value beyond it. None: [`Self::iters`].
+    #[serde(default)]
+    pub schedule_iters: Option<u64>,
     /// Every training step renders on a colour of its own ([`random_background`]);
     /// [`Self::background`] is then only the renders' and the evaluation's.
     #[serde(default)]
@@ -412,6 +417,7 @@ impl TrainConfig {
                 Background::Colour(c) => c,
             },
             random_background: settings.background == Background::Random,
+            schedule_iters: None,
             eval_every: settings.eval_every.unwrap_or((iters / 10).max(1)),
             checkpoint_every: settings.checkpoint_every.unwrap_or((iters / 5).max(100)),
             i_ac: data.restorer.as_ref().map(|r| r.identity()),

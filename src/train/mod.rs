@@ -147,7 +147,14 @@ pub fn config_differences(a: &TrainConfig, b: &TrainConfig) -> Vec<String> {
             _ => {}
         }
     }
-    let (Ok(a), Ok(b)) = (serde_json::to_value(a), serde_json::to_value(b)) else {
+    // An extended run is the same run as the one it extends: only its length differs.
+    let same_length = |c: &TrainConfig| TrainConfig {
+        iters: c.schedule_iters.unwrap_or(c.iters),
+        schedule_iters: None,
+        ..c.clone()
+    };
+    let (a, b) = (same_length(a), same_length(b));
+    let (Ok(a), Ok(b)) = (serde_json::to_value(&a), serde_json::to_value(&b)) else {
         return vec!["config".into()];
     };
     let mut out = Vec::new();
@@ -220,7 +227,7 @@ impl<'a> Run<'a> {
         let position_lr = ExponentialLr {
             lr_init: recipe.lrs.means * data.extent,
             lr_final: recipe.lrs.means * data.extent * recipe.position_lr_final_ratio,
-            max_steps: config.iters,
+            max_steps: config.schedule_iters.unwrap_or(config.iters),
         };
         let densify = match &config.strategy {
             Strategy::Adaptive => {
