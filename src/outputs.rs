@@ -148,9 +148,12 @@ pub struct RunSummary {
     pub psf_warp: Option<crate::train::psf_refine::WarpSummary>,
 }
 
+/// The white gutter between the pictures of a comparison strip, in pixels.
+const GAP: u32 = 6;
+
 /// Images side by side with a white gutter.
 fn side_by_side(images: &[&[Vec3]], width: u32, height: u32) -> image::RgbImage {
-    let gap = 6;
+    let gap = GAP;
     let mut out = image::RgbImage::from_pixel(
         images.len() as u32 * (width + gap) - gap,
         height,
@@ -204,11 +207,26 @@ pub fn write_run(
             let render = out.color;
             save_pixels(&test_dir.join(format!("{}.png", v.name)), &render, w, h)?;
             let mut row: Vec<&[Vec3]> = vec![&v.observed, &render];
-            if let Some(c) = &v.clean {
-                row.push(c);
-            }
+            // Each panel's PSNR against the clean image, or the render's against the photo.
+            let db = |a: &[Vec3], b: &[Vec3]| {
+                base::metrics::psnr_rgb(a, b).map_or(String::new(), |p| format!(" {p:.2} dB"))
+            };
+            let labels = match &v.clean {
+                Some(c) => {
+                    row.push(c);
+                    vec![
+                        format!("photo{}", db(&v.observed, c)),
+                        format!("render{}", db(&render, c)),
+                        "clean".to_string(),
+                    ]
+                }
+                None => vec![
+                    "photo".to_string(),
+                    format!("render{}", db(&render, &v.observed)),
+                ],
+            };
             save_rgb8_png(
-                &side_by_side(&row, w, h),
+                &crate::plot::label_panels(&side_by_side(&row, w, h), w, GAP, &labels),
                 &test_dir.join(format!("{}_compare.png", v.name)),
             )?;
             Ok(())

@@ -1,4 +1,5 @@
-//! Line plots written as PNG files (training curves such as PSNR against time).
+//! Line plots written as PNG files (training curves such as PSNR against time), and the
+//! labels of comparison strips ([`label_panels`]).
 //!
 //! Drawing uses `plotters` with its pure-Rust `ab_glyph` text renderer, so the build links no
 //! system font libraries, and its text is set in the font the viewer's egui already ships in
@@ -337,6 +338,78 @@ fn write_png_atomic(path: &Path, rgb: &[u8]) -> Result<(), PlotError> {
     })
 }
 
+/// Height of the label band [`label_panels`] puts above a strip of pictures, in pixels.
+pub const LABEL_BAND: u32 = 20;
+
+/// `strip` (panels `panel_width` wide, `gap` apart, left to right) with a dark band above it
+/// holding each panel's label at its left edge, cut at the panel's width: a comparison that
+/// says what each picture is, and how close.
+pub fn label_panels(
+    strip: &image::RgbImage,
+    panel_width: u32,
+    gap: u32,
+    labels: &[String],
+) -> image::RgbImage {
+    let (w, h) = strip.dimensions();
+    let mut out = image::RgbImage::from_pixel(w, h + LABEL_BAND, image::Rgb([32, 32, 32]));
+    image::imageops::replace(&mut out, strip, 0, LABEL_BAND as i64);
+    let Ok(font) = ab_glyph::FontRef::try_from_slice(epaint_default_fonts::UBUNTU_LIGHT) else {
+        return out;
+    };
+    for (i, label) in labels.iter().enumerate() {
+        let x0 = i as u32 * (panel_width + gap);
+        if x0 >= w {
+            break;
+        }
+        let right = (x0 + panel_width).min(w);
+        draw_text(&mut out, &font, label, x0 + 4, right, LABEL_BAND);
+    }
+    out
+}
+
+/// Draws `text` in white from `x` to at most `right` (cut there), centred in a band of
+/// `band` rows at the top of `img`, each glyph at its own side bearing and kerning.
+fn draw_text(
+    img: &mut image::RgbImage,
+    font: &ab_glyph::FontRef,
+    text: &str,
+    x: u32,
+    right: u32,
+    band: u32,
+) {
+    use ab_glyph::{Font, ScaleFont};
+    let scaled = font.as_scaled(band as f32 * 0.8);
+    let baseline = (band as f32 + scaled.ascent() + scaled.descent()) / 2.0;
+    let mut caret = x as f32;
+    let mut previous = None;
+    for c in text.chars() {
+        let id = scaled.glyph_id(c);
+        if let Some(p) = previous {
+            caret += scaled.kern(p, id);
+        }
+        previous = Some(id);
+        let glyph = id.with_scale_and_position(scaled.scale(), ab_glyph::point(caret, baseline));
+        caret += scaled.h_advance(id);
+        let Some(outline) = font.outline_glyph(glyph) else {
+            continue;
+        };
+        let bounds = outline.px_bounds();
+        outline.draw(|gx, gy, coverage| {
+            let (px, py) = (
+                bounds.min.x as i64 + gx as i64,
+                bounds.min.y as i64 + gy as i64,
+            );
+            if px < x as i64 || px >= right as i64 || py < 0 || py >= band as i64 {
+                return;
+            }
+            let p = img.get_pixel_mut(px as u32, py as u32);
+            for v in &mut p.0 {
+                *v = (*v as f32 + (255.0 - *v as f32) * coverage.clamp(0.0, 1.0)).round() as u8;
+            }
+        });
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -644,5 +717,35 @@ mod tests {
             &[series("plain", &plain), series("aware", &aware)],
         )
         .unwrap();
+    }
+
+    #[test]
+    fn labels_sit_above_their_panels_and_stay_inside_them() {
+        let (pw, gap, h) = (40u32, 6u32, 10u32);
+        let strip = image::RgbImage::from_pixel(2 * pw + gap, h, image::Rgb([10, 200, 30]));
+        let labels = vec![
+            "a label far longer than its panel".to_string(),
+            "b".to_string(),
+        ];
+        let out = label_panels(&strip, pw, gap, &labels);
+        assert_eq!(out.dimensions(), (2 * pw + gap, h + LABEL_BAND));
+        for y in 0..h {
+            for x in 0..strip.width() {
+                assert_eq!(out.get_pixel(x, y + LABEL_BAND), strip.get_pixel(x, y));
+            }
+        }
+        let bright = |x0: u32, x1: u32| {
+            (x0..x1)
+                .flat_map(|x| (0..LABEL_BAND).map(move |y| (x, y)))
+                .filter(|&(x, y)| out.get_pixel(x, y).0[0] > 128)
+                .count()
+        };
+        assert!(bright(0, pw) > 20, "no text over the first panel");
+        assert!(
+            bright(pw + gap, 2 * pw + gap) > 3,
+            "no text over the second panel"
+        );
+        // The long label is cut at its panel: the gutter's band is empty.
+        assert_eq!(bright(pw, pw + gap), 0);
     }
 }
