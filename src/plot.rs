@@ -367,6 +367,71 @@ pub fn label_panels(
     out
 }
 
+/// Widest a PSF figure is drawn; a finer grid is shrunk to it (the full-resolution paper
+/// grid would be thousands of pixels wide).
+pub const PSF_FIGURE_WIDTH: u32 = 1500;
+
+/// The PSF grid as people look at it: [`aberration::picture::psf_grid_picture`] shrunk to at
+/// most [`PSF_FIGURE_WIDTH`], each channel's mosaic named (with its wavelength when known),
+/// the field angle across a mosaic when known, and a colour bar of the log scale.
+pub fn psf_figure(
+    grid: &aberration::PsfGrid,
+    wavelengths_nm: Option<[f64; 3]>,
+    max_field_deg: Option<f64>,
+) -> image::RgbImage {
+    use aberration::picture::{CHANNEL_GAP, DECADES, psf_grid_picture, viridis};
+    let raw = psf_grid_picture(grid);
+    let scale = (PSF_FIGURE_WIDTH as f64 / raw.width() as f64).min(1.0);
+    let img = if scale < 1.0 {
+        let (w, h) = (
+            (raw.width() as f64 * scale).round() as u32,
+            (raw.height() as f64 * scale).round().max(1.0) as u32,
+        );
+        image::imageops::resize(&raw, w, h, image::imageops::FilterType::Triangle)
+    } else {
+        raw
+    };
+    let gap = (CHANNEL_GAP as f64 * scale).round() as u32;
+    let panel = (img.width() - 2 * gap) / 3;
+    let names = ["red", "green", "blue"];
+    let labels: Vec<String> = (0..3)
+        .map(|c| match wavelengths_nm {
+            Some(l) => format!("{} {:.0} nm", names[c], l[c]),
+            None => names[c].to_string(),
+        })
+        .collect();
+    let labelled = label_panels(&img, panel, gap, &labels);
+    // Below: the colour bar, and the field the mosaics span.
+    let (w, h) = labelled.dimensions();
+    let mut out = image::RgbImage::from_pixel(w.max(420), h + LABEL_BAND, image::Rgb([32, 32, 32]));
+    image::imageops::replace(&mut out, &labelled, 0, 0);
+    let mut bottom = image::RgbImage::from_pixel(out.width(), LABEL_BAND, image::Rgb([32, 32, 32]));
+    let bar = (4u32, 120u32);
+    for x in bar.0..bar.0 + bar.1 {
+        let t = (x - bar.0) as f32 / (bar.1 - 1) as f32;
+        for y in 4..LABEL_BAND - 4 {
+            bottom.put_pixel(x, y, image::Rgb(viridis(t)));
+        }
+    }
+    if let Ok(font) = ab_glyph::FontRef::try_from_slice(epaint_default_fonts::UBUNTU_LIGHT) {
+        let mut text = format!("1e-{DECADES:.0} to 1 of each channel's peak");
+        if let Some(f) = max_field_deg {
+            text += &format!("; each mosaic spans the field from -{f:.0} to +{f:.0} deg");
+        }
+        let right = bottom.width();
+        draw_text(
+            &mut bottom,
+            &font,
+            &text,
+            bar.0 + bar.1 + 8,
+            right,
+            LABEL_BAND,
+        );
+    }
+    image::imageops::replace(&mut out, &bottom, 0, h as i64);
+    out
+}
+
 /// Draws `text` in white from `x` to at most `right` (cut there), centred in a band of
 /// `band` rows at the top of `img`, each glyph at its own side bearing and kerning.
 fn draw_text(
@@ -747,5 +812,28 @@ mod tests {
         );
         // The long label is cut at its panel: the gutter's band is empty.
         assert_eq!(bright(pw, pw + gap), 0);
+    }
+
+    #[test]
+    fn a_psf_figure_stays_a_reasonable_size_and_carries_its_scale() {
+        use aberration::picture::{psf_grid_picture, viridis};
+        let big = aberration::PsfGrid::delta(9, 135);
+        let raw = psf_grid_picture(&big);
+        assert!(raw.width() > 2 * PSF_FIGURE_WIDTH);
+        let fig = psf_figure(&big, Some([606.0, 511.0, 462.0]), Some(20.0));
+        assert_eq!(fig.width(), PSF_FIGURE_WIDTH);
+        let body = (raw.height() as f64 * PSF_FIGURE_WIDTH as f64 / raw.width() as f64).round();
+        assert_eq!(fig.height(), body as u32 + 2 * LABEL_BAND);
+        // The colour bar runs from the scale's bottom to its top.
+        let y = fig.height() - LABEL_BAND / 2;
+        assert_eq!(fig.get_pixel(4, y).0, viridis(0.0));
+        assert_eq!(fig.get_pixel(123, y).0, viridis(1.0));
+        // A small grid is drawn at its own size.
+        let small = aberration::PsfGrid::delta(3, 5);
+        let fig = psf_figure(&small, None, None);
+        assert_eq!(
+            fig.height(),
+            psf_grid_picture(&small).height() + 2 * LABEL_BAND
+        );
     }
 }

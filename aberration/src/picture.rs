@@ -4,10 +4,13 @@ use crate::psf_grid::PsfGrid;
 use image::{Rgb, RgbImage};
 
 /// Decades shown below each channel's peak.
-const DECADES: f32 = 4.0;
+pub const DECADES: f32 = 4.0;
 
-/// Viridis, sampled at five points and interpolated linearly.
-fn viridis(t: f32) -> [u8; 3] {
+/// The gutter between the three channel mosaics of [`psf_grid_picture`], in pixels.
+pub const CHANNEL_GAP: usize = 8;
+
+/// Viridis, sampled at five points and interpolated linearly (`t` in [0, 1]: a colour bar).
+pub fn viridis(t: f32) -> [u8; 3] {
     const C: [[f32; 3]; 5] = [
         [68.0, 1.0, 84.0],
         [59.0, 82.0, 139.0],
@@ -28,7 +31,7 @@ pub fn psf_grid_picture(psf: &PsfGrid) -> RgbImage {
     let gap = 2;
     let panel = g * (k + gap) + gap;
     let mut img = RgbImage::from_pixel(
-        (3 * panel + 2 * 8) as u32,
+        (3 * panel + 2 * CHANNEL_GAP) as u32,
         panel as u32,
         Rgb([255, 255, 255]),
     );
@@ -37,7 +40,7 @@ pub fn psf_grid_picture(psf: &PsfGrid) -> RgbImage {
             .flat_map(|gi| psf.kernel(gi, c).iter())
             .cloned()
             .fold(f32::MIN_POSITIVE, f32::max);
-        let x0 = c * (panel + 8);
+        let x0 = c * (panel + CHANNEL_GAP);
         for gi in 0..g * g {
             let (i, j) = (gi / g, gi % g);
             let kernel = psf.kernel(gi, c);

@@ -6,7 +6,6 @@ use super::psf::{print_report, simulate};
 use super::train::train_run;
 use aberration::image::save_rgb8_png;
 use aberration::optics::SimConfig;
-use aberration::picture::psf_grid_picture;
 use anyhow::{Context, Result};
 use clap::Args;
 use metasplat::outputs::RunSummary;
@@ -99,7 +98,10 @@ pub fn run(a: DemoArgs) -> Result<()> {
     print_report(&report);
     let psf_path = a.out.join("psf.npy");
     psf.save_npy(&psf_path)?;
-    save_rgb8_png(&psf_grid_picture(&psf), &a.out.join("psf.png"))?;
+    save_rgb8_png(
+        &metasplat::plot::psf_figure(&psf, Some(cfg.wavelengths_nm), Some(cfg.max_field_deg)),
+        &a.out.join("psf.png"),
+    )?;
 
     let scene = ProceduralOptions {
         width: if a.quick { 64 } else { 160 },

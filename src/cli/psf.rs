@@ -2,7 +2,6 @@
 
 use super::progress;
 use aberration::optics::{Dispersion, PhaseProfile, SimConfig, SimReport, simulate_grid};
-use aberration::picture::psf_grid_picture;
 use aberration::{PsfGrid, image::save_rgb8_png};
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
@@ -157,11 +156,19 @@ pub fn run(cmd: PsfCommand) -> Result<()> {
                 metasplat::guard::refuse_unwritable_image("--picture", p)?;
                 metasplat::guard::refuse_overwrite("--picture", p, &[("--out", &a.out)])?;
             }
-            let (grid, report) = simulate(&a.lens.config())?;
+            let cfg = a.lens.config();
+            let (grid, report) = simulate(&cfg)?;
             grid.save_npy(&a.out)?;
             println!("wrote {}", a.out.display());
             if let Some(p) = a.picture {
-                save_rgb8_png(&psf_grid_picture(&grid), &p)?;
+                save_rgb8_png(
+                    &metasplat::plot::psf_figure(
+                        &grid,
+                        Some(cfg.wavelengths_nm),
+                        Some(cfg.max_field_deg),
+                    ),
+                    &p,
+                )?;
                 println!("wrote {}", p.display());
             }
             print_report(&report);
@@ -171,7 +178,7 @@ pub fn run(cmd: PsfCommand) -> Result<()> {
             metasplat::guard::refuse_overwrite("--out", &a.out, &[("the PSF file", &a.psf)])?;
             metasplat::guard::refuse_unwritable_image("--out", &a.out)?;
             let grid = PsfGrid::load_npy(&a.psf)?;
-            save_rgb8_png(&psf_grid_picture(&grid), &a.out)?;
+            save_rgb8_png(&metasplat::plot::psf_figure(&grid, None, None), &a.out)?;
             println!(
                 "{}: {}x{} grid of {} px RGB PSFs; wrote {}",
                 a.psf.display(),
