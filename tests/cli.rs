@@ -256,6 +256,7 @@ fn quick_demo_trains_plain_and_aware_and_reports_both() {
     for f in [
         "psf.npy",
         "psf.png",
+        "plain_vs_aware.png",
         "scene_aberrated/clean/view001.png",
         "run_plain/point_cloud.ply",
         "run_aware/point_cloud.ply",

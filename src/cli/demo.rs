@@ -15,6 +15,9 @@ use metasplat::train::config::Mode;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+/// The demo's plot of both modes' held-out PSNR over training.
+pub const DEMO_PLOT: &str = "plain_vs_aware.png";
+
 #[derive(Args)]
 pub struct DemoArgs {
     /// Output directory.
@@ -131,6 +134,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
 
     let iters = a.iters.unwrap_or(if a.quick { 300 } else { 1500 });
     let mut results: Vec<(Mode, RunSummary, PathBuf)> = Vec::new();
+    let mut curves = Vec::new();
     for mode in [Mode::Plain, Mode::Aware] {
         println!("4/4 training {mode} ({iters} steps)");
         let run_dir = a.out.join(format!("run_{mode}"));
@@ -145,9 +149,31 @@ pub fn run(a: DemoArgs) -> Result<()> {
         if a.quick {
             args.spiral = 4;
         }
-        let (summary, _) = train_run(&args, true)?;
+        let (summary, log) = train_run(&args, true)?;
+        curves.push(metasplat::plot::Series {
+            name: format!("3DGS {mode}"),
+            points: log
+                .iter()
+                .filter_map(|r| Some((r.step as f64, r.test_psnr?)))
+                .collect(),
+        });
         results.push((mode, summary, run_dir));
     }
+    // Both modes on one plot, with the level of the photos they learn from.
+    if let Some(observed) = results.first().and_then(|r| r.1.observed_psnr) {
+        curves.push(metasplat::plot::Series {
+            name: "aberrated input".into(),
+            points: vec![(0.0, observed), (iters as f64, observed)],
+        });
+    }
+    let plot = a.out.join(DEMO_PLOT);
+    metasplat::plot::line_plot(
+        &plot,
+        "held-out PSNR: plain against aberration-aware 3DGS",
+        "training step",
+        "PSNR vs clean (dB)",
+        &curves,
+    )?;
 
     println!(
         "\nheld-out views of the procedural scene vs the clean images (aware: lambda {}; {}):",
@@ -183,14 +209,15 @@ pub fn run(a: DemoArgs) -> Result<()> {
     }
     for (mode, _, dir) in &results {
         println!(
-            "{mode}: {} (PLY), {}/test/*_compare.png (aberrated | render | clean), {}/spiral/",
+            "{mode}: {} (PLY), {}/test/*_compare.png (photo | render | clean), {}/spiral/",
             dir.join(metasplat::outputs::PLY_FILE).display(),
             dir.display(),
             dir.display()
         );
     }
     println!(
-        "PSF grid picture: {}; total {:.0} s",
+        "plain against aware: {}; PSF grid picture: {}; total {:.0} s",
+        plot.display(),
         a.out.join("psf.png").display(),
         start.elapsed().as_secs_f64()
     );
