@@ -154,6 +154,11 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
                         "The PSF grid is refined with the splats from step {} on, every {} steps (learning rate {}, pull towards the supplied grid {}, smoothness across cells {}).",
                         r.from, r.every, r.lr, r.anchor, r.smooth
                     );
+                    if config.lambda == 0.0 {
+                        println!(
+                            "With lambda 0 nothing but the pull towards the supplied grid holds the PSF: the refined grid takes up what the splats cannot fit, and drifts from the true one the more views the capture has (RESULTS.md); keep lambda above 0 to refine."
+                        );
+                    }
                 }
             }
         }
