@@ -2,8 +2,6 @@
 
 mod cli;
 
-use clap::Parser;
-
 // The restorer's tensors are large and short-lived: glibc returns each to the kernel (mmap /
 // munmap), and the page faults of zeroing them again dominate inference; mimalloc reuses the
 // memory (the measurement is in RESULTS.md).
@@ -45,7 +43,7 @@ fn handle_signals() {
 
 fn main() -> std::process::ExitCode {
     keep_freed_memory();
-    let args = cli::Cli::parse();
+    let args = cli::parse();
     if args.stops_when_asked() {
         handle_signals();
     }

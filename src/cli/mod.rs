@@ -16,7 +16,7 @@ mod shell;
 mod train;
 mod view;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 #[derive(Parser)]
 #[command(
@@ -175,9 +175,111 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     }
 }
 
+/// Short flags for the flags most commands share, given wherever a command has the long
+/// one and the letter is free; `-s` and `-r` as INRIA's `train.py` uses them (source,
+/// resolution).
+const SHORT_FLAGS: [(&str, char); 7] = [
+    ("scene", 's'),
+    ("out", 'o'),
+    ("in", 'i'),
+    ("mode", 'm'),
+    ("iters", 'n'),
+    ("downsample", 'r'),
+    ("device", 'd'),
+];
+
+fn with_short_flags(mut cmd: clap::Command) -> clap::Command {
+    for (long, short) in SHORT_FLAGS {
+        let taken = cmd.get_arguments().any(|a| a.get_short() == Some(short));
+        let id = cmd
+            .get_arguments()
+            .find(|a| a.get_long() == Some(long))
+            .map(|a| a.get_id().to_string());
+        if let (Some(id), false) = (id, taken) {
+            cmd = cmd.mut_arg(id, |a| a.short(short));
+        }
+    }
+    cmd.mut_subcommands(with_short_flags)
+}
+
+/// The whole command line as parsed, completed and documented: the derived commands with
+/// their short flags.
+pub fn command() -> clap::Command {
+    with_short_flags(Cli::command())
+}
+
+/// Parses the process's arguments (exiting with clap's message on an error).
+pub fn parse() -> Cli {
+    let matches = command().get_matches();
+    Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit())
+}
+
 #[cfg(test)]
 mod tests {
-    use clap::CommandFactory;
+    use clap::FromArgMatches;
+
+    /// clap's own consistency checks over the whole tree (a letter given twice in one
+    /// command among them), and the short flags parse as the long ones.
+    #[test]
+    fn short_flags_are_unique_and_mean_the_long_ones() {
+        super::command().debug_assert();
+        let parse = |args: &[&str]| {
+            let m = super::command()
+                .try_get_matches_from(args)
+                .unwrap_or_else(|e| panic!("{args:?}: {e}"));
+            let cli = super::Cli::from_arg_matches(&m).unwrap();
+            match cli.command {
+                super::Command::Train(r) => (
+                    r.scene,
+                    r.out,
+                    r.training.mode,
+                    r.training.iters,
+                    r.data.downsample,
+                    r.device,
+                ),
+                _ => panic!("not train"),
+            }
+        };
+        let short = parse(&[
+            "metasplat",
+            "train",
+            "-s",
+            "cap",
+            "-o",
+            "run",
+            "-m",
+            "plain",
+            "-n",
+            "7",
+            "-r",
+            "2",
+            "-d",
+            "cpu",
+        ]);
+        let long = parse(&[
+            "metasplat",
+            "train",
+            "--scene",
+            "cap",
+            "--out",
+            "run",
+            "--mode",
+            "plain",
+            "--iters",
+            "7",
+            "--downsample",
+            "2",
+            "--device",
+            "cpu",
+        ]);
+        assert_eq!(short, long);
+        let help = super::command()
+            .find_subcommand_mut("train")
+            .unwrap()
+            .render_help()
+            .to_string();
+        assert!(help.contains("-s, --scene"), "{help}");
+    }
 
     /// Every flag and argument of every command has help text (`--help` lists nothing bare).
     #[test]
@@ -194,7 +296,7 @@ mod tests {
             }
         }
         let mut missing = Vec::new();
-        walk(&super::Cli::command(), "metasplat", &mut missing);
+        walk(&super::command(), "metasplat", &mut missing);
         assert!(missing.is_empty(), "flags without help: {missing:#?}");
     }
 }

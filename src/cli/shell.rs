@@ -4,7 +4,7 @@
 use std::io::Write;
 
 use anyhow::Result;
-use clap::{Args, CommandFactory};
+use clap::Args;
 
 #[derive(Args)]
 pub struct CompletionsArgs {
@@ -15,7 +15,7 @@ pub struct CompletionsArgs {
 }
 
 pub fn completions(a: CompletionsArgs) -> Result<()> {
-    let mut cmd = super::Cli::command();
+    let mut cmd = super::command();
     // Into memory first: the generator panics on a failed write (a closed pipe).
     let mut script = Vec::new();
     clap_complete::generate(a.shell, &mut cmd, "metasplat", &mut script);
@@ -25,7 +25,7 @@ pub fn completions(a: CompletionsArgs) -> Result<()> {
 
 /// The man page (roff) of the whole tool on standard output (`metasplat man > metasplat.1`).
 pub fn man() -> Result<()> {
-    let page = clap_mangen::Man::new(super::Cli::command());
+    let page = clap_mangen::Man::new(super::command());
     let mut out = Vec::new();
     page.render(&mut out)?;
     std::io::stdout().write_all(&out)?;
