@@ -302,6 +302,11 @@ pub struct DataOptions {
     /// Seed of the initial points, the view order and densification.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Train on the photos as taken even when the capture's cameras have lens distortion
+    /// (by default they are undistorted at load onto the pinhole camera of the same
+    /// intrinsics, the camera the renderer draws).
+    #[arg(long)]
+    pub keep_distortion: bool,
     /// A folder of cached `I_ac` images to read (and, for a run, to fill): see
     /// [`crate::train::iac_cache`].
     #[arg(skip)]

@@ -49,6 +49,10 @@ pub struct AberrationRecord {
     /// the photos never had) is refused; absent in records written before it was kept.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub psf_fnv1a: Option<String>,
+    /// Whether the source's photos were undistorted at load before they were blurred (false
+    /// in records written before undistortion existed, which kept them as taken).
+    #[serde(default)]
+    pub undistorted: bool,
 }
 
 impl AberrationRecord {
@@ -349,6 +353,7 @@ pub fn make_aberrated(
         psf_fnv1a: Some(psf_checksum(
             &std::fs::read(&psf_dest).map_err(|e| SceneError::io(&psf_dest, e))?,
         )),
+        undistorted: capture.undistorted(),
     };
     let record_path = staging.join(RECORD_FILE);
     let text = serde_json::to_string_pretty(&record)
@@ -395,7 +400,13 @@ fn copy_sparse(capture: &Capture, staging: &Path) -> Result<()> {
         return Ok(());
     };
     let out = staging.join("sparse").join("0");
-    for stem in ["cameras", "points3D"] {
+    // Undistorted photos are pinhole photos: the copy keeps no distortion to apply again.
+    let stems: &[&str] = if capture.undistorted() {
+        &["points3D"]
+    } else {
+        &["cameras", "points3D"]
+    };
+    for &stem in stems {
         if let Some((src, _)) = colmap::find_file(&sparse, stem) {
             std::fs::create_dir_all(&out).map_err(|e| SceneError::io(&out, e))?;
             let name = src.file_name().expect("find_file returns file paths");

@@ -12,9 +12,10 @@
 //!
 //! # Distortion
 //!
-//! Readers never undistort images. Distortion coefficients found in a COLMAP model are kept in
-//! [`Camera::distortion`] and reported by the scene summary; [`Camera::project`] is a pure
-//! pinhole projection and ignores them. Use [`Distortion::distort`] where they matter.
+//! Readers keep distortion coefficients found in a COLMAP model or a `transforms.json` in
+//! [`Camera::distortion`], reported by the scene summary; [`Camera::project`] is a pure
+//! pinhole projection and ignores them, and a capture's photos are undistorted onto that
+//! pinhole camera at load ([`crate::undistort`]) unless asked not to be.
 
 use std::fmt;
 
@@ -186,7 +187,7 @@ pub struct Camera {
     pub cx: f64,
     pub cy: f64,
     pub world_to_camera: Rigid,
-    /// Kept, never applied to the images; see the module docs.
+    /// The lens's distortion; the photos are undistorted at load (see the module docs).
     pub distortion: Option<Distortion>,
 }
 

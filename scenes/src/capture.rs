@@ -22,6 +22,7 @@ use crate::nerfstudio;
 use crate::points::{self, Normalization, PointCloud};
 use crate::split::{self, Split};
 use crate::summary::SceneSummary;
+use crate::undistort::Remap;
 
 /// The folder of per-image loss masks (white = keep), beside the image folders.
 pub const MASK_DIR: &str = "masks";
@@ -51,6 +52,9 @@ pub struct OpenOptions {
     pub random_points: usize,
     /// Seed of that random cloud.
     pub seed: u64,
+    /// Resample distorted photos onto the pinhole camera of the same intrinsics at load
+    /// ([`crate::undistort`]); false keeps them as taken.
+    pub undistort: bool,
 }
 
 impl Default for OpenOptions {
@@ -60,6 +64,7 @@ impl Default for OpenOptions {
             llffhold: split::LLFFHOLD,
             random_points: points::DEFAULT_RANDOM_POINTS,
             seed: 0,
+            undistort: true,
         }
     }
 }
@@ -123,6 +128,9 @@ pub struct Capture {
     /// How many times smaller than its file each photo is loaded (1: as it is): a downsample
     /// whose `images_N/` the capture lacks is made from `images/` at load.
     pub shrink: u32,
+    /// Per camera, the undistortion its photo goes through at load (empty: none); cameras of
+    /// the same intrinsics share one.
+    pub remaps: Vec<Option<std::sync::Arc<Remap>>>,
 }
 
 impl Capture {
@@ -156,13 +164,32 @@ impl Capture {
                 ),
             ));
         }
+        if let Some(Some(remap)) = self.remaps.get(index) {
+            image = remap.apply(&image);
+        }
         Ok(image)
+    }
+
+    /// Whether the photos are undistorted at load.
+    pub fn undistorted(&self) -> bool {
+        self.remaps.iter().any(Option::is_some)
     }
 
     /// The loss mask of image `index` (1 keeps a pixel, 0 leaves it out of the loss), at the
     /// camera's size: `masks/<stem>.png` (or `.jpg`; grey, white = keep) when the capture has a
     /// `masks/` folder, else the photo's own alpha channel, else None (every pixel counts).
     pub fn load_mask(&self, index: usize) -> Result<Option<Vec<f32>>> {
+        let mask = self.load_mask_as_taken(index)?;
+        // Undistorted, the pixels the photo has no source for leave the loss too.
+        Ok(match self.remaps.get(index) {
+            Some(Some(remap)) if mask.is_some() || remap.invalid_count() > 0 => {
+                Some(remap.apply_mask(mask.as_deref()))
+            }
+            _ => mask,
+        })
+    }
+
+    fn load_mask_as_taken(&self, index: usize) -> Result<Option<Vec<f32>>> {
         let (Some(path), Some(camera)) = (self.image_paths.get(index), self.cameras.get(index))
         else {
             return Ok(None);
@@ -311,19 +338,49 @@ pub fn open(dir: &Path, options: &OpenOptions) -> Result<Capture> {
             what: "scene folder".into(),
         });
     }
-    if dir.join(POSES_BOUNDS).exists() {
-        return open_llff(dir, options);
-    }
-    match colmap::sparse_dir(dir) {
-        Some(sparse) if colmap::find_file(&sparse, "images").is_some() => {
-            open_colmap(dir, &sparse, options)
+    let mut capture = if dir.join(POSES_BOUNDS).exists() {
+        open_llff(dir, options)?
+    } else {
+        match colmap::sparse_dir(dir) {
+            Some(sparse) if colmap::find_file(&sparse, "images").is_some() => {
+                open_colmap(dir, &sparse, options)?
+            }
+            _ if dir.join(nerfstudio::TRANSFORMS).is_file() => open_transforms(dir, options)?,
+            _ => {
+                return Err(SceneError::invalid(
+                    dir,
+                    "not a capture: no poses_bounds.npy, no sparse/0/{cameras,images}.{bin,txt} and no transforms.json",
+                ));
+            }
         }
-        _ if dir.join(nerfstudio::TRANSFORMS).is_file() => open_transforms(dir, options),
-        _ => Err(SceneError::invalid(
-            dir,
-            "not a capture: no poses_bounds.npy, no sparse/0/{cameras,images}.{bin,txt} and no transforms.json",
-        )),
+    };
+    if options.undistort {
+        capture.remaps = remaps(&capture.cameras);
     }
+    Ok(capture)
+}
+
+/// One [`Remap`] per distinct distorted camera (the same intrinsics and coefficients share
+/// one), None for the pinhole ones.
+fn remaps(cameras: &[Camera]) -> Vec<Option<std::sync::Arc<Remap>>> {
+    let mut made: Vec<(Vec<u64>, std::sync::Arc<Remap>)> = Vec::new();
+    cameras
+        .iter()
+        .map(|c| {
+            let d = c.distortion.filter(|d| !d.is_zero())?;
+            let key: Vec<u64> = [c.fx, c.fy, c.cx, c.cy, d.k1, d.k2, d.p1, d.p2]
+                .iter()
+                .map(|v| v.to_bits())
+                .chain([c.width as u64, c.height as u64])
+                .collect();
+            if let Some((_, r)) = made.iter().find(|(k, _)| *k == key) {
+                return Some(r.clone());
+            }
+            let r = std::sync::Arc::new(Remap::new(c, &d));
+            made.push((key, r.clone()));
+            Some(r)
+        })
+        .collect()
 }
 
 fn image_folders(root: &Path) -> Vec<PathBuf> {
@@ -509,6 +566,7 @@ fn open_llff(root: &Path, options: &OpenOptions) -> Result<Capture> {
         points,
         point_source,
         distortion_source,
+        remaps: Vec::new(),
         shrink,
     })
 }
@@ -565,6 +623,7 @@ fn open_transforms(root: &Path, options: &OpenOptions) -> Result<Capture> {
         points,
         point_source,
         distortion_source,
+        remaps: Vec::new(),
         shrink,
     })
 }
@@ -735,6 +794,7 @@ fn open_colmap(root: &Path, sparse: &Path, options: &OpenOptions) -> Result<Capt
         points,
         point_source,
         distortion_source,
+        remaps: Vec::new(),
         shrink,
     })
 }

@@ -20,6 +20,7 @@ pub mod point_ply;
 pub mod points;
 pub mod split;
 pub mod summary;
+pub mod undistort;
 
 pub use aberrated::{AberrateOptions, AberrateReport, AberrationRecord, make_aberrated};
 pub use camera::{Bounds, Camera, CameraModel, Distortion, Projection, Rigid};

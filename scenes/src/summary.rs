@@ -30,6 +30,8 @@ pub struct SceneSummary {
     pub extent: f64,
     pub distortion: Option<Distortion>,
     pub distortion_source: Option<PathBuf>,
+    /// Pixels of the first undistorted photo with no source in it (None: kept as taken).
+    pub undistorted_without_source: Option<usize>,
 }
 
 impl SceneSummary {
@@ -70,6 +72,12 @@ impl SceneSummary {
             extent: capture.normalization().radius,
             distortion: capture.cameras.iter().find_map(|c| c.distortion),
             distortion_source: capture.distortion_source.clone(),
+            undistorted_without_source: capture
+                .remaps
+                .iter()
+                .flatten()
+                .next()
+                .map(|r| r.invalid_count()),
         }
     }
 }
@@ -147,10 +155,20 @@ impl fmt::Display for SceneSummary {
                     .as_ref()
                     .map(|p| format!(" from {}", p.display()))
                     .unwrap_or_default();
-                write!(
-                    f,
-                    "distortion  {d}{from}; kept on the cameras, images are NOT undistorted"
-                )
+                match self.undistorted_without_source {
+                    Some(0) => write!(
+                        f,
+                        "distortion  {d}{from}; images undistorted at load onto the pinhole camera of the same intrinsics"
+                    ),
+                    Some(n) => write!(
+                        f,
+                        "distortion  {d}{from}; images undistorted at load onto the pinhole camera of the same intrinsics ({n} border pixels have no source and leave the loss)"
+                    ),
+                    None => write!(
+                        f,
+                        "distortion  {d}{from}; kept on the cameras, images NOT undistorted (undistortion turned off)"
+                    ),
+                }
             }
             (None, _) => write!(f, "distortion  none (pinhole)"),
         }

@@ -57,7 +57,7 @@ fn fern_loads_at_downsample_8() {
         "504x378",
         "17 train, 3 test",
         "10091",
-        "NOT undistorted",
+        "undistorted at load",
     ] {
         assert!(text.contains(needle), "summary lacks {needle:?}:\n{text}");
     }

@@ -121,7 +121,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         scene.views, scene.width, scene.height
     );
     write_capture(&clean_dir, &scene)?;
-    let capture = super::open_scene(&clean_dir, 1)?;
+    let capture = super::open_scene(&clean_dir, 1, false)?;
     let options = scenes::AberrateOptions {
         seed: a.seed,
         ..Default::default()

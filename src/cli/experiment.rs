@@ -97,6 +97,10 @@ pub struct ExperimentRuns {
     /// on its own into its folder (with this experiment's settings) joins the table.
     #[arg(long, conflicts_with = "overwrite")]
     pub resume: bool,
+    /// Keep the photos as taken when the cameras have lens distortion (as `train
+    /// --keep-distortion`; by default they are undistorted at load).
+    #[arg(long)]
+    pub keep_distortion: bool,
 }
 
 #[derive(Args)]
@@ -139,6 +143,7 @@ fn aberrated_capture(
     psf: Option<&std::path::Path>,
     downsample: u32,
     seed: u64,
+    keep_distortion: bool,
 ) -> Result<(PathBuf, base::FolderLock)> {
     let mut inputs = vec![("--scene", scene)];
     if let Some(p) = psf {
@@ -155,11 +160,12 @@ fn aberrated_capture(
             scene,
             &psf.map_or(out.join("psf.npy"), Into::into),
             seed,
+            keep_distortion,
         )?;
         None
     } else {
         super::refuse_aberrated_source("--scene", scene)?;
-        let capture = super::open_scene(scene, downsample)?;
+        let capture = super::open_scene(scene, downsample, keep_distortion)?;
         if capture.split.train.is_empty() {
             anyhow::bail!(
                 "--scene {}: {} view(s) leave no training views once every {}th is held out for testing; use a capture with more views",
@@ -210,6 +216,7 @@ fn refuse_other_copy(
     scene: &std::path::Path,
     psf: &std::path::Path,
     seed: u64,
+    keep_distortion: bool,
 ) -> Result<()> {
     let Some(record) = scenes::aberrated::AberrationRecord::read(aberrated)? else {
         return Ok(());
@@ -236,6 +243,11 @@ fn refuse_other_copy(
         && &scenes::aberrated::psf_checksum(&bytes) != want
     {
         differs.push(format!("through another PSF grid than {}", psf.display()));
+    }
+    // Only a capture with distortion is undistorted, so only a copy that was undistorted
+    // can tell.
+    if record.undistorted && keep_distortion {
+        differs.push("from undistorted photos, not with --keep-distortion".to_string());
     }
     if differs.is_empty() {
         return Ok(());
@@ -371,6 +383,7 @@ impl ExperimentRuns {
             self.psf.as_deref(),
             self.downsample,
             self.seed,
+            self.keep_distortion,
         )
     }
 
@@ -413,6 +426,7 @@ impl ExperimentRuns {
         let mut args = RunRequest::new(aberrated, run_dir);
         args.data.downsample = self.downsample;
         args.data.seed = self.seed;
+        args.data.keep_distortion = self.keep_distortion;
         // The runs restore the same views: one I_ac cache serves them all.
         args.data.iac_cache = Some(self.out.join(metasplat::train::iac_cache::CACHE_DIR));
         args.device = self.device;

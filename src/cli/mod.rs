@@ -69,11 +69,17 @@ enum Command {
     Man,
 }
 
-/// Opens a capture at `images_{downsample}` (every 8th image held out), naming it on failure.
-pub fn open_scene(dir: &std::path::Path, downsample: u32) -> anyhow::Result<scenes::Capture> {
+/// Opens a capture at `images_{downsample}` (every 8th image held out; photos undistorted
+/// at load unless `keep_distortion`), naming it on failure.
+pub fn open_scene(
+    dir: &std::path::Path,
+    downsample: u32,
+    keep_distortion: bool,
+) -> anyhow::Result<scenes::Capture> {
     use anyhow::Context;
     let options = scenes::OpenOptions {
         resolution: scenes::Resolution::Downsample(downsample),
+        undistort: !keep_distortion,
         ..Default::default()
     };
     scenes::open(dir, &options).with_context(|| format!("cannot open the scene {}", dir.display()))

@@ -201,6 +201,10 @@ pub struct PsfMismatchArgs {
     /// What each error trains.
     #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Variant::Wrong, Variant::BlurOnly, Variant::IacOnly, Variant::Refined])]
     pub variants: Vec<Variant>,
+    /// Keep the photos as taken when the cameras have lens distortion (as `train
+    /// --keep-distortion`).
+    #[arg(long)]
+    pub keep_distortion: bool,
     /// What the refined runs learn (as `train --refine-psf`).
     #[arg(long, value_enum, default_value_t = metasplat::train::psf_refine::PsfModel::Warp)]
     pub refine_model: metasplat::train::psf_refine::PsfModel,
@@ -247,6 +251,7 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
         strategy: metasplat::settings::StrategyChoice::Auto,
         ceiling: false,
         resume: a.resume,
+        keep_distortion: a.keep_distortion,
     };
     let (aberrated, _lock) = runs.aberrated()?;
     let true_path = a.out.join("psf.npy");

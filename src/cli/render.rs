@@ -73,7 +73,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
     metasplat::guard::refuse_file_as_folder("--out", &a.out)?;
     let capture = match &a.scene {
         Some(dir) => {
-            let capture = super::open_scene(dir, super::downsample_for(dir, a.downsample))?;
+            let capture = super::open_scene(dir, super::downsample_for(dir, a.downsample), false)?;
             // The photos the capture names, wherever its model file says they are.
             inputs.add_capture(&capture);
             inputs.refuse("--out", &a.out)?;

@@ -56,6 +56,10 @@ pub struct SceneAberrateArgs {
     pub downsample: u32,
     #[command(flatten)]
     pub imaging: super::aberrate::ImagingArgs,
+    /// Blur the photos as taken even when the cameras have lens distortion (by default they
+    /// are undistorted at load first, and the copy's cameras are pinhole).
+    #[arg(long)]
+    pub keep_distortion: bool,
     /// PNG sample depth of the written images (8 or 16); 16 keeps the sensor noise.
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u8).range(8..=16))]
     pub bit_depth: u8,
@@ -122,7 +126,7 @@ fn aberrate(a: SceneAberrateArgs) -> Result<()> {
         &[("--scene", &a.scene), ("--psf", &a.psf)],
     )?;
     super::refuse_aberrated_source("--scene", &a.scene)?;
-    let capture = super::open_scene(&a.scene, a.downsample)?;
+    let capture = super::open_scene(&a.scene, a.downsample, a.keep_distortion)?;
     let mut inputs = metasplat::guard::Inputs::of(&[("--scene", &a.scene), ("--psf", &a.psf)]);
     inputs.add_capture(&capture);
     inputs.refuse("--out", &a.out)?;

@@ -162,6 +162,15 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
                 }
             }
         }
+        if let (Some(remap), Some(d)) = (
+            data.capture.remaps.iter().flatten().next(),
+            data.capture.cameras.iter().find_map(|c| c.distortion),
+        ) {
+            println!(
+                "The photos are undistorted at load onto the pinhole camera of their intrinsics ({d}; {} border pixels of each have no source and leave the loss); --keep-distortion trains on them as taken.",
+                remap.invalid_count()
+            );
+        }
         let masked = data.train.iter().filter(|v| v.mask.is_some()).count();
         if masked > 0 {
             println!(

@@ -152,6 +152,7 @@ impl CaptureModel {
             resolution: Resolution::Downsample(options.downsample),
             llffhold: options.llffhold,
             seed: options.seed,
+            undistort: !options.keep_distortion,
             ..OpenOptions::default()
         };
         let capture = scenes::open(dir, &open)?;

@@ -251,6 +251,11 @@ pub fn capture_fingerprint(data: &Dataset) -> String {
             bytes.extend(v.to_le_bytes());
         }
     }
+    // Undistorted photos are other pixels than the photos as taken (a pinhole capture keeps
+    // the fingerprint it had before undistortion existed).
+    if c.undistorted() {
+        bytes.extend(b"undistorted at load");
+    }
     for i in c.split.train.iter().chain(&c.split.test) {
         bytes.extend((*i as u64).to_le_bytes());
     }
