@@ -880,6 +880,7 @@ fn a_distorted_capture_trains_better_undistorted_at_load() {
         k2: 0.0,
         p1: 0.004,
         p2: -0.003,
+        rational: [0.0; 4],
     };
     // The distorted capture: the same poses and points, photos seen through the lens.
     let taken = dir.path().join("taken");

@@ -65,6 +65,7 @@ pub enum CameraModel {
     SimpleRadial,
     Radial,
     OpenCv,
+    FullOpenCv,
 }
 
 impl CameraModel {
@@ -76,6 +77,7 @@ impl CameraModel {
             2 => Self::SimpleRadial,
             3 => Self::Radial,
             4 => Self::OpenCv,
+            6 => Self::FullOpenCv,
             _ => return None,
         })
     }
@@ -87,6 +89,7 @@ impl CameraModel {
             Self::SimpleRadial => 2,
             Self::Radial => 3,
             Self::OpenCv => 4,
+            Self::FullOpenCv => 6,
         }
     }
 
@@ -97,6 +100,7 @@ impl CameraModel {
             "SIMPLE_RADIAL" => Self::SimpleRadial,
             "RADIAL" => Self::Radial,
             "OPENCV" => Self::OpenCv,
+            "FULL_OPENCV" => Self::FullOpenCv,
             _ => return None,
         })
     }
@@ -108,6 +112,7 @@ impl CameraModel {
             Self::SimpleRadial => "SIMPLE_RADIAL",
             Self::Radial => "RADIAL",
             Self::OpenCv => "OPENCV",
+            Self::FullOpenCv => "FULL_OPENCV",
         }
     }
 
@@ -119,6 +124,7 @@ impl CameraModel {
             Self::SimpleRadial => 4,
             Self::Radial => 5,
             Self::OpenCv => 8,
+            Self::FullOpenCv => 12,
         }
     }
 }
@@ -129,9 +135,9 @@ impl fmt::Display for CameraModel {
     }
 }
 
-/// Lens distortion in normalised image coordinates (OpenCV's radial-tangential model, of which
-/// COLMAP's SIMPLE_RADIAL and RADIAL are special cases). Being dimensionless, the coefficients
-/// do not change when images are downsampled.
+/// Lens distortion in normalised image coordinates (OpenCV's rational radial-tangential
+/// model, of which COLMAP's SIMPLE_RADIAL, RADIAL and OPENCV are special cases). Being
+/// dimensionless, the coefficients do not change when images are downsampled.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Distortion {
     /// The model the coefficients came from, kept for reporting.
@@ -140,13 +146,18 @@ pub struct Distortion {
     pub k2: f64,
     pub p1: f64,
     pub p2: f64,
+    /// FULL_OPENCV's `k3, k4, k5, k6`: the radial factor is
+    /// `(1 + k1 r² + k2 r⁴ + k3 r⁶) / (1 + k4 r² + k5 r⁴ + k6 r⁶)`; zero for the other models.
+    pub rational: [f64; 4],
 }
 
 impl Distortion {
     /// Maps an undistorted normalised point `(x/z, y/z)` to where the lens images it.
     pub fn distort(&self, x: f64, y: f64) -> (f64, f64) {
         let r2 = x * x + y * y;
-        let radial = 1.0 + self.k1 * r2 + self.k2 * r2 * r2;
+        let [k3, k4, k5, k6] = self.rational;
+        let radial = (1.0 + self.k1 * r2 + self.k2 * r2 * r2 + k3 * r2 * r2 * r2)
+            / (1.0 + k4 * r2 + k5 * r2 * r2 + k6 * r2 * r2 * r2);
         (
             x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x),
             y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y,
@@ -154,7 +165,11 @@ impl Distortion {
     }
 
     pub fn is_zero(&self) -> bool {
-        self.k1 == 0.0 && self.k2 == 0.0 && self.p1 == 0.0 && self.p2 == 0.0
+        self.k1 == 0.0
+            && self.k2 == 0.0
+            && self.p1 == 0.0
+            && self.p2 == 0.0
+            && self.rational == [0.0; 4]
     }
 }
 
@@ -165,6 +180,14 @@ impl fmt::Display for Distortion {
             CameraModel::SimpleRadial => write!(f, "{} k1={:.6}", self.model, self.k1),
             CameraModel::Radial => {
                 write!(f, "{} k1={:.6} k2={:.6}", self.model, self.k1, self.k2)
+            }
+            CameraModel::FullOpenCv => {
+                let [k3, k4, k5, k6] = self.rational;
+                write!(
+                    f,
+                    "{} k1={:.6} k2={:.6} p1={:.6} p2={:.6} k3={k3:.6} k4={k4:.6} k5={k5:.6} k6={k6:.6}",
+                    self.model, self.k1, self.k2, self.p1, self.p2
+                )
             }
             CameraModel::OpenCv => write!(
                 f,

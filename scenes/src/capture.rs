@@ -370,6 +370,7 @@ fn remaps(cameras: &[Camera]) -> Vec<Option<std::sync::Arc<Remap>>> {
             let d = c.distortion.filter(|d| !d.is_zero())?;
             let key: Vec<u64> = [c.fx, c.fy, c.cx, c.cy, d.k1, d.k2, d.p1, d.p2]
                 .iter()
+                .chain(&d.rational)
                 .map(|v| v.to_bits())
                 .chain([c.width as u64, c.height as u64])
                 .collect();

@@ -96,6 +96,7 @@ pub fn check_intrinsics(
 pub fn check_distortion(d: &Distortion) -> Result<(), String> {
     let radial = [d.k1, d.k2]
         .iter()
+        .chain(&d.rational)
         .all(|k| k.is_finite() && k.abs() <= MAX_RADIAL_DISTORTION);
     let tangential = [d.p1, d.p2]
         .iter()
@@ -104,12 +105,13 @@ pub fn check_distortion(d: &Distortion) -> Result<(), String> {
         Ok(())
     } else {
         Err(format!(
-            "distortion k1 {}, k2 {}, p1 {}, p2 {}; |k| must be at most {MAX_RADIAL_DISTORTION} \
-             and |p| at most {MAX_TANGENTIAL_DISTORTION}",
+            "distortion k1 {}, k2 {}, p1 {}, p2 {}, k3..k6 {}; |k| must be at most \
+             {MAX_RADIAL_DISTORTION} and |p| at most {MAX_TANGENTIAL_DISTORTION}",
             show(d.k1),
             show(d.k2),
             show(d.p1),
-            show(d.p2)
+            show(d.p2),
+            d.rational.map(show).join(" ")
         ))
     }
 }
@@ -191,6 +193,7 @@ mod tests {
             k2: 0.0,
             p1: 0.0,
             p2: 0.0,
+            rational: [0.0; 4],
         };
         assert!(check_distortion(&d(-0.3)).is_ok());
         assert!(check_distortion(&d(1e6)).is_err());

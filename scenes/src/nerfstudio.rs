@@ -170,6 +170,7 @@ pub fn read_transforms(root: &Path, downsample: u32) -> Result<Transforms> {
             k2: k("k2")?,
             p1: k("p1")?,
             p2: k("p2")?,
+            rational: [0.0; 4],
         };
         limits::check_distortion(&distortion).map_err(bad)?;
         let m = frame["transform_matrix"]

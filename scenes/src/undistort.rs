@@ -1,5 +1,5 @@
 //! Undistortion at load: a photo taken through a lens with radial-tangential distortion
-//! (COLMAP's SIMPLE_RADIAL, RADIAL and OPENCV, nerfstudio's OPENCV) is resampled onto the
+//! (COLMAP's SIMPLE_RADIAL, RADIAL, OPENCV and FULL_OPENCV, nerfstudio's OPENCV) is resampled onto the
 //! pinhole camera with the same intrinsics and size, the camera every renderer here draws.
 //! Output pixel centre `(u, v)` looks along the normalised ray `((u - cx)/fx, (v - cy)/fy)`;
 //! the lens images that ray at [`Distortion::distort`] of it, where the photo is sampled

@@ -101,6 +101,7 @@ fn distortion_matches_the_opencv_formula() {
         k2: 0.01,
         p1: 0.001,
         p2: 0.002,
+        rational: [0.0; 4],
     };
     let (x, y) = d.distort(0.5, -0.25);
     let r2: f64 = 0.3125;

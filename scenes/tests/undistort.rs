@@ -34,6 +34,7 @@ fn lens() -> Distortion {
         k2: -0.02,
         p1: 0.002,
         p2: -0.001,
+        rational: [0.0; 4],
     }
 }
 
@@ -93,9 +94,30 @@ fn mean_abs(a: &Photo, b: &Photo, keep: &[bool]) -> f64 {
     sum / n as f64
 }
 
+/// FULL_OPENCV's rational lens, as COLMAP's text model writes it.
+fn full_lens() -> Distortion {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cameras.txt");
+    std::fs::write(
+        &path,
+        "# c\n1 FULL_OPENCV 120 90 100 100 60 45 0.08 -0.02 0.002 -0.001 0.03 0.05 -0.01 0.004\n",
+    )
+    .unwrap();
+    let cameras = scenes::colmap::text::read_cameras(&path).unwrap();
+    let d = cameras[0].intrinsics().distortion.unwrap();
+    assert_eq!(d.model, CameraModel::FullOpenCv);
+    assert_eq!(d.rational, [0.03, 0.05, -0.01, 0.004]);
+    d
+}
+
 #[test]
 fn a_distorted_photo_comes_back_as_the_pinhole_image() {
-    let d = lens();
+    for d in [lens(), full_lens()] {
+        comes_back(d);
+    }
+}
+
+fn comes_back(d: Distortion) {
     let remap = Remap::new(&camera(), &d);
     let (truth, taken) = (photo(None, &scene), photo(Some(&d), &scene));
     let back = remap.apply(&taken);

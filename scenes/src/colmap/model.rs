@@ -36,6 +36,7 @@ impl ColmapCamera {
                 k2,
                 p1,
                 p2,
+                rational: [0.0; 4],
             })
         };
         let (fx, fy, cx, cy, distortion) = match self.model {
@@ -61,6 +62,16 @@ impl ColmapCamera {
                 get(2),
                 get(3),
                 distortion(get(4), get(5), get(6), get(7)),
+            ),
+            CameraModel::FullOpenCv => (
+                get(0),
+                get(1),
+                get(2),
+                get(3),
+                distortion(get(4), get(5), get(6), get(7)).map(|d| Distortion {
+                    rational: [get(8), get(9), get(10), get(11)],
+                    ..d
+                }),
             ),
         };
         Intrinsics {
