@@ -80,6 +80,46 @@ pub fn spiral(cameras: &[Camera], bounds: &[Bounds], frames: usize) -> Vec<Camer
         .collect()
 }
 
+/// `frames` cameras along the capture's cameras in their order, each pose between two
+/// neighbours (centres interpolated linearly, orientations by slerp), so the path passes
+/// through every camera; intrinsics of the nearer neighbour. One camera gives itself.
+pub fn through_cameras(cameras: &[Camera], frames: usize) -> Vec<Camera> {
+    let (n, frames) = (cameras.len(), frames.max(1));
+    if n == 0 {
+        return Vec::new();
+    }
+    (0..frames)
+        .map(|k| {
+            let s = if frames == 1 {
+                0.0
+            } else {
+                k as f64 * (n - 1) as f64 / (frames - 1) as f64
+            };
+            let i = (s.floor() as usize).min(n.saturating_sub(2));
+            let t = if n == 1 { 0.0 } else { s - i as f64 };
+            let (a, b) = (&cameras[i], &cameras[(i + 1).min(n - 1)]);
+            let (pa, pb) = (a.camera_to_world(), b.camera_to_world());
+            let (qa, qb) = (
+                glam::DQuat::from_mat3(&pa.rotation),
+                glam::DQuat::from_mat3(&pb.rotation),
+            );
+            let rotation = DMat3::from_quat(qa.slerp(qb, t).normalize());
+            let centre = pa.translation.lerp(pb.translation, t);
+            let near = if t < 0.5 { a } else { b };
+            Camera {
+                name: format!("frame{k:05}"),
+                world_to_camera: Rigid {
+                    rotation,
+                    translation: centre,
+                }
+                .inverse(),
+                distortion: None,
+                ..near.clone()
+            }
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -124,5 +164,30 @@ mod tests {
         // It moves: frames differ and return near the start after the loop.
         assert!((path[0].center() - path[10].center()).length() > 0.1 * spread);
         assert!(spiral(&[], &[], 5).is_empty());
+    }
+
+    #[test]
+    fn the_path_through_the_cameras_passes_through_each_of_them() {
+        let cams: Vec<Camera> =
+            crate::procedural::cameras(&crate::procedural::ProceduralOptions::default());
+        let per = 4;
+        let path = through_cameras(&cams, (cams.len() - 1) * per + 1);
+        assert_eq!(path.len(), (cams.len() - 1) * per + 1);
+        for (i, c) in cams.iter().enumerate() {
+            let p = &path[i * per];
+            let diff = (p.world_to_camera.to_mat4() - c.world_to_camera.to_mat4())
+                .to_cols_array()
+                .iter()
+                .fold(0.0f64, |m, v| m.max(v.abs()));
+            assert!(diff < 1e-9, "frame {} is {diff} from camera {i}", i * per);
+        }
+        // Between two cameras: halfway along, a rotation, facing between them.
+        let mid = &path[per / 2];
+        let r = mid.world_to_camera.rotation;
+        assert!((r * r.transpose()).abs_diff_eq(DMat3::IDENTITY, 1e-9));
+        let expect = (cams[0].center() + cams[1].center()) / 2.0;
+        assert!((mid.center() - expect).length() < 1e-9);
+        assert_eq!(through_cameras(&cams[..1], 5).len(), 5);
+        assert!(through_cameras(&[], 5).is_empty());
     }
 }

@@ -1699,3 +1699,149 @@ fn resume_with_more_iters_extends_a_run_as_one_extension_would() {
     let err = fails(&train(&a, "800", &["--resume", "--max-sh-degree", "1"]));
     assert!(err.contains("max_sh_degree"), "{err}");
 }
+
+/// `render --video`: a GIF without any tool (every frame in it, at the path's length), an
+/// .mp4 through the ffmpeg on the PATH (a stand-in here that records its arguments), and
+/// without ffmpeg a refusal naming it and the .gif way out before anything is rendered.
+/// The path through the capture's cameras and a nerfstudio camera path feed it.
+#[test]
+fn render_writes_a_video_with_or_without_ffmpeg() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ply = d.join("scene.ply");
+    splat::formats::ply::write_ply(&ply, &metasplat::procedural::ground_truth(0)).unwrap();
+    let gif = d.join("orbit.gif");
+    let text = ok(&[
+        "render",
+        "--in",
+        s(&ply),
+        "--video",
+        s(&gif),
+        "--orbit",
+        "7",
+        "--width",
+        "40",
+        "--height",
+        "30",
+        "--device",
+        "cpu",
+    ]);
+    assert!(text.contains("7 frames 40x30"), "{text}");
+    let decoder = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(
+        std::fs::File::open(&gif).unwrap(),
+    ))
+    .unwrap();
+    let frames = image::AnimationDecoder::into_frames(decoder)
+        .collect_frames()
+        .unwrap();
+    assert_eq!(frames.len(), 7);
+    assert_eq!(frames[0].buffer().dimensions(), (40, 30));
+    assert_ne!(
+        frames[0].buffer(),
+        frames[3].buffer(),
+        "the orbit does not move"
+    );
+    assert_ordinary_modes(d, &["gif"]);
+    // No ffmpeg on the PATH: refused, nothing written.
+    let empty = d.join("empty-bin");
+    std::fs::create_dir_all(&empty).unwrap();
+    let mp4 = d.join("orbit.mp4");
+    let out = common::cli::metasplat()
+        .env("PATH", &empty)
+        .args([
+            "render",
+            "--in",
+            s(&ply),
+            "--video",
+            s(&mp4),
+            "--orbit",
+            "3",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("ffmpeg") && err.contains(".gif"),
+        "{err}"
+    );
+    assert!(!mp4.exists());
+    // A stand-in ffmpeg: it records its arguments and writes the file it is given last.
+    let bin = d.join("bin");
+    std::fs::create_dir_all(&bin).unwrap();
+    let fake = bin.join("ffmpeg");
+    std::fs::write(
+        &fake,
+        format!(
+            "#!/bin/sh\necho \"$@\" > {}\nfor last; do :; done\necho video > \"$last\"\n",
+            d.join("args").display()
+        ),
+    )
+    .unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
+    // The path through a capture's cameras, at 12 frames per second.
+    let capture = d.join("capture");
+    procedural(&capture, 40, 30, 5);
+    let out = common::cli::metasplat()
+        .env("PATH", &bin)
+        .args([
+            "render",
+            "--in",
+            s(&ply),
+            "--scene",
+            s(&capture),
+            "--downsample",
+            "1",
+            "--video",
+            s(&mp4),
+            "--through-cameras",
+            "9",
+            "--fps",
+            "12",
+            "--device",
+            "cpu",
+        ])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("9 frames") && text.contains("through ffmpeg"),
+        "{text}"
+    );
+    assert_eq!(std::fs::read_to_string(&mp4).unwrap(), "video\n");
+    let args = std::fs::read_to_string(d.join("args")).unwrap();
+    assert!(
+        args.contains("-framerate 12") && args.contains("frame%05d.png"),
+        "{args}"
+    );
+    // A nerfstudio camera path: its size and rate.
+    let path = d.join("camera_path.json");
+    let key = |x: f64| serde_json::json!({"camera_to_world": [1.0, 0.0, 0.0, x, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 4.0, 0.0, 0.0, 0.0, 1.0], "fov": 50.0, "aspect": 1.5});
+    std::fs::write(
+        &path,
+        serde_json::json!({"render_width": 48, "render_height": 32, "fps": 10,
+            "camera_path": [key(-0.5), key(0.0), key(0.5)]})
+        .to_string(),
+    )
+    .unwrap();
+    let text = ok(&[
+        "render",
+        "--in",
+        s(&ply),
+        "--path",
+        s(&path),
+        "--video",
+        s(&gif),
+        "--device",
+        "cpu",
+    ]);
+    assert!(
+        text.contains("3 frames 48x32") && text.contains("at 10 frames per second"),
+        "{text}"
+    );
+}

@@ -189,18 +189,8 @@ pub fn read_transforms(root: &Path, downsample: u32) -> Result<Transforms> {
                 })?;
             }
         }
-        // Columns: the camera's x, y, z axes in the world, then its centre.
-        let axis = |c: usize| DVec3::new(c2w[0][c], c2w[1][c], c2w[2][c]);
-        let rotation = DMat3::from_cols(axis(0), -axis(1), -axis(2));
-        let gram = rotation.transpose() * rotation - DMat3::IDENTITY;
-        if gram.to_cols_array().iter().any(|v| v.abs() > 1e-3) || rotation.determinant() < 0.0 {
-            return Err(bad(
-                "transform_matrix's rotation is not a rotation (not orthonormal or mirrored)"
-                    .into(),
-            ));
-        }
-        let centre = axis(3);
-        limits::check_point(centre.to_array()).map_err(|p| bad(format!("camera {p}")))?;
+        let (rotation, centre) =
+            opengl_to_ours(&c2w).map_err(|e| bad(format!("transform_matrix: {e}")))?;
         let (pw, ph) = images::image_size(&photo)?;
         let (sx, sy) = (pw as f64 / w, ph as f64 / h);
         limits::check_downsample((w, h), (pw, ph)).map_err(bad)?;
@@ -240,6 +230,94 @@ pub fn read_transforms(root: &Path, downsample: u32) -> Result<Transforms> {
         frames: out,
         ply_file,
     })
+}
+
+/// The rotation (camera to world, our axes) and centre of a camera-to-world matrix in
+/// nerfstudio's OpenGL axes (its first three rows), checked to be a rotation and a position.
+fn opengl_to_ours(c2w: &[[f64; 4]; 3]) -> std::result::Result<(DMat3, DVec3), String> {
+    // Columns: the camera's x, y, z axes in the world, then its centre.
+    let axis = |c: usize| DVec3::new(c2w[0][c], c2w[1][c], c2w[2][c]);
+    let rotation = DMat3::from_cols(axis(0), -axis(1), -axis(2));
+    let gram = rotation.transpose() * rotation - DMat3::IDENTITY;
+    if gram.to_cols_array().iter().any(|v| v.abs() > 1e-3) || rotation.determinant() < 0.0 {
+        return Err("the rotation is not a rotation (not orthonormal or mirrored)".into());
+    }
+    let centre = axis(3);
+    limits::check_point(centre.to_array()).map_err(|p| format!("camera {p}"))?;
+    Ok((rotation, centre))
+}
+
+/// A camera path as nerfstudio's viewer exports it (`camera_path.json`, what `ns-render
+/// camera-path` reads): `render_width`, `render_height`, optional `fps`, and per keyframe of
+/// `camera_path` a camera-to-world `camera_to_world` (16 numbers, row-major, OpenGL axes as
+/// in `transforms.json`) and a vertical `fov` in degrees; every frame is one camera.
+pub struct CameraPath {
+    pub cameras: Vec<Camera>,
+    pub fps: f64,
+}
+
+/// Reads a `camera_path.json`; errors name the file, the keyframe and the problem.
+pub fn read_camera_path(path: &Path) -> Result<CameraPath> {
+    SceneError::check_file_size(path, base::limits::MAX_TEXT_FILE_BYTES)?;
+    let text = std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
+    let doc: Value = serde_json::from_str(&text)
+        .map_err(|e| SceneError::invalid(path, format!("not JSON: {e}")))?;
+    let bad = |problem: String| SceneError::invalid(path, problem);
+    let size = |key: &str| {
+        doc[key]
+            .as_f64()
+            .filter(|v| v.fract() == 0.0 && (8.0..=8192.0).contains(v))
+            .map(|v| v as u32)
+            .ok_or_else(|| bad(format!("{key} is {}, not a size from 8 to 8192", doc[key])))
+    };
+    let (w, h) = (size("render_width")?, size("render_height")?);
+    let fps = match &doc["fps"] {
+        Value::Null => 30.0,
+        v => v
+            .as_f64()
+            .filter(|f| (0.1..=1000.0).contains(f))
+            .ok_or_else(|| bad(format!("fps is {v}, not a rate from 0.1 to 1000")))?,
+    };
+    let Some(keys) = doc["camera_path"].as_array().filter(|k| !k.is_empty()) else {
+        return Err(bad("no camera_path keyframes".into()));
+    };
+    let mut cameras = Vec::with_capacity(keys.len());
+    for (i, key) in keys.iter().enumerate() {
+        let at = |problem: String| bad(format!("camera_path[{i}]: {problem}"));
+        let m = key["camera_to_world"]
+            .as_array()
+            .filter(|m| m.len() == 16)
+            .ok_or_else(|| at("camera_to_world is not 16 numbers".into()))?;
+        let mut rows = [[0.0f64; 4]; 3];
+        for (k, v) in m.iter().take(12).enumerate() {
+            rows[k / 4][k % 4] = v
+                .as_f64()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| at(format!("camera_to_world[{k}] is not a finite number")))?;
+        }
+        let (rotation, centre) = opengl_to_ours(&rows).map_err(at)?;
+        let fov = key["fov"]
+            .as_f64()
+            .filter(|f| *f > 0.0 && *f < 180.0)
+            .ok_or_else(|| at(format!("fov is {}, not degrees in (0, 180)", key["fov"])))?;
+        let f = h as f64 / 2.0 / (fov.to_radians() / 2.0).tan();
+        cameras.push(Camera {
+            name: format!("frame{i:05}"),
+            width: w,
+            height: h,
+            fx: f,
+            fy: f,
+            cx: w as f64 / 2.0,
+            cy: h as f64 / 2.0,
+            world_to_camera: Rigid {
+                rotation,
+                translation: centre,
+            }
+            .inverse(),
+            distortion: None,
+        });
+    }
+    Ok(CameraPath { cameras, fps })
 }
 
 /// Near/far bounds for cameras without scene points (see the module docs).

@@ -338,3 +338,65 @@ fn a_bad_ply_file_path_is_refused_naming_the_file() {
     let e = open(&dir, 1).err().unwrap().to_string();
     assert!(e.contains("ply_file_path is 3"), "{e}");
 }
+
+/// nerfstudio's `camera_path.json`: each keyframe's camera-to-world (row-major, OpenGL axes)
+/// reads back as the camera it was written from, its `fov` as the vertical field; broken
+/// keyframes are named.
+#[test]
+fn a_camera_path_reads_back_as_its_cameras() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (cameras, _) = common::arc_cameras(4, 80, 60, 9);
+    let keys: Vec<serde_json::Value> = cameras
+        .iter()
+        .map(|c| {
+            let m = c.camera_to_world();
+            let r = m.rotation;
+            let (x, y, z, t) = (r.x_axis, -r.y_axis, -r.z_axis, m.translation);
+            json!({"camera_to_world": [x.x, y.x, z.x, t.x, x.y, y.y, z.y, t.y, x.z, y.z, z.z, t.z, 0.0, 0.0, 0.0, 1.0], "fov": 50.0})
+        })
+        .collect();
+    let path = tmp.path().join("camera_path.json");
+    let write = |doc: serde_json::Value| std::fs::write(&path, doc.to_string()).unwrap();
+    write(json!({"render_width": 80, "render_height": 60, "fps": 24, "camera_path": keys}));
+    let read = scenes::nerfstudio::read_camera_path(&path).unwrap();
+    assert_eq!(read.fps, 24.0);
+    assert_eq!(read.cameras.len(), 4);
+    let f = 30.0 / 25f64.to_radians().tan();
+    for (a, b) in read.cameras.iter().zip(&cameras) {
+        assert_eq!((a.width, a.height), (80, 60));
+        assert!((a.fy - f).abs() < 1e-9 && (a.fx - f).abs() < 1e-9);
+        let (p, q) = (a.world_to_camera.to_mat4(), b.world_to_camera.to_mat4());
+        let worst = (p - q)
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |m, v| m.max(v.abs()));
+        assert!(worst < 1e-9, "poses differ by {worst}");
+    }
+    let refused = |doc: serde_json::Value| {
+        write(doc);
+        scenes::nerfstudio::read_camera_path(&path)
+            .err()
+            .map(|e| e.to_string())
+            .unwrap_or_default()
+    };
+    let mut bad_fov = keys.clone();
+    bad_fov[1]["fov"] = json!(0.0);
+    let e = refused(json!({"render_width": 80, "render_height": 60, "camera_path": bad_fov}));
+    assert!(e.contains("camera_path[1]") && e.contains("fov"), "{e}");
+    let mut mirrored = keys.clone();
+    mirrored[2]["camera_to_world"][0] = json!(-mirrored[2]["camera_to_world"][0].as_f64().unwrap());
+    mirrored[2]["camera_to_world"][4] = json!(-mirrored[2]["camera_to_world"][4].as_f64().unwrap());
+    mirrored[2]["camera_to_world"][8] = json!(-mirrored[2]["camera_to_world"][8].as_f64().unwrap());
+    let e = refused(json!({"render_width": 80, "render_height": 60, "camera_path": mirrored}));
+    assert!(
+        e.contains("camera_path[2]") && e.contains("mirrored"),
+        "{e}"
+    );
+    let e = refused(json!({"render_width": 4, "render_height": 60, "camera_path": keys}));
+    assert!(e.contains("render_width"), "{e}");
+    let e = refused(json!({"render_width": 80, "render_height": 60, "camera_path": []}));
+    assert!(
+        e.contains("camera_path.json") && e.contains("no camera_path"),
+        "{e}"
+    );
+}

@@ -14,6 +14,7 @@ mod restorer;
 mod scene;
 mod shell;
 mod train;
+mod video;
 mod view;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};

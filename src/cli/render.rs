@@ -28,15 +28,30 @@ pub struct RenderArgs {
     #[arg(long)]
     pub scene: Option<PathBuf>,
     /// The folder the frames go to (made with them, all at once).
+    #[arg(long, required_unless_present = "video", conflicts_with = "video")]
+    pub out: Option<PathBuf>,
+    /// One video file of the frames instead of a folder: .mp4, .mov, .webm or .mkv through
+    /// ffmpeg (when it is on the PATH), or an animated .gif written without it.
     #[arg(long)]
-    pub out: PathBuf,
+    pub video: Option<PathBuf>,
+    /// Frames per second of --video (default: the --path file's, else 30).
+    #[arg(long, requires = "video", value_parser = metasplat::flags::positive)]
+    pub fps: Option<f64>,
     /// Render N frames of the LLFF spiral instead of the capture's cameras.
     #[arg(long, requires = "scene", value_parser = clap::value_parser!(u32).range(1..=10_000))]
     pub spiral: Option<u32>,
+    /// Render N frames along the capture's cameras in order (positions interpolated, turns
+    /// by slerp), passing through every one.
+    #[arg(long, requires = "scene", conflicts_with = "spiral", value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub through_cameras: Option<u32>,
+    /// Render the frames of a nerfstudio camera path (`camera_path.json`, as its viewer
+    /// exports and `ns-render camera-path` reads): its size, field of view and rate.
+    #[arg(long, conflicts_with_all = ["spiral", "through_cameras", "split", "camera"])]
+    pub path: Option<PathBuf>,
     /// Render one split of the capture as INRIA's `render.py` lays it out: `renders/` and
     /// `gt/` (the clean image where the capture has one, else the photo) side by side, one
     /// name per view, for other tools' metric scripts.
-    #[arg(long, value_enum, requires = "scene", conflicts_with = "spiral")]
+    #[arg(long, value_enum, requires = "scene", conflicts_with_all = ["spiral", "through_cameras", "video"])]
     pub split: Option<SplitChoice>,
     /// Use the capture's images_N (1: images/); default images_8/ when it exists, else the
     /// folder there is.
@@ -68,15 +83,39 @@ pub fn run(a: RenderArgs) -> Result<()> {
     if let Some(s) = &a.scene {
         inputs.push(("--scene", s));
     }
+    if let Some(p) = &a.path {
+        inputs.push(("--path", p));
+    }
     let mut inputs = metasplat::guard::Inputs::of(&inputs);
-    inputs.refuse("--out", &a.out)?;
-    metasplat::guard::refuse_file_as_folder("--out", &a.out)?;
+    // The frames' folder, or the video file; and how the video is written, before any work.
+    let (target, flag) = match (&a.out, &a.video) {
+        (Some(out), _) => (out.clone(), "--out"),
+        (None, Some(video)) => (video.clone(), "--video"),
+        (None, None) => bail!("give --out (a folder of frames) or --video (one file)"),
+    };
+    let video = a
+        .video
+        .as_deref()
+        .map(super::video::format_for)
+        .transpose()?;
+    inputs.refuse(flag, &target)?;
+    if video.is_some() && target.is_dir() {
+        bail!("--video {}: is a folder, not a file", target.display());
+    }
+    if video.is_none() {
+        metasplat::guard::refuse_file_as_folder("--out", &target)?;
+    }
+    let camera_path = a
+        .path
+        .as_deref()
+        .map(scenes::nerfstudio::read_camera_path)
+        .transpose()?;
     let capture = match &a.scene {
         Some(dir) => {
             let capture = super::open_scene(dir, super::downsample_for(dir, a.downsample), false)?;
             // The photos the capture names, wherever its model file says they are.
             inputs.add_capture(&capture);
-            inputs.refuse("--out", &a.out)?;
+            inputs.refuse(flag, &target)?;
             Some(capture)
         }
         None => None,
@@ -95,21 +134,35 @@ pub fn run(a: RenderArgs) -> Result<()> {
     if views.as_ref().is_some_and(|v| v.is_empty()) {
         bail!("--split: the capture has no views in that split");
     }
-    let cameras: Vec<(String, splat::Camera)> = match &capture {
-        Some(capture) => {
-            let cams = match (a.spiral, &views) {
-                (Some(n), _) => {
+    let mut cameras: Vec<(String, splat::Camera)> = match (&capture, &camera_path) {
+        (_, Some(path)) => path
+            .cameras
+            .iter()
+            .map(|c| (c.name.clone(), metasplat::convert::splat_camera(c)))
+            .collect(),
+        (Some(capture), None) => {
+            let cams = match (a.spiral, a.through_cameras, &views) {
+                (Some(n), _, _) => {
                     metasplat::spiral::spiral(&capture.cameras, &capture.bounds, n as usize)
                 }
-                (None, Some(v)) => v.iter().map(|&i| capture.cameras[i].clone()).collect(),
-                (None, None) => capture.cameras.clone(),
+                (None, Some(n), _) => {
+                    metasplat::spiral::through_cameras(&capture.cameras, n as usize)
+                }
+                (None, None, Some(v)) => v.iter().map(|&i| capture.cameras[i].clone()).collect(),
+                (None, None, None) => capture.cameras.clone(),
             };
             cams.iter()
                 .map(|c| (c.name.clone(), metasplat::convert::splat_camera(c)))
                 .collect()
         }
-        None => free_cameras(&a, &model)?,
+        (None, None) => free_cameras(&a, &model)?,
     };
+    if video.is_some() {
+        // The encoders read the frames by number.
+        for (k, (name, _)) in cameras.iter_mut().enumerate() {
+            *name = format!("frame{k:05}");
+        }
+    }
     let settings = splat::RenderSettings {
         sh_degree: model.sh_degree,
         ..Default::default()
@@ -118,7 +171,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
     println!("{note}");
     // All or nothing: the frames go to a staging folder beside --out and move in at the end,
     // so a failure (a full disk) leaves no partial frame set.
-    let parent = match a.out.parent() {
+    let parent = match target.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
     };
@@ -126,11 +179,11 @@ pub fn run(a: RenderArgs) -> Result<()> {
         .with_context(|| format!("cannot create {}", parent.display()))?;
     // One render into --out at a time; the lock sits beside it, so that --out appears only
     // with its frames.
-    let _lock = base::FolderLock::beside(&a.out, "render")?;
+    let _lock = base::FolderLock::beside(&target, "render")?;
     // Into a folder that exists, also the lock a training run there holds: no frames land
     // in a run folder while the run writes it.
-    let _folder_lock = if a.out.is_dir() {
-        Some(base::FolderLock::folder(&a.out, "render")?)
+    let _folder_lock = if target.is_dir() {
+        Some(base::FolderLock::folder(&target, "render")?)
     } else {
         None
     };
@@ -162,10 +215,33 @@ pub fn run(a: RenderArgs) -> Result<()> {
         _ => (staging.path().to_path_buf(), None),
     };
     let staged = render_named(&model, &settings, &cameras, &frames_dir, &device)?;
+    if let Some(format) = &video {
+        let fps = a
+            .fps
+            .or(camera_path.as_ref().map(|p| p.fps))
+            .unwrap_or(30.0);
+        super::video::encode(format, &staged, fps, &target)?;
+        println!(
+            "{} splats (SH degree {}) rendered to {} frames {}x{} and written as {} at {fps} frames per second{} in {:.2} s",
+            model.len(),
+            model.sh_degree,
+            staged.len(),
+            cameras.first().map_or(0, |c| c.1.width),
+            cameras.first().map_or(0, |c| c.1.height),
+            target.display(),
+            match format {
+                super::video::VideoFormat::Gif => "",
+                super::video::VideoFormat::Ffmpeg(_) => " through ffmpeg",
+            },
+            start.elapsed().as_secs_f64(),
+        );
+        return Ok(());
+    }
+    let out = &target;
     // The frames into --out (or its renders/ beside gt/), then their ground truth.
     let frames_to = match truth_dir {
-        Some(_) => a.out.join("renders"),
-        None => a.out.clone(),
+        Some(_) => out.join("renders"),
+        None => out.clone(),
     };
     let mut moves: Vec<(PathBuf, PathBuf)> = staged
         .iter()
@@ -179,7 +255,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
     if let Some(truth) = &truth_dir {
         for e in std::fs::read_dir(truth).with_context(|| format!("{}", truth.display()))? {
             let f = e?.path();
-            let to = a.out.join("gt").join(f.file_name().expect("a frame file"));
+            let to = out.join("gt").join(f.file_name().expect("a frame file"));
             moves.push((f, to));
         }
     }
@@ -197,7 +273,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
         cameras.first().map_or(0, |c| c.1.width),
         cameras.first().map_or(0, |c| c.1.height),
         start.elapsed().as_secs_f64(),
-        a.out.display()
+        out.display()
     );
     if let (Some(capture), Some(_)) = (&capture, &truth_dir) {
         let truth = if capture.root.join(scenes::aberrated::CLEAN_DIR).is_dir() {
@@ -207,8 +283,8 @@ pub fn run(a: RenderArgs) -> Result<()> {
         };
         println!(
             "The renders are in {}/renders/ and {truth} beside them in {}/gt/, one name per view.",
-            a.out.display(),
-            a.out.display()
+            out.display(),
+            out.display()
         );
     }
     Ok(())

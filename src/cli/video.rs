@@ -1,0 +1,116 @@
+//! Rendered frames into one video file: through `ffmpeg` when it is on the PATH (`.mp4`,
+//! `.mov`, `.webm`, `.mkv`), or an animated GIF written here (`.gif`), so that a camera path
+//! becomes something to watch without any tool installed. The file is written under a
+//! temporary name beside its place, with an ordinary mode, and renamed there at the end.
+
+use anyhow::{Context, Result, bail};
+use std::path::{Path, PathBuf};
+
+/// How a video file is written.
+pub enum VideoFormat {
+    /// Through this `ffmpeg`.
+    Ffmpeg(PathBuf),
+    Gif,
+}
+
+/// How `path` is written; refused before any work when it cannot be.
+pub fn format_for(path: &Path) -> Result<VideoFormat> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("gif") => Ok(VideoFormat::Gif),
+        Some("mp4" | "mov" | "webm" | "mkv") => match on_path("ffmpeg") {
+            Some(ffmpeg) => Ok(VideoFormat::Ffmpeg(ffmpeg)),
+            None => bail!(
+                "--video {}: writing this format needs ffmpeg, which is not on the PATH; install it, or give a .gif file (written without it)",
+                path.display()
+            ),
+        },
+        _ => bail!(
+            "--video {}: a video is written as .mp4, .mov, .webm or .mkv (through ffmpeg) or as .gif",
+            path.display()
+        ),
+    }
+}
+
+/// The first executable file called `name` in the PATH's folders.
+fn on_path(name: &str) -> Option<PathBuf> {
+    use std::os::unix::fs::PermissionsExt;
+    std::env::split_paths(&std::env::var_os("PATH")?)
+        .map(|d| d.join(name))
+        .find(|p| {
+            p.metadata()
+                .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
+        })
+}
+
+/// Encodes `frames` (PNG files named `frame%05d.png` in one folder, in order) at `fps` into
+/// `out`.
+pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) -> Result<()> {
+    match format {
+        VideoFormat::Gif => {
+            use image::codecs::gif::{GifEncoder, Repeat};
+            let mut bytes = Vec::new();
+            {
+                let mut encoder = GifEncoder::new_with_speed(&mut bytes, 10);
+                encoder.set_repeat(Repeat::Infinite)?;
+                let delay = image::Delay::from_numer_denom_ms(1000, fps.round().max(1.0) as u32);
+                for f in frames {
+                    let img = image::open(f)
+                        .with_context(|| format!("cannot read the frame {}", f.display()))?
+                        .to_rgba8();
+                    encoder.encode_frame(image::Frame::from_parts(img, 0, 0, delay))?;
+                }
+            }
+            base::write_bytes_atomically(out, &bytes)
+                .with_context(|| format!("cannot write {}", out.display()))?;
+        }
+        VideoFormat::Ffmpeg(ffmpeg) => {
+            let dir = match out.parent() {
+                Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+                _ => PathBuf::from("."),
+            };
+            let ext = out.extension().and_then(|e| e.to_str()).unwrap_or("video");
+            // ffmpeg writes over this file in place, so it keeps an ordinary mode.
+            let (prefix, suffix) = (format!("{}video-", base::temp_prefix()), format!(".{ext}"));
+            let mut builder = tempfile::Builder::new();
+            builder.prefix(&prefix).suffix(&suffix);
+            {
+                use std::os::unix::fs::PermissionsExt;
+                builder.permissions(std::fs::Permissions::from_mode(0o666));
+            }
+            let temp = builder
+                .tempfile_in(&dir)
+                .with_context(|| format!("cannot write in {}", dir.display()))?;
+            let first = frames.first().context("no frames to encode")?;
+            let pattern = first.with_file_name("frame%05d.png");
+            let status = std::process::Command::new(ffmpeg)
+                .args(["-hide_banner", "-loglevel", "error", "-y", "-framerate"])
+                .arg(format!("{fps}"))
+                .arg("-i")
+                .arg(&pattern)
+                // Even sizes and 4:2:0 colour, which every player takes.
+                .args([
+                    "-vf",
+                    "pad=ceil(iw/2)*2:ceil(ih/2)*2",
+                    "-pix_fmt",
+                    "yuv420p",
+                ])
+                .arg(temp.path())
+                .status()
+                .with_context(|| format!("cannot run {}", ffmpeg.display()))?;
+            if !status.success() {
+                bail!(
+                    "{} could not encode {} ({status}); the frames were not kept",
+                    ffmpeg.display(),
+                    out.display()
+                );
+            }
+            temp.persist(out)
+                .with_context(|| format!("cannot write {}", out.display()))?;
+        }
+    }
+    Ok(())
+}
