@@ -401,7 +401,7 @@ fn train_then_render_and_clear_errors() {
         "{log}"
     );
     assert_ordinary_modes(&run, &["ply", "png", "json", "csv", "bin"]);
-    assert_ordinary_modes(&abr, &["npy", "png", "json", "iac"]);
+    assert_ordinary_modes(&abr, &["npy", "png", "json", "safetensors"]);
 
     // I_ac was computed once and cached beside the capture; a run into another folder reads
     // it and trains identically, and so does a rerun over the first.

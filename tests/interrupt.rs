@@ -480,7 +480,7 @@ fn ctrl_c_while_i_ac_is_made_keeps_the_views_restored_so_far() {
     let entries = || {
         std::fs::read_dir(&cache).map_or(0, |d| {
             d.flatten()
-                .filter(|e| e.file_name().to_string_lossy().ends_with(".iac"))
+                .filter(|e| e.file_name().to_string_lossy().ends_with(".safetensors"))
                 .count()
         })
     };

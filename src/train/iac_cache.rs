@@ -7,15 +7,18 @@
 //!
 //! An entry is named by a hash of everything that decides its pixels: the restorer's identity
 //! (its config and the hash of its weights, or the Wiener stand-in), the PSF grid it was given,
-//! the image size and the observed pixels, and [`CACHE_VERSION`]. An entry also holds its own
-//! key (an entry copied or renamed onto another view's name belongs to that other view) and
-//! ends with a checksum; one that does not check out is ignored and recomputed.
+//! the image size and the observed pixels, and [`CACHE_VERSION`]. An entry is a safetensors
+//! file (`safetensors.numpy.load_file(p)["i_ac"]` in Python) that also holds its own key (an
+//! entry copied or renamed onto another view's name belongs to that other view) and a
+//! CRC-32; one that does not check out is ignored and recomputed. Entries of the layout before
+//! it (`.iac`) are still read.
 
 use std::path::{Path, PathBuf};
 
 use aberration::PsfGrid;
 use glam::Vec3;
 
+/// The layout of the entries before safetensors (still read).
 const MAGIC: &[u8; 16] = b"METASPLAT-IAC 2\n";
 /// Part of every key: bump it when restoring changes what it computes for the same inputs.
 pub const CACHE_VERSION: u32 = 1;
@@ -94,22 +97,28 @@ impl Keyer {
     }
 }
 
-fn path(dir: &Path, key: u64) -> std::path::PathBuf {
+/// An entry: `KEY.safetensors` holding the tensor [`TENSOR`] (`[pixels, 3]` float32, row-major
+/// RGB) and, in its metadata, the key (hex) and the CRC-32 of the key and the pixels.
+fn path(dir: &Path, key: u64) -> PathBuf {
+    dir.join(format!("{key:016x}.safetensors"))
+}
+
+/// An entry as the caches before safetensors wrote it (still read).
+fn legacy_path(dir: &Path, key: u64) -> PathBuf {
     dir.join(format!("{key:016x}.iac"))
 }
 
-/// The cached image for `key`, when there is a whole one of `pixels` pixels.
-pub fn get(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
-    let bytes = std::fs::read(path(dir, key)).ok()?;
-    let payload = bytes.len().checked_sub(MAGIC.len() + 16)?;
-    if !bytes.starts_with(MAGIC) || payload != 12 * pixels {
-        return None;
-    }
-    let (keyed, sum) = bytes[MAGIC.len()..].split_at(8 + payload);
-    if base::hash::fnv1a64(keyed).to_le_bytes() != sum || keyed[..8] != key.to_le_bytes() {
-        return None;
-    }
-    let body = &keyed[8..];
+/// The tensor an entry holds.
+pub const TENSOR: &str = "i_ac";
+
+fn crc(key: u64, body: &[u8]) -> String {
+    let mut h = crc32fast::Hasher::new();
+    h.update(&key.to_le_bytes());
+    h.update(body);
+    format!("{:08x}", h.finalize())
+}
+
+fn floats(body: &[u8]) -> Option<Vec<Vec3>> {
     let floats: Vec<f32> = body
         .chunks_exact(4)
         .map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes")))
@@ -120,6 +129,38 @@ pub fn get(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
     Some(floats.chunks_exact(3).map(Vec3::from_slice).collect())
 }
 
+/// The cached image for `key`, when there is a whole one of `pixels` pixels.
+pub fn get(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
+    let Ok(bytes) = std::fs::read(path(dir, key)) else {
+        return get_legacy(dir, key, pixels);
+    };
+    let tensors = safetensors::SafeTensors::deserialize(&bytes).ok()?;
+    let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).ok()?;
+    let meta = meta.metadata().clone()?;
+    let t = tensors.tensor(TENSOR).ok()?;
+    if t.dtype() != safetensors::Dtype::F32
+        || t.shape() != [pixels, 3]
+        || meta.get("key")? != &format!("{key:016x}")
+        || meta.get("crc32")? != &crc(key, t.data())
+    {
+        return None;
+    }
+    floats(t.data())
+}
+
+fn get_legacy(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
+    let bytes = std::fs::read(legacy_path(dir, key)).ok()?;
+    let payload = bytes.len().checked_sub(MAGIC.len() + 16)?;
+    if !bytes.starts_with(MAGIC) || payload != 12 * pixels {
+        return None;
+    }
+    let (keyed, sum) = bytes[MAGIC.len()..].split_at(8 + payload);
+    if base::hash::fnv1a64(keyed).to_le_bytes() != sum || keyed[..8] != key.to_le_bytes() {
+        return None;
+    }
+    floats(&keyed[8..])
+}
+
 /// Stores an image under `key` (atomically; the folder is made if needed).
 pub fn put(dir: &Path, key: u64, image: &[Vec3]) -> std::io::Result<()> {
     std::fs::create_dir_all(dir)?;
@@ -128,13 +169,15 @@ pub fn put(dir: &Path, key: u64, image: &[Vec3]) -> std::io::Result<()> {
         .flat_map(|p| p.to_array())
         .flat_map(f32::to_le_bytes)
         .collect();
-    let mut keyed = Vec::with_capacity(8 + body.len());
-    keyed.extend(key.to_le_bytes());
-    keyed.extend(&body);
-    let mut bytes = Vec::with_capacity(MAGIC.len() + keyed.len() + 8);
-    bytes.extend(MAGIC);
-    bytes.extend(&keyed);
-    bytes.extend(base::hash::fnv1a64(&keyed).to_le_bytes());
+    let invalid = |e: safetensors::SafeTensorError| std::io::Error::other(e.to_string());
+    let view =
+        safetensors::tensor::TensorView::new(safetensors::Dtype::F32, vec![image.len(), 3], &body)
+            .map_err(invalid)?;
+    let meta = std::collections::HashMap::from([
+        ("key".to_string(), format!("{key:016x}")),
+        ("crc32".to_string(), crc(key, &body)),
+    ]);
+    let bytes = safetensors::serialize([(TENSOR, view)], Some(meta)).map_err(invalid)?;
     base::atomic::write_bytes_atomically(&path(dir, key), &bytes)
 }
 
@@ -192,10 +235,15 @@ mod tests {
         assert!(get(dir.path(), k, 13).is_none());
         let p = path(dir.path(), k);
         let good = std::fs::read(&p).unwrap();
-        let mut bad = good.clone();
-        bad[MAGIC.len() + 7] ^= 1;
-        std::fs::write(&p, &bad).unwrap();
-        assert!(get(dir.path(), k, 12).is_none());
+        for at in [20, good.len() - 3] {
+            let mut bad = good.clone();
+            bad[at] ^= 1;
+            std::fs::write(&p, &bad).unwrap();
+            assert!(
+                get(dir.path(), k, 12).is_none(),
+                "a flip at byte {at} was read"
+            );
+        }
         std::fs::write(&p, &good[..good.len() - 1]).unwrap();
         assert!(get(dir.path(), k, 12).is_none());
         // Another view's entry under this view's name (swapped or copied files) is a miss.
@@ -203,6 +251,25 @@ mod tests {
         let k2 = key("net a", &psf, 4, 3, &other);
         std::fs::copy(&p, path(dir.path(), k2)).unwrap();
         assert!(get(dir.path(), k2, 12).is_none());
+        assert_eq!(get(dir.path(), k, 12).unwrap(), image);
+        // The entry is plain safetensors: its header, read by hand, names the tensor.
+        let n = u64::from_le_bytes(good[..8].try_into().unwrap()) as usize;
+        let header: serde_json::Value = serde_json::from_slice(&good[8..8 + n]).unwrap();
+        assert_eq!(header[TENSOR]["shape"], serde_json::json!([12, 3]));
+        assert_eq!(header["__metadata__"]["key"], format!("{k:016x}"));
+        // An entry of the layout before safetensors is still read.
+        std::fs::remove_file(&p).unwrap();
+        let body: Vec<u8> = image
+            .iter()
+            .flat_map(|v| v.to_array())
+            .flat_map(f32::to_le_bytes)
+            .collect();
+        let mut keyed = k.to_le_bytes().to_vec();
+        keyed.extend(&body);
+        let mut old = MAGIC.to_vec();
+        old.extend(&keyed);
+        old.extend(base::hash::fnv1a64(&keyed).to_le_bytes());
+        std::fs::write(legacy_path(dir.path(), k), &old).unwrap();
         assert_eq!(get(dir.path(), k, 12).unwrap(), image);
     }
 }
