@@ -135,12 +135,14 @@ impl Compare {
         };
         let panels = &panels.shown;
         let painter = ui.painter_at(rect);
+        // Each label fits its panel: the left one of a swipe its half.
         let label = |r: Rect, p: &Panel| {
             tag(
                 &painter,
                 r.left_top() + Vec2::splat(4.0),
                 egui::Align2::LEFT_TOP,
                 caption(p, "  "),
+                r.width() - 14.0,
             );
         };
         match self.layout {
@@ -183,6 +185,7 @@ impl Compare {
                     r.right_top() + Vec2::new(-4.0, 4.0),
                     egui::Align2::RIGHT_TOP,
                     caption(&b.0, "  "),
+                    r.width() / 2.0 - 14.0,
                 );
             }
         }

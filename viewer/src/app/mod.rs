@@ -307,6 +307,7 @@ impl eframe::App for Viewer {
                             .map(|n| format!(" · {n}"))
                             .unwrap_or_default()
                     ),
+                    rect.width() - 20.0,
                 );
             }
         });
