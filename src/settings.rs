@@ -286,8 +286,9 @@ impl std::str::FromStr for RestorerChoice {
 #[derive(clap::Args, Clone, Debug)]
 pub struct DataOptions {
     /// Use images_N/ (1: images/); a capture without it has its images/ shrunk N times at
-    /// load by the area filter.
-    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
+    /// load by the area filter. Left out: images_8/ when the capture has it, else the folder
+    /// it has.
+    #[arg(long, default_value_t = 8, hide_default_value = true, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
     /// Every N-th view is held out for evaluation (0: none).
     #[arg(long, default_value_t = scenes::LLFFHOLD, value_parser = crate::flags::llffhold, allow_negative_numbers = true)]

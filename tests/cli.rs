@@ -1845,3 +1845,33 @@ fn render_writes_a_video_with_or_without_ffmpeg() {
         "{text}"
     );
 }
+
+/// `train` without `--downsample` trains at the folder the capture has: `images/` for a
+/// capture that has no `images_8/` (it used to be shrunk eight times), and says so.
+#[test]
+fn train_without_downsample_uses_the_folder_the_capture_has() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let capture = d.join("capture");
+    procedural(&capture, 64, 48, 9);
+    let run = d.join("run");
+    let text = ok(&[
+        "train",
+        "-s",
+        s(&capture),
+        "-o",
+        s(&run),
+        "-m",
+        "plain",
+        "-n",
+        "20",
+        "--spiral",
+        "0",
+        "-d",
+        "cpu",
+    ]);
+    assert!(text.contains("Using images/ of"), "{text}");
+    assert!(text.contains("64x48"), "{text}");
+    let render = image::open(run.join("test").join("view000.png")).unwrap();
+    assert_eq!((render.width(), render.height()), (64, 48));
+}

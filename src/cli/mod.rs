@@ -218,7 +218,18 @@ pub fn command() -> clap::Command {
 /// Parses the process's arguments (exiting with clap's message on an error).
 pub fn parse() -> Cli {
     let matches = command().get_matches();
-    Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit())
+    let mut cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    // `train` without --downsample trains at the folder the capture has (images_8/ when it
+    // has one), as render and view open it, instead of shrinking images/ eight times.
+    if let Command::Train(r) = &mut cli.command
+        && matches
+            .subcommand_matches("train")
+            .and_then(|m| m.value_source("downsample"))
+            == Some(clap::parser::ValueSource::DefaultValue)
+    {
+        r.data.downsample = downsample_for(&r.scene, None);
+    }
+    cli
 }
 
 #[cfg(test)]
