@@ -48,6 +48,43 @@ struct Header {
     psf_steps: u64,
 }
 
+impl Header {
+    /// What every layout writes before its arrays.
+    fn of(config: &TrainConfig, p: &Progress, model: &Gaussians, adam: &Adam) -> Self {
+        Header {
+            config: config.clone(),
+            step: p.step,
+            train_seconds: p.train_seconds,
+            sh: p.sh.clone(),
+            log: p.log.clone(),
+            splats: model.len(),
+            sh_degree: model.sh_degree,
+            adam_step: adam.steps_taken(),
+            psf_values: p.psf.as_ref().map_or(0, |r| r.state().logits.len()),
+            psf_steps: p.psf.as_ref().map_or(0, |r| r.state().steps),
+        }
+    }
+
+    /// Refuses a degree no splat set can have, before arrays are sized by it.
+    fn check_degree(&self, path: &Path) -> Result<()> {
+        if self.sh_degree > splat::MAX_SH_DEGREE {
+            return Err(TrainError::file(
+                path,
+                format!("SH degree {} too high", self.sh_degree),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Little-endian 4-byte values, as every layout stores its arrays.
+fn le_words<T>(bytes: &[u8], word: fn([u8; 4]) -> T) -> Vec<T> {
+    bytes
+        .chunks_exact(4)
+        .map(|c| word([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
 /// The loop's state between two steps, but for the model and its optimiser (which the
 /// trainer holds).
 #[derive(Debug)]
@@ -164,13 +201,13 @@ fn gaussian_tensors(
 }
 
 /// CRC-32 of the header and of the tensors' bytes in [`TENSORS`] order.
-fn checksum(header: &[u8], tensor: &dyn Fn(&str) -> Option<Vec<u8>>) -> u32 {
+fn checksum<'a>(header: &[u8], tensor: impl Fn(&str) -> Option<&'a [u8]>) -> u32 {
     let mut h = crc32fast::Hasher::new();
     h.update(header);
     for name in TENSORS {
         if let Some(bytes) = tensor(name) {
             h.update(&(bytes.len() as u64).to_le_bytes());
-            h.update(&bytes);
+            h.update(bytes);
         }
     }
     h.finalize()
@@ -184,18 +221,7 @@ pub fn save(
     adam: &Adam,
 ) -> Result<()> {
     use safetensors::Dtype::{F32, U8, U32};
-    let header = Header {
-        config: config.clone(),
-        step: p.step,
-        train_seconds: p.train_seconds,
-        sh: p.sh.clone(),
-        log: p.log.clone(),
-        splats: model.len(),
-        sh_degree: model.sh_degree,
-        adam_step: adam.steps_taken(),
-        psf_values: p.psf.as_ref().map_or(0, |r| r.state().logits.len()),
-        psf_steps: p.psf.as_ref().map_or(0, |r| r.state().steps),
-    };
+    let header = Header::of(config, p, model, adam);
     let json = serde_json::to_string(&header).map_err(|e| TrainError::file(path, e.to_string()))?;
     let n = model.len();
     let (m, v) = adam.moments();
@@ -238,8 +264,8 @@ pub fn save(
             le_f32s(st.m.iter().chain(&st.v)),
         ));
     }
-    let crc = checksum(json.as_bytes(), &|name| {
-        tensors.iter().find(|t| t.0 == name).map(|t| t.3.clone())
+    let crc = checksum(json.as_bytes(), |name| {
+        tensors.iter().find(|t| t.0 == name).map(|t| t.3.as_slice())
     });
     let bad = |e: safetensors::SafeTensorError| TrainError::file(path, e.to_string());
     let views = tensors
@@ -288,11 +314,7 @@ impl Reader<'_> {
     }
 
     fn f32s(&mut self, n: usize, what: &str) -> Result<Vec<f32>> {
-        Ok(self
-            .take_n(n, 4, what)?
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect())
+        Ok(le_words(self.take_n(n, 4, what)?, f32::from_le_bytes))
     }
 
     fn vec3s(&mut self, n: usize, what: &str) -> Result<Vec<Vec3>> {
@@ -311,11 +333,7 @@ impl Reader<'_> {
         let rc = g.rest_count();
         g.means = self.vec3s(n, what)?;
         g.log_scales = self.vec3s(n, what)?;
-        g.rotations = self
-            .take_n(n, 16, what)?
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect::<Vec<f32>>()
+        g.rotations = le_words(self.take_n(n, 16, what)?, f32::from_le_bytes)
             .chunks_exact(4)
             .map(|c| [c[0], c[1], c[2], c[3]])
             .collect();
@@ -371,8 +389,8 @@ impl<'a> SafeCheckpoint<'a> {
                 "a safetensors file without the {HEADER_KEY:?} and {CRC_KEY:?} metadata"
             )));
         };
-        let sum = checksum(json.as_bytes(), &|name| {
-            tensors.tensor(name).ok().map(|t| t.data().to_vec())
+        let sum = checksum(json.as_bytes(), |name| {
+            tensors.tensor(name).ok().map(|t| t.data())
         });
         if format!("{sum:08x}") != *crc {
             return Err(TrainError::file(
@@ -408,11 +426,10 @@ impl<'a> SafeCheckpoint<'a> {
     }
 
     fn f32s(&self, name: &str, shape: &[usize]) -> Result<Vec<f32>> {
-        Ok(self
-            .bytes(name, safetensors::Dtype::F32, shape)?
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect())
+        Ok(le_words(
+            self.bytes(name, safetensors::Dtype::F32, shape)?,
+            f32::from_le_bytes,
+        ))
     }
 
     fn vec3s(&self, name: &str, shape: &[usize]) -> Result<Vec<Vec3>> {
@@ -442,12 +459,7 @@ impl<'a> SafeCheckpoint<'a> {
 
     fn state(self) -> Result<(Header, Parts)> {
         let n = self.header.splats;
-        if self.header.sh_degree > splat::MAX_SH_DEGREE {
-            return Err(TrainError::file(
-                self.path,
-                format!("SH degree {} too high", self.header.sh_degree),
-            ));
-        }
+        self.header.check_degree(self.path)?;
         let psf = if self.header.psf_values > 0 {
             let k = self.header.psf_values;
             let moments = self.f32s("psf.moments", &[2, k])?;
@@ -465,11 +477,10 @@ impl<'a> SafeCheckpoint<'a> {
             m: self.gaussians("adam_m")?,
             v: self.gaussians("adam_v")?,
             grad_norm_sum: self.f32s("densify.grad_norm_sum", &[n])?,
-            count: self
-                .bytes("densify.count", safetensors::Dtype::U32, &[n])?
-                .chunks_exact(4)
-                .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect(),
+            count: le_words(
+                self.bytes("densify.count", safetensors::Dtype::U32, &[n])?,
+                u32::from_le_bytes,
+            ),
             max_radius: self.f32s("densify.max_radius", &[n])?,
             seen: self
                 .bytes("densify.seen", safetensors::Dtype::U8, &[n])?
@@ -530,22 +541,16 @@ fn header<'a>(path: &'a Path, file: &'a [u8]) -> Result<(Header, Reader<'a>)> {
 /// A checkpoint in the layouts before safetensors.
 fn load_legacy(path: &Path, file: &[u8]) -> Result<(Header, Parts)> {
     let (h, mut r) = header(path, file)?;
-    if h.sh_degree > splat::MAX_SH_DEGREE {
-        return Err(TrainError::file(
-            path,
-            format!("SH degree {} too high", h.sh_degree),
-        ));
-    }
+    h.check_degree(path)?;
     let n = h.splats;
     let model = r.gaussians(n, h.sh_degree, "the model")?;
     let m = r.gaussians(n, h.sh_degree, "Adam's first moments")?;
     let v = r.gaussians(n, h.sh_degree, "Adam's second moments")?;
     let grad_norm_sum = r.f32s(n, "densification statistics")?;
-    let count = r
-        .take_n(n, 4, "densification statistics")?
-        .chunks_exact(4)
-        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
+    let count = le_words(
+        r.take_n(n, 4, "densification statistics")?,
+        u32::from_le_bytes,
+    );
     let max_radius = r.f32s(n, "densification statistics")?;
     let seen = r.take(n, "visibility")?.iter().map(|&b| b != 0).collect();
     let psf = if h.psf_values > 0 {
@@ -652,18 +657,7 @@ pub fn save_v2(
     model: &Gaussians,
     adam: &Adam,
 ) -> Result<()> {
-    let header = Header {
-        config: config.clone(),
-        step: p.step,
-        train_seconds: p.train_seconds,
-        sh: p.sh.clone(),
-        log: p.log.clone(),
-        splats: model.len(),
-        sh_degree: model.sh_degree,
-        adam_step: adam.steps_taken(),
-        psf_values: p.psf.as_ref().map_or(0, |r| r.state().logits.len()),
-        psf_steps: p.psf.as_ref().map_or(0, |r| r.state().steps),
-    };
+    let header = Header::of(config, p, model, adam);
     let json = serde_json::to_vec(&header).map_err(|e| TrainError::file(path, e.to_string()))?;
     let mut out = Vec::with_capacity(model.param_bytes() * 3 + json.len() + 64);
     out.extend_from_slice(MAGIC);
