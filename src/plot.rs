@@ -1,17 +1,17 @@
 //! Line plots written as PNG files (training curves such as PSNR against time), and the
 //! labels of comparison strips ([`label_panels`]).
 //!
-//! Drawing uses `plotters` with its pure-Rust `ab_glyph` text renderer, so the build links no
-//! system font libraries, and its text is set in the font the viewer's egui already ships in
-//! the binary (Ubuntu Light, from `epaint_default_fonts`): a plot looks the same on every
-//! machine, with no font files to find.
+//! Lines and axes are drawn by `plotters`; every piece of text, in plots and strips alike, is
+//! laid out here with `ab_glyph` ([`lay_out`]) in the font the viewer's egui already ships in
+//! the binary (Ubuntu Light, from `epaint_default_fonts`): the build links no system font
+//! libraries, and a plot looks the same on every machine, with no font files to find.
 
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
 
 use image::{ExtendedColorType, ImageEncoder};
 use plotters::prelude::*;
-use plotters::style::text_anchor::{HPos, Pos, VPos};
+use plotters_backend::text_anchor::{HPos, Pos, VPos};
+use plotters_backend::{BackendColor, BackendCoord, BackendTextStyle, DrawingErrorKind};
 
 /// Width of the written PNG in pixels.
 pub const WIDTH: u32 = 800;
@@ -80,20 +80,22 @@ struct Labels<'a> {
     y: &'a str,
 }
 
-/// Family name under which the font is registered; `FontFamily::SansSerif` looks it up.
-const FONT_FAMILY: &str = "sans-serif";
-
-/// Registers the embedded font once per process; false only if it does not parse (then the
-/// plot is drawn without text rather than not at all).
+/// Whether the embedded font parses: false only if it does not (then the plot is drawn
+/// without text rather than not at all).
+///
+/// plotters sizes captions, label areas and the legend box through its own font table before
+/// any text reaches the backend, so the same font is registered there once; the drawing and
+/// the placement of glyphs stay with [`GlyphText`].
 fn font_available() -> bool {
-    static AVAILABLE: OnceLock<bool> = OnceLock::new();
-    *AVAILABLE.get_or_init(|| {
-        plotters::style::register_font(
-            FONT_FAMILY,
-            FontStyle::Normal,
-            epaint_default_fonts::UBUNTU_LIGHT,
-        )
-        .is_ok()
+    static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *REGISTERED.get_or_init(|| {
+        ab_glyph::FontRef::try_from_slice(epaint_default_fonts::UBUNTU_LIGHT).is_ok()
+            && plotters::style::register_font(
+                "sans-serif",
+                plotters::style::FontStyle::Normal,
+                epaint_default_fonts::UBUNTU_LIGHT,
+            )
+            .is_ok()
     })
 }
 
@@ -233,7 +235,14 @@ fn draw(rgb: &mut [u8], series: &[Series], labels: &Labels, text: bool) -> DrawR
     let y_range = axis_range(lines.iter().flatten().map(|p| p.1));
     let has_data = lines.iter().any(|l| !l.is_empty());
 
-    let root = BitMapBackend::with_buffer(rgb, (WIDTH, HEIGHT)).into_drawing_area();
+    let Ok(font) = ab_glyph::FontRef::try_from_slice(epaint_default_fonts::UBUNTU_LIGHT) else {
+        return Err(DrawingAreaErrorKind::LayoutError);
+    };
+    let root = GlyphText {
+        inner: BitMapBackend::with_buffer(rgb, (WIDTH, HEIGHT)),
+        font: &font,
+    }
+    .into_drawing_area();
     root.fill(&WHITE)?;
 
     let mut builder = ChartBuilder::on(&root);
@@ -432,8 +441,63 @@ pub fn psf_figure(
     out
 }
 
+/// `text` on one line at `px` pixels per em, each glyph at its own side bearing and kerning:
+/// the coverage (0 to 1) of a box as wide as the advances and as tall as the font's ascent to
+/// descent, the baseline `ascent` rows from its top.
+struct Coverage {
+    width: u32,
+    height: u32,
+    ascent: f32,
+    data: Vec<f32>,
+}
+
+fn lay_out(font: &ab_glyph::FontRef, text: &str, px: f32) -> Coverage {
+    use ab_glyph::{Font, ScaleFont};
+    let scaled = font.as_scaled(px);
+    let ascent = scaled.ascent();
+    let mut caret = 0.0f32;
+    let mut previous = None;
+    let mut glyphs = Vec::new();
+    for c in text.chars() {
+        let id = scaled.glyph_id(c);
+        if let Some(p) = previous {
+            caret += scaled.kern(p, id);
+        }
+        previous = Some(id);
+        glyphs.push(id.with_scale_and_position(scaled.scale(), ab_glyph::point(caret, ascent)));
+        caret += scaled.h_advance(id);
+    }
+    let (width, height) = (
+        caret.ceil().max(0.0) as u32,
+        (ascent - scaled.descent()).ceil().max(0.0) as u32,
+    );
+    let mut data = vec![0.0f32; width as usize * height as usize];
+    for glyph in glyphs {
+        let Some(outline) = font.outline_glyph(glyph) else {
+            continue;
+        };
+        let bounds = outline.px_bounds();
+        outline.draw(|gx, gy, coverage| {
+            let (x, y) = (
+                bounds.min.x as i64 + gx as i64,
+                bounds.min.y as i64 + gy as i64,
+            );
+            if (0..width as i64).contains(&x) && (0..height as i64).contains(&y) {
+                let at = &mut data[y as usize * width as usize + x as usize];
+                *at = (*at + coverage.clamp(0.0, 1.0)).min(1.0);
+            }
+        });
+    }
+    Coverage {
+        width,
+        height,
+        ascent,
+        data,
+    }
+}
+
 /// Draws `text` in white from `x` to at most `right` (cut there), centred in a band of
-/// `band` rows at the top of `img`, each glyph at its own side bearing and kerning.
+/// `band` rows at the top of `img`.
 fn draw_text(
     img: &mut image::RgbImage,
     font: &ab_glyph::FontRef,
@@ -443,35 +507,166 @@ fn draw_text(
     band: u32,
 ) {
     use ab_glyph::{Font, ScaleFont};
-    let scaled = font.as_scaled(band as f32 * 0.8);
+    let px = band as f32 * 0.8;
+    let scaled = font.as_scaled(px);
     let baseline = (band as f32 + scaled.ascent() + scaled.descent()) / 2.0;
-    let mut caret = x as f32;
-    let mut previous = None;
-    for c in text.chars() {
-        let id = scaled.glyph_id(c);
-        if let Some(p) = previous {
-            caret += scaled.kern(p, id);
-        }
-        previous = Some(id);
-        let glyph = id.with_scale_and_position(scaled.scale(), ab_glyph::point(caret, baseline));
-        caret += scaled.h_advance(id);
-        let Some(outline) = font.outline_glyph(glyph) else {
-            continue;
-        };
-        let bounds = outline.px_bounds();
-        outline.draw(|gx, gy, coverage| {
-            let (px, py) = (
-                bounds.min.x as i64 + gx as i64,
-                bounds.min.y as i64 + gy as i64,
-            );
-            if px < x as i64 || px >= right as i64 || py < 0 || py >= band as i64 {
-                return;
+    let c = lay_out(font, text, px);
+    let top = (baseline - c.ascent).round() as i64;
+    for gy in 0..c.height as i64 {
+        for gx in 0..c.width as i64 {
+            let (px, py) = (x as i64 + gx, top + gy);
+            let coverage = c.data[(gy * c.width as i64 + gx) as usize];
+            if coverage <= 0.0 || px >= right as i64 || py < 0 || py >= band as i64 {
+                continue;
             }
             let p = img.get_pixel_mut(px as u32, py as u32);
             for v in &mut p.0 {
-                *v = (*v as f32 + (255.0 - *v as f32) * coverage.clamp(0.0, 1.0)).round() as u8;
+                *v = (*v as f32 + (255.0 - *v as f32) * coverage).round() as u8;
             }
-        });
+        }
+    }
+}
+
+/// A plotters backend whose text is laid out by [`lay_out`] (plotters' own `ab_glyph` text
+/// drops each glyph's side bearing, so its letters crowd and gape); everything else is the
+/// wrapped backend's.
+struct GlyphText<'f, B> {
+    inner: B,
+    font: &'f ab_glyph::FontRef<'f>,
+}
+
+impl<B: DrawingBackend> DrawingBackend for GlyphText<'_, B> {
+    type ErrorType = B::ErrorType;
+
+    fn get_size(&self) -> (u32, u32) {
+        self.inner.get_size()
+    }
+
+    fn ensure_prepared(&mut self) -> Result<(), DrawingErrorKind<Self::ErrorType>> {
+        self.inner.ensure_prepared()
+    }
+
+    fn present(&mut self) -> Result<(), DrawingErrorKind<Self::ErrorType>> {
+        self.inner.present()
+    }
+
+    fn draw_pixel(
+        &mut self,
+        point: BackendCoord,
+        color: BackendColor,
+    ) -> Result<(), DrawingErrorKind<Self::ErrorType>> {
+        self.inner.draw_pixel(point, color)
+    }
+
+    fn draw_line<S: plotters_backend::BackendStyle>(
+        &mut self,
+        from: BackendCoord,
+        to: BackendCoord,
+        style: &S,
+    ) -> Result<(), DrawingErrorKind<Self::ErrorType>> {
+        self.inner.draw_line(from, to, style)
+    }
+
+    fn draw_rect<S: plotters_backend::BackendStyle>(
+        &mut self,
+        upper_left: BackendCoord,
+        bottom_right: BackendCoord,
+        style: &S,
+        fill: bool,
+    ) -> Result<(), DrawingErrorKind<Self::ErrorType>> {
+        self.inner.draw_rect(upper_left, bottom_right, style, fill)
+    }
+
+    fn draw_path<S: plotters_backend::BackendStyle, I: IntoIterator<Item = BackendCoord>>(
+        &mut self,
+        path: I,
+        style: &S,
+    ) -> Result<(), DrawingErrorKind<Self::ErrorType>> {
+        self.inner.draw_path(path, style)
+    }
+
+    fn draw_circle<S: plotters_backend::BackendStyle>(
+        &mut self,
+        center: BackendCoord,
+        radius: u32,
+        style: &S,
+        fill: bool,
+    ) -> Result<(), DrawingErrorKind<Self::ErrorType>> {
+        self.inner.draw_circle(center, radius, style, fill)
+    }
+
+    fn fill_polygon<S: plotters_backend::BackendStyle, I: IntoIterator<Item = BackendCoord>>(
+        &mut self,
+        vert: I,
+        style: &S,
+    ) -> Result<(), DrawingErrorKind<Self::ErrorType>> {
+        self.inner.fill_polygon(vert, style)
+    }
+
+    fn blit_bitmap(
+        &mut self,
+        pos: BackendCoord,
+        size: (u32, u32),
+        src: &[u8],
+    ) -> Result<(), DrawingErrorKind<Self::ErrorType>> {
+        self.inner.blit_bitmap(pos, size, src)
+    }
+
+    fn estimate_text_size<S: BackendTextStyle>(
+        &self,
+        text: &str,
+        style: &S,
+    ) -> Result<(u32, u32), DrawingErrorKind<Self::ErrorType>> {
+        let c = lay_out(self.font, text, style.size() as f32);
+        Ok((c.width, c.height))
+    }
+
+    fn draw_text<S: BackendTextStyle>(
+        &mut self,
+        text: &str,
+        style: &S,
+        pos: BackendCoord,
+    ) -> Result<(), DrawingErrorKind<Self::ErrorType>> {
+        let colour = style.color();
+        if colour.alpha == 0.0 {
+            return Ok(());
+        }
+        let c = lay_out(self.font, text, style.size() as f32);
+        let (w, h) = (c.width as i32, c.height as i32);
+        // Anchored and turned as plotters' own text is.
+        let dx = match style.anchor().h_pos {
+            HPos::Left => 0,
+            HPos::Right => -w,
+            HPos::Center => -w / 2,
+        };
+        let dy = match style.anchor().v_pos {
+            VPos::Top => 0,
+            VPos::Center => -h / 2,
+            VPos::Bottom => -h,
+        };
+        let turn = style.transform();
+        let (sw, sh) = self.get_size();
+        for gy in 0..h {
+            for gx in 0..w {
+                let coverage = c.data[(gy * w + gx) as usize];
+                if coverage <= 0.0 {
+                    continue;
+                }
+                let (x, y) = turn.transform(gx + dx, gy + dy);
+                let (x, y) = (pos.0 + x, pos.1 + y);
+                if (0..sw as i32).contains(&x) && (0..sh as i32).contains(&y) {
+                    let alpha = colour.alpha * coverage as f64;
+                    self.inner.draw_pixel(
+                        (x, y),
+                        BackendColor {
+                            alpha,
+                            rgb: colour.rgb,
+                        },
+                    )?;
+                }
+            }
+        }
+        Ok(())
     }
 }
 

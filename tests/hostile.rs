@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 
 use common::cli::{ok as run_ok, procedural};
 
-/// Every file (with the FNV-1a of its bytes) and folder under `dir`.
+/// Every file (with the XXH3 of its bytes) and folder under `dir`.
 fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Option<u64>> {
     let mut out = BTreeMap::new();
     let mut stack = vec![dir.to_path_buf()];
@@ -24,7 +24,7 @@ fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Option<u64>> {
                 stack.push(p);
             } else {
                 let bytes = std::fs::read(&p).unwrap();
-                out.insert(p, Some(base::hash::fnv1a64(&bytes)));
+                out.insert(p, Some(base::hash::xxh3(&bytes)));
             }
         }
     }
@@ -1463,13 +1463,18 @@ fn hostile_run_files() {
     suite.case("resume on another capture", &resume_other, &["capture"]);
     std::fs::remove_dir_all(&other).unwrap();
 
-    // Restorer weights: version 2 made from the shipped version 1 file.
+    // Restorer weights: versions 3 (XXH3) and 2 (FNV-1a) made from the shipped version 1 file.
     let shipped_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("restore/weights/tiny.bin");
     let shipped = std::fs::read(&shipped_path).unwrap();
-    let mut v2 = shipped.clone();
-    v2[..21].copy_from_slice(b"METASPLAT-RESTORER 2\n");
-    let sum = base::hash::fnv1a64(&v2);
-    v2.extend_from_slice(&sum.to_le_bytes());
+    let versioned = |magic: &[u8], sum: fn(&[u8]) -> u64| {
+        let mut v = shipped.clone();
+        v[..21].copy_from_slice(magic);
+        let sum = sum(&v);
+        v.extend_from_slice(&sum.to_le_bytes());
+        v
+    };
+    let v3 = versioned(b"METASPLAT-RESTORER 3\n", base::hash::xxh3);
+    let v2 = versioned(b"METASPLAT-RESTORER 2\n", base::hash::fnv1a64);
     let photo = d.join("photo.png");
     image::RgbImage::from_fn(32, 32, |x, y| {
         image::Rgb([(x * 7) as u8, (y * 7) as u8, 50])
@@ -1480,20 +1485,22 @@ fn hostile_run_files() {
     std::fs::write(&psf, npy(&psf_dict("(9, 5, 5, 3)"), &f32s(&psf_values()))).unwrap();
     let bad = d.join("bad.bin");
     let mut weights: Vec<(String, Vec<u8>)> = vec![("empty".into(), vec![])];
-    for cut in [10, 21, 29, 200, v2.len() / 2, v2.len() - 1] {
-        weights.push((format!("cut at {cut}"), v2[..cut].to_vec()));
+    for (version, v) in [("", &v3), ("version 2, ", &v2)] {
+        for cut in [10, 21, 29, 200, v.len() / 2, v.len() - 1] {
+            weights.push((format!("{version}cut at {cut}"), v[..cut].to_vec()));
+        }
+        for at in [25, 100, v.len() / 3, v.len() - 20] {
+            let mut b = v.clone();
+            b[at] ^= 0x01;
+            weights.push((format!("{version}byte {at} flipped"), b));
+        }
+        weights.push((
+            format!("{version}trailing bytes"),
+            [v.clone(), b"more".to_vec()].concat(),
+        ));
     }
-    for at in [25, 100, v2.len() / 3, v2.len() - 20] {
-        let mut b = v2.clone();
-        b[at] ^= 0x01;
-        weights.push((format!("byte {at} flipped"), b));
-    }
-    weights.push((
-        "trailing bytes".into(),
-        [v2.clone(), b"more".to_vec()].concat(),
-    ));
     weights.push(("header length lies".into(), {
-        let mut b = v2.clone();
+        let mut b = v3.clone();
         b[21..29].copy_from_slice(&u64::MAX.to_le_bytes());
         b
     }));
@@ -1575,7 +1582,14 @@ fn hostile_run_files() {
         ),
         ("psf missing", edit("psf", "nowhere.npy".into())),
         // The photos went through another PSF file than the one beside them.
-        ("psf checksum", edit("psf_fnv1a", "0123456789abcdef".into())),
+        (
+            "psf checksum",
+            edit("psf_checksum", "xxh3:0123456789abcdef".into()),
+        ),
+        (
+            "psf checksum as records before XXH3 wrote it",
+            edit("psf_checksum", "0123456789abcdef".into()),
+        ),
         // More photos than were made through the lens.
         ("images 1", edit("images", 1.into())),
         // Beyond f32: named as written, not as inf.

@@ -257,11 +257,15 @@ fn resuming_from_a_checkpoint_gives_the_same_splats() {
             .unwrap()
             .contains("\"lambda\"")
     );
-    // A checkpoint in the layout before safetensors still resumes, to the same splats.
+    // A checkpoint in the layout before safetensors, naming its capture as runs before XXH3
+    // did, still resumes, to the same splats.
     let legacy = tmp.path().join("v2.bin");
+    let mut then = state.config.clone();
+    then.capture = Some(metasplat::train::config::legacy_capture_fingerprint(&data));
+    assert_ne!(then.capture, state.config.capture);
     metasplat::train::checkpoint::save_v2(
         &legacy,
-        &state.config,
+        &then,
         &state.progress,
         &state.model,
         &state.adam,

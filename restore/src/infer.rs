@@ -47,9 +47,12 @@ pub struct Restorer {
     pub net: RestorerNet,
     pub header: Header,
     pub device: Device,
-    /// FNV-1a of the weights file it was loaded from (None for a network built in memory):
-    /// lets a splat checkpoint tell whether `I_ac` would come from the same network.
+    /// [`weights::fingerprint`] of the weights file it was loaded from (None for a network
+    /// built in memory): lets a splat checkpoint tell whether `I_ac` would come from the same
+    /// network.
     pub weights_hash: Option<String>,
+    /// The same file's FNV-1a hex, as splat checkpoints written before XXH3 recorded it.
+    pub weights_fnv1a: Option<String>,
     /// Tile side and overlap for large images (multiples of the config's padding unit).
     pub tile: usize,
     pub overlap: usize,
@@ -77,6 +80,7 @@ impl Restorer {
             header,
             device,
             weights_hash: None,
+            weights_fnv1a: None,
             tile,
             overlap: m,
         }
@@ -108,7 +112,8 @@ impl Restorer {
     ) -> Result<Self> {
         let (net, header) = weights::load_bytes(bytes, name, &device, None, Some(native))?;
         let mut r = Self::new(net, header, device);
-        r.weights_hash = Some(weights::fnv1a(bytes));
+        r.weights_hash = Some(weights::fingerprint(bytes));
+        r.weights_fnv1a = Some(format!("{:016x}", base::hash::fnv1a64(bytes)));
         Ok(r)
     }
 

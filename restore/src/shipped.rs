@@ -3,7 +3,7 @@
 
 use crate::error::Result;
 use crate::infer::Restorer;
-use crate::weights::{self, PsfFingerprint};
+use crate::weights;
 use aberration::PsfGrid;
 use std::path::Path;
 
@@ -23,7 +23,7 @@ pub fn for_psf(native: &PsfGrid) -> Result<Option<Restorer>> {
 pub fn for_psf_on(native: &PsfGrid, device: burn::tensor::Device) -> Result<Option<Restorer>> {
     let name = Path::new(TINY_NAME);
     let (header, _) = weights::parse(TINY, name)?;
-    if header.psf != PsfFingerprint::of(native) {
+    if !header.psf.names(native) {
         return Ok(None);
     }
     Restorer::from_bytes_on(TINY, name, native, device).map(Some)

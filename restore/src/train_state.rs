@@ -5,7 +5,6 @@
 
 use crate::error::{RestoreError, Result};
 use crate::train::Schedule;
-use crate::weights::fnv1a;
 use burn::optim::OptimizerRecord;
 use burn::tensor::Bytes;
 use serde::{Deserialize, Serialize};
@@ -27,7 +26,8 @@ pub struct TrainState {
     pub rng_word_pos: String,
     /// Training seconds before this checkpoint, summed over resumed runs.
     pub seconds: f64,
-    /// FNV-1a of the weights file written at the same checkpoint.
+    /// [`crate::weights::fingerprint`] of the weights file written at the same checkpoint
+    /// (bare FNV-1a hex in older states).
     pub weights_hash: String,
     /// (step, seconds, val PSNR, val SSIM) at every validation so far.
     pub val_log: Vec<(usize, f64, f64, f64)>,
@@ -97,8 +97,8 @@ pub fn load(weights: &Path) -> Result<(TrainState, OptimizerRecord)> {
     }
     let weights_bytes =
         std::fs::read(weights).map_err(|e| RestoreError::Io(weights.to_path_buf(), e))?;
-    let hash = fnv1a(&weights_bytes);
-    if hash != state.weights_hash {
+    if !base::hash::names(&state.weights_hash, &weights_bytes) {
+        let hash = crate::weights::fingerprint(&weights_bytes);
         return Err(bad(
             &path,
             format!(

@@ -1,10 +1,10 @@
 //! The weights file: a short JSON header (configuration, the PSF grid the network was trained
 //! for, how it was made) followed by burn's burnpack record. One file, written atomically.
 //!
-//! Layout: magic line, u64 header length, JSON header, record, and (version 2) the FNV-1a
-//! checksum of everything before it, little-endian. Version 1 files (no checksum, such as the
-//! shipped `tiny.bin`) still load; in version 2 a flipped byte or appended bytes are refused
-//! naming the file.
+//! Layout: magic line, u64 header length, JSON header, record, and (version 3) the XXH3
+//! checksum of everything before it, little-endian. Older files still load: version 2 ends in
+//! an FNV-1a checksum, version 1 (such as the shipped `tiny.bin`) has none. Where there is a
+//! checksum, a flipped byte or appended bytes are refused naming the file.
 
 use crate::config::RestorerConfig;
 use crate::error::{RestoreError, Result};
@@ -16,10 +16,12 @@ use burn::tensor::{Bytes, Device, Tensor};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-const MAGIC: &[u8] = b"METASPLAT-RESTORER 2\n";
+const MAGIC: &[u8] = b"METASPLAT-RESTORER 3\n";
+/// The second version, ending in an FNV-1a checksum; still read.
+const MAGIC_V2: &[u8] = b"METASPLAT-RESTORER 2\n";
 /// The first version, without the checksum; still read.
 const MAGIC_V1: &[u8] = b"METASPLAT-RESTORER 1\n";
-/// Length of the trailing checksum of a version 2 file.
+/// Length of the trailing checksum of a version 2 or 3 file.
 const CHECKSUM: usize = 8;
 
 /// Which PSF grid a network was trained for: its shape and a hash of its values.
@@ -27,7 +29,7 @@ const CHECKSUM: usize = 8;
 pub struct PsfFingerprint {
     pub grid: usize,
     pub size: usize,
-    /// FNV-1a of the f32 bit patterns, hex.
+    /// [`base::hash::tagged`] of the f32 bit patterns (bare FNV-1a hex in older files).
     pub hash: String,
 }
 
@@ -42,22 +44,32 @@ impl Header {
 
 impl PsfFingerprint {
     pub fn of(psf: &PsfGrid) -> Self {
-        let bytes: Vec<u8> = psf
-            .planar()
-            .iter()
-            .flat_map(|v| v.to_bits().to_le_bytes())
-            .collect();
         Self {
             grid: psf.grid(),
             size: psf.size(),
-            hash: fnv1a(&bytes),
+            hash: base::hash::tagged(&Self::bytes(psf)),
         }
+    }
+
+    /// Whether `psf` is the grid this fingerprint was taken of, in the hash it was taken with.
+    pub fn names(&self, psf: &PsfGrid) -> bool {
+        self.grid == psf.grid()
+            && self.size == psf.size()
+            && base::hash::names(&self.hash, &Self::bytes(psf))
+    }
+
+    fn bytes(psf: &PsfGrid) -> Vec<u8> {
+        psf.planar()
+            .iter()
+            .flat_map(|v| v.to_bits().to_le_bytes())
+            .collect()
     }
 }
 
-/// FNV-1a (64 bit) of `bytes`, hex: identifies PSF grids and weights files.
-pub fn fnv1a(bytes: &[u8]) -> String {
-    format!("{:016x}", base::hash::fnv1a64(bytes))
+/// The fingerprint of a weights file's bytes ([`base::hash::tagged`]): what a training state
+/// and an `I_ac` cache record of the network.
+pub fn fingerprint(bytes: &[u8]) -> String {
+    base::hash::tagged(bytes)
 }
 
 /// Everything the file says about the network besides its weights.
@@ -97,7 +109,7 @@ pub fn non_finite_tensors(net: &RestorerNet) -> usize {
 }
 
 /// Writes `net` with its header to `path` (temporary name, then rename); returns the
-/// [`fnv1a`] of the bytes written, the hash a training state records. Weights with a
+/// [`fingerprint`] of the bytes written, the hash a training state records. Weights with a
 /// non-finite value are refused, not written.
 pub fn save(net: &RestorerNet, header: &Header, path: &Path) -> Result<String> {
     let bad_tensors = non_finite_tensors(net);
@@ -120,11 +132,11 @@ pub fn save(net: &RestorerNet, header: &Header, path: &Path) -> Result<String> {
     bytes.extend_from_slice(&(json.len() as u64).to_le_bytes());
     bytes.extend_from_slice(&json);
     bytes.extend_from_slice(&record);
-    let sum = base::hash::fnv1a64(&bytes);
+    let sum = base::hash::xxh3(&bytes);
     bytes.extend_from_slice(&sum.to_le_bytes());
     base::write_bytes_atomically(path, &bytes)
         .map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
-    Ok(fnv1a(&bytes))
+    Ok(fingerprint(&bytes))
 }
 
 /// Reads a weights file: its header and the record bytes.
@@ -135,13 +147,20 @@ pub fn read(path: &Path) -> Result<(Header, Vec<u8>)> {
 
 /// Splits the bytes of a weights file (`path` names it in errors) into header and record.
 pub fn parse(bytes: &[u8], path: &Path) -> Result<(Header, Vec<u8>)> {
-    let bytes = if bytes.starts_with(MAGIC) {
+    let checksum: Option<fn(&[u8]) -> u64> = if bytes.starts_with(MAGIC) {
+        Some(base::hash::xxh3)
+    } else if bytes.starts_with(MAGIC_V2) {
+        Some(base::hash::fnv1a64)
+    } else {
+        None
+    };
+    let bytes = if let Some(checksum) = checksum {
         let Some(body_len) = bytes.len().checked_sub(CHECKSUM) else {
             return Err(bad(path, "truncated: no checksum"));
         };
         let (body, sum) = bytes.split_at(body_len);
         let stored = u64::from_le_bytes(sum.try_into().map_err(|_| bad(path, "no checksum"))?);
-        if body.len() < MAGIC.len() + 8 || base::hash::fnv1a64(body) != stored {
+        if body.len() < MAGIC.len() + 8 || checksum(body) != stored {
             return Err(bad(
                 path,
                 "checksum mismatch: the file is damaged, truncated or has bytes appended",
@@ -216,8 +235,8 @@ fn build(
         ));
     }
     if let Some(psf) = psf {
-        let fp = PsfFingerprint::of(psf);
-        if fp != header.psf {
+        if !header.psf.names(psf) {
+            let fp = PsfFingerprint::of(psf);
             return Err(bad(
                 path,
                 format!(

@@ -172,7 +172,7 @@ fn a_state_from_another_checkpoint_is_refused_naming_the_file() {
         },
         rng_word_pos: "123".into(),
         seconds: 1.0,
-        weights_hash: weights::fnv1a(b"weights at step 10"),
+        weights_hash: weights::fingerprint(b"weights at step 10"),
         val_log: vec![],
     };
     train_state::save(

@@ -130,6 +130,21 @@ fn a_flipped_byte_or_appended_bytes_are_refused_and_version_1_still_loads() {
     long.extend_from_slice(b"garbage");
     let e = weights::parse(&long, &path).err().unwrap().to_string();
     assert!(e.contains("w.bin") && e.contains("checksum"), "{e}");
+    // The file is version 3 and ends in the XXH3 of what precedes it.
+    assert!(good.starts_with(b"METASPLAT-RESTORER 3\n"));
+    assert_eq!(
+        good[n - 8..],
+        base::hash::xxh3(&good[..n - 8]).to_le_bytes()
+    );
+    // Version 2: the same body under its magic line, ending in its FNV-1a, still reads, and
+    // a flip in it is still caught.
+    let mut v2 = good[..n - 8].to_vec();
+    v2[..21].copy_from_slice(b"METASPLAT-RESTORER 2\n");
+    let sum = base::hash::fnv1a64(&v2);
+    v2.extend_from_slice(&sum.to_le_bytes());
+    assert!(weights::load_bytes(&v2, &path, &device, Some(&cfg), None).is_ok());
+    v2[n / 2] ^= 0x10;
+    assert!(weights::parse(&v2, &path).is_err());
     // Version 1: the same bytes without the checksum and with the old magic line.
     let mut v1 = good[..n - 8].to_vec();
     v1[..21].copy_from_slice(b"METASPLAT-RESTORER 1\n");

@@ -45,10 +45,11 @@ pub struct AberrationRecord {
     pub images: usize,
     /// The capture the clean images came from, as given.
     pub source: String,
-    /// FNV-1a of the PSF file's bytes, so that a replaced `psf.npy` (which would model a blur
-    /// the photos never had) is refused; absent in records written before it was kept.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub psf_fnv1a: Option<String>,
+    /// The PSF file's fingerprint ([`psf_checksum`]), so that a replaced `psf.npy` (which
+    /// would model a blur the photos never had) is refused; `psf_fnv1a`, its bare FNV-1a hex,
+    /// in records written before XXH3; absent in records written before it was kept.
+    #[serde(default, alias = "psf_fnv1a", skip_serializing_if = "Option::is_none")]
+    pub psf_checksum: Option<String>,
     /// Whether the source's photos were undistorted at load before they were blurred (false
     /// in records written before undistortion existed, which kept them as taken).
     #[serde(default)]
@@ -136,11 +137,11 @@ impl AberrationRecord {
     /// capture was made with.
     pub fn load_psf(&self, capture_dir: &Path) -> Result<PsfGrid> {
         let path = capture_dir.join(&self.psf);
-        if let Some(want) = &self.psf_fnv1a {
+        if let Some(want) = &self.psf_checksum {
             SceneError::check_file_size(&path, base::limits::MAX_NPY_BYTES)?;
             let bytes = std::fs::read(&path).map_err(|e| SceneError::io(&path, e))?;
-            let got = psf_checksum(&bytes);
-            if &got != want {
+            if !base::hash::names(want, &bytes) {
+                let got = psf_checksum(&bytes);
                 return Err(SceneError::invalid(
                     &path,
                     format!(
@@ -153,9 +154,9 @@ impl AberrationRecord {
     }
 }
 
-/// The checksum [`AberrationRecord::psf_fnv1a`] holds.
+/// The fingerprint [`AberrationRecord::psf_checksum`] holds ([`base::hash::tagged`]).
 pub fn psf_checksum(bytes: &[u8]) -> String {
-    format!("{:016x}", base::hash::fnv1a64(bytes))
+    base::hash::tagged(bytes)
 }
 
 /// Settings of the maker.
@@ -350,7 +351,7 @@ pub fn make_aberrated(
         height,
         images: capture.len(),
         source: capture.root.display().to_string(),
-        psf_fnv1a: Some(psf_checksum(
+        psf_checksum: Some(psf_checksum(
             &std::fs::read(&psf_dest).map_err(|e| SceneError::io(&psf_dest, e))?,
         )),
         undistorted: capture.undistorted(),

@@ -55,6 +55,9 @@ pub struct OpenOptions {
     /// Resample distorted photos onto the pinhole camera of the same intrinsics at load
     /// ([`crate::undistort`]); false keeps them as taken.
     pub undistort: bool,
+    /// Keep photos shrunk or undistorted at load beside the capture ([`crate::photo_cache`]),
+    /// when its folder can be written, and read them from there.
+    pub cache_photos: bool,
 }
 
 impl Default for OpenOptions {
@@ -65,6 +68,7 @@ impl Default for OpenOptions {
             random_points: points::DEFAULT_RANDOM_POINTS,
             seed: 0,
             undistort: true,
+            cache_photos: false,
         }
     }
 }
@@ -131,6 +135,8 @@ pub struct Capture {
     /// Per camera, the undistortion its photo goes through at load (empty: none); cameras of
     /// the same intrinsics share one.
     pub remaps: Vec<Option<std::sync::Arc<Remap>>>,
+    /// Where photos made at load (shrunk or undistorted) are cached; None: made at each load.
+    pub photo_cache: Option<PathBuf>,
 }
 
 impl Capture {
@@ -151,6 +157,21 @@ impl Capture {
                 format!("image index {index} out of range 0..{}", self.len()),
             ));
         };
+        let remap = self.remaps.get(index).and_then(Option::as_deref);
+        // A photo made at load is read from the cache when it holds it; the file's bytes are
+        // read for the key (a photo edited since is another entry), not decoded.
+        let cached = match &self.photo_cache {
+            Some(dir) if self.shrink > 1 || remap.is_some() => std::fs::read(path).ok().map(|b| {
+                let key = crate::photo_cache::key(&b, self.shrink, remap.map(|r| r.fingerprint));
+                (dir, key)
+            }),
+            _ => None,
+        };
+        if let Some((dir, key)) = &cached
+            && let Some(photo) = crate::photo_cache::get(dir, *key, camera.width, camera.height)
+        {
+            return Ok(photo);
+        }
         let mut image = images::load_rgb(path)?;
         if self.shrink > 1 {
             image = image.shrunk(self.shrink);
@@ -164,8 +185,12 @@ impl Capture {
                 ),
             ));
         }
-        if let Some(Some(remap)) = self.remaps.get(index) {
+        if let Some(remap) = remap {
             image = remap.apply(&image);
+        }
+        // A cache that cannot be written costs the next run a decode, nothing more.
+        if let Some((dir, key)) = &cached {
+            let _ = crate::photo_cache::put(dir, *key, &image);
         }
         Ok(image)
     }
@@ -356,6 +381,9 @@ pub fn open(dir: &Path, options: &OpenOptions) -> Result<Capture> {
     };
     if options.undistort {
         capture.remaps = remaps(&capture.cameras);
+    }
+    if options.cache_photos && (capture.shrink > 1 || capture.undistorted()) {
+        capture.photo_cache = crate::photo_cache::location(&capture.root);
     }
     Ok(capture)
 }
@@ -568,6 +596,7 @@ fn open_llff(root: &Path, options: &OpenOptions) -> Result<Capture> {
         point_source,
         distortion_source,
         remaps: Vec::new(),
+        photo_cache: None,
         shrink,
     })
 }
@@ -625,6 +654,7 @@ fn open_transforms(root: &Path, options: &OpenOptions) -> Result<Capture> {
         point_source,
         distortion_source,
         remaps: Vec::new(),
+        photo_cache: None,
         shrink,
     })
 }
@@ -796,6 +826,7 @@ fn open_colmap(root: &Path, sparse: &Path, options: &OpenOptions) -> Result<Capt
         point_source,
         distortion_source,
         remaps: Vec::new(),
+        photo_cache: None,
         shrink,
     })
 }

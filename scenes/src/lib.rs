@@ -16,6 +16,7 @@ pub mod images;
 pub mod limits;
 pub mod llff;
 pub mod nerfstudio;
+pub mod photo_cache;
 pub mod point_ply;
 pub mod points;
 pub mod split;

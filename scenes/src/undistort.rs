@@ -29,6 +29,8 @@ pub struct Remap {
     pub source: Vec<(f32, f32)>,
     /// Whether the source lies inside the photo, per output pixel.
     pub valid: Vec<bool>,
+    /// XXH3 of the source positions: what a photo cached after this remap is keyed by.
+    pub fingerprint: u64,
 }
 
 impl Remap {
@@ -50,9 +52,15 @@ impl Remap {
                 valid.push(inside);
             }
         }
+        let bytes: Vec<u8> = source
+            .iter()
+            .flat_map(|&(u, v)| [u.to_le_bytes(), v.to_le_bytes()])
+            .flatten()
+            .collect();
         Remap {
             width: w,
             height: h,
+            fingerprint: base::hash::xxh3(&bytes),
             source,
             valid,
         }

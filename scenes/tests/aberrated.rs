@@ -162,8 +162,29 @@ fn maker_writes_an_llff_capture_the_model_would_record() {
         err.contains("psf.npy") && err.contains("not the PSF grid this capture was made with"),
         "{err}"
     );
-    std::fs::write(dest.join(PSF_FILE), kept).unwrap();
+    std::fs::write(dest.join(PSF_FILE), &kept).unwrap();
     assert_eq!(record.load_psf(&dest).unwrap(), psf);
+
+    // The record names the grid by XXH3; a record written before XXH3 (its FNV-1a, under
+    // `psf_fnv1a`) still checks the grid, both ways.
+    let path = dest.join(aberrated::RECORD_FILE);
+    let text = std::fs::read_to_string(&path).unwrap();
+    let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert!(doc["psf_checksum"].as_str().unwrap().starts_with("xxh3:"));
+    let mut old = doc.clone();
+    let map = old.as_object_mut().unwrap();
+    map.remove("psf_checksum");
+    map.insert(
+        "psf_fnv1a".into(),
+        format!("{:016x}", base::hash::fnv1a64(&kept)).into(),
+    );
+    std::fs::write(&path, old.to_string()).unwrap();
+    let legacy = AberrationRecord::read(&dest).unwrap().unwrap();
+    assert_eq!(legacy.load_psf(&dest).unwrap(), psf);
+    other.save_npy(&dest.join(PSF_FILE)).unwrap();
+    assert!(legacy.load_psf(&dest).is_err());
+    std::fs::write(dest.join(PSF_FILE), &kept).unwrap();
+    std::fs::write(&path, &text).unwrap();
 
     // A noise level beyond f32 is reported as written, not as the infinity serde makes of it.
     let path = dest.join(aberrated::RECORD_FILE);

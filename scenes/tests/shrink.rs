@@ -130,3 +130,56 @@ fn masks_come_from_the_masks_folder_else_from_the_photos_alpha() {
     let m = capture.load_mask(2).unwrap().unwrap();
     assert_eq!((m[9], m[10]), (0.0, 1.0));
 }
+
+#[test]
+fn photos_made_at_load_are_cached_beside_the_capture_and_read_back_bit_for_bit() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("llff");
+    let (cameras, bounds) = common::arc_cameras(3, 81, 61, 2);
+    let photos: Vec<_> = (0..3).map(|k| common::pattern(81, 61, k)).collect();
+    scenes::write_llff(&dir, &cameras, &bounds, &photos, 1, BitDepth::Sixteen).unwrap();
+    let cached = |n| {
+        scenes::open(
+            &dir,
+            &OpenOptions {
+                resolution: Resolution::Downsample(n),
+                cache_photos: true,
+                ..OpenOptions::default()
+            },
+        )
+        .unwrap()
+    };
+    let cache = dir.join(scenes::photo_cache::CACHE_DIR);
+    let entries = || std::fs::read_dir(&cache).map_or(0, |d| d.count());
+    // Photos as their files hold them are not cached; opening writes nothing.
+    let full = cached(1);
+    assert_eq!(full.photo_cache, None);
+    let half = cached(2);
+    assert_eq!(half.photo_cache.as_deref(), Some(cache.as_path()));
+    assert_eq!(entries(), 0);
+    let uncached = open(&dir, 2).unwrap().load_image(1).unwrap();
+    let first = half.load_image(1).unwrap();
+    assert_eq!(first, uncached);
+    assert_eq!(entries(), 1);
+    // The next run reads the entry: spoil it to a valid entry of other pixels and it shows.
+    let again = cached(2);
+    assert_eq!(again.load_image(1).unwrap(), first);
+    let entry = std::fs::read_dir(&cache)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let key = u64::from_str_radix(entry.file_stem().unwrap().to_str().unwrap(), 16).unwrap();
+    let mut marked = first.clone();
+    marked.data[0] = 0.5;
+    scenes::photo_cache::put(&cache, key, &marked).unwrap();
+    assert_eq!(cached(2).load_image(1).unwrap(), marked);
+    // A photo edited since is another entry, not the stale one.
+    let edited = common::pattern(81, 61, 7);
+    scenes::images::write_png(&full.image_paths[1], &edited, BitDepth::Sixteen).unwrap();
+    let fresh = cached(2).load_image(1).unwrap();
+    assert_eq!(fresh, open(&dir, 2).unwrap().load_image(1).unwrap());
+    assert_ne!(fresh, first);
+    assert_eq!(entries(), 2);
+}

@@ -153,6 +153,7 @@ impl CaptureModel {
             llffhold: options.llffhold,
             seed: options.seed,
             undistort: !options.keep_distortion,
+            cache_photos: true,
             ..OpenOptions::default()
         };
         let capture = scenes::open(dir, &open)?;
@@ -243,11 +244,16 @@ impl CaptureModel {
                 config: r.config().name.clone(),
                 source: source.clone(),
                 weights: r.weights_hash.clone().unwrap_or_default(),
+                legacy_weights: r.weights_fnv1a.clone().unwrap_or_default(),
             },
             None => IacSource::Wiener,
         });
         let keyer = match (&restorer, restoring.as_ref().or(imaging.as_ref())) {
-            (Some(r), Some(m)) => Some(crate::train::iac_cache::Keyer::new(&r.identity(), m.psf())),
+            (Some(r), Some(m)) => Some(crate::train::iac_cache::Keyer::new(
+                &r.identity(),
+                &r.legacy_identity(),
+                m.psf(),
+            )),
             _ => None,
         };
         Ok(Self {
@@ -285,7 +291,7 @@ impl CaptureModel {
     }
 
     /// The key `I_ac` of `observed` is cached under (None without a restorer or PSF grid).
-    pub fn cache_key(&self, observed: &[Vec3]) -> Option<u64> {
+    pub fn cache_key(&self, observed: &[Vec3]) -> Option<crate::train::iac_cache::Key> {
         self.keyer
             .as_ref()
             .map(|k| k.key(self.width, self.height, observed))

@@ -236,6 +236,30 @@ pub fn random_background(seed: u64, step: u64) -> [f32; 3] {
 /// intrinsics, poses), its split and its PSF grid: equal for the same capture, different
 /// as soon as any of them differs.
 pub fn capture_fingerprint(data: &Dataset) -> String {
+    capture_fingerprint_with(data, base::hash::tagged)
+}
+
+/// Rewrites what a checkpoint written before XXH3 recorded in FNV-1a (the capture's
+/// fingerprint, the restorer's weights) as this version writes it, when it names the same
+/// capture and weights: such a run resumes instead of being refused for a hash it cannot
+/// have known.
+pub fn upgrade_fingerprints(recorded: &mut TrainConfig, data: &Dataset) {
+    if recorded.capture.as_deref() == Some(legacy_capture_fingerprint(data).as_str()) {
+        recorded.capture = Some(capture_fingerprint(data));
+    }
+    if let (Some(was), Some(source)) = (&recorded.i_ac, &data.restorer)
+        && source.was_recorded_as(was)
+    {
+        recorded.i_ac = Some(source.identity());
+    }
+}
+
+/// [`capture_fingerprint`] as runs made before XXH3 wrote it (FNV-1a).
+pub fn legacy_capture_fingerprint(data: &Dataset) -> String {
+    capture_fingerprint_with(data, |bytes| format!("{:016x}", base::hash::fnv1a64(bytes)))
+}
+
+fn capture_fingerprint_with(data: &Dataset, hash: impl Fn(&[u8]) -> String) -> String {
     let c = &data.capture;
     let mut bytes = Vec::new();
     for camera in &c.cameras {
@@ -269,7 +293,7 @@ pub fn capture_fingerprint(data: &Dataset) -> String {
         bytes.extend(psf.planar().iter().flat_map(|v| v.to_le_bytes()));
     }
     format!(
-        "{} views of {}x{}{}, fingerprint {:016x}",
+        "{} views of {}x{}{}, fingerprint {}",
         c.len(),
         data.width,
         data.height,
@@ -278,7 +302,7 @@ pub fn capture_fingerprint(data: &Dataset) -> String {
         } else {
             ""
         },
-        base::hash::fnv1a64(&bytes)
+        hash(&bytes)
     )
 }
 

@@ -91,13 +91,14 @@ impl Dataset {
             cache_failure: None,
         };
         let (model, cache) = (&self.source, self.cache.as_deref());
-        let restore = |v: &View| -> Result<(Vec<Vec3>, Option<u64>)> {
+        type Key = crate::train::iac_cache::Key;
+        let restore = |v: &View| -> Result<(Vec<Vec3>, Option<Key>)> {
             let img = model.restore(&v.observed)?.ok_or_else(|| {
                 TrainError::Invalid("I_ac was asked for without a restorer".into())
             })?;
             Ok((img, model.cache_key(&v.observed)))
         };
-        let keep = |v: &mut View, (img, key): (Vec<Vec3>, Option<u64>), report: &mut IacReport| {
+        let keep = |v: &mut View, (img, key): (Vec<Vec3>, Option<Key>), report: &mut IacReport| {
             if let (Some(dir), Some(key)) = (cache, key)
                 && report.cache_failure.is_none()
                 && let Err(e) = crate::train::iac_cache::put(dir, key, &img)

@@ -15,11 +15,13 @@ pub enum IacSource {
     /// worse than the aberrated input and whose ringing long runs learned (RESULTS.md).
     Wiener,
     /// The MAFG + STAF transformer: its config name, where its weights came from, and a
-    /// hash of the weights file.
+    /// fingerprint of the weights file (`legacy_weights`: the FNV-1a hex that runs made
+    /// before XXH3 recorded).
     Network {
         config: String,
         source: String,
         weights: String,
+        legacy_weights: String,
     },
 }
 
@@ -43,8 +45,26 @@ impl IacSource {
             IacSource::Wiener => "Wiener K=1e-2".into(),
             IacSource::Network {
                 config, weights, ..
-            } => format!("{config} network, weights fnv1a {weights}"),
+            } => format!("{config} network, weights {weights}"),
         }
+    }
+
+    /// [`Self::identity`] as runs made before XXH3 wrote it (the weights' FNV-1a).
+    pub fn legacy_identity(&self) -> String {
+        match self {
+            IacSource::Wiener => self.identity(),
+            IacSource::Network {
+                config,
+                legacy_weights,
+                ..
+            } => format!("{config} network, weights fnv1a {legacy_weights}"),
+        }
+    }
+
+    /// Whether `recorded` is this source's [`Self::identity`], or what a run made before
+    /// XXH3 recorded for it.
+    pub fn was_recorded_as(&self, recorded: &str) -> bool {
+        recorded == self.identity() || recorded == self.legacy_identity()
     }
 }
 
@@ -85,4 +105,25 @@ pub(crate) fn open_restorer(
             (Some((r, p.display().to_string())), note)
         }
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::IacSource;
+
+    #[test]
+    fn a_source_knows_what_runs_before_xxh3_recorded_for_it() {
+        let net = IacSource::Network {
+            config: "tiny".into(),
+            source: "shipped".into(),
+            weights: "xxh3:00000000000000aa".into(),
+            legacy_weights: "00000000000000bb".into(),
+        };
+        assert!(net.was_recorded_as("tiny network, weights xxh3:00000000000000aa"));
+        assert!(net.was_recorded_as("tiny network, weights fnv1a 00000000000000bb"));
+        assert!(!net.was_recorded_as("tiny network, weights fnv1a 00000000000000cc"));
+        assert!(!net.was_recorded_as("small network, weights fnv1a 00000000000000bb"));
+        assert!(IacSource::Wiener.was_recorded_as(&IacSource::Wiener.identity()));
+        assert!(!IacSource::Wiener.was_recorded_as(&net.identity()));
+    }
 }

@@ -5,13 +5,14 @@
 //! in its own folder (`RUN/i_ac_cache/`) when the capture's folder cannot be written or the
 //! run already has one there. An experiment shares one between its restored and aware runs.
 //!
-//! An entry is named by a hash of everything that decides its pixels: the restorer's identity
-//! (its config and the hash of its weights, or the Wiener stand-in), the PSF grid it was given,
-//! the image size and the observed pixels, and [`CACHE_VERSION`]. An entry is a safetensors
-//! file (`safetensors.numpy.load_file(p)["i_ac"]` in Python) that also holds its own key (an
-//! entry copied or renamed onto another view's name belongs to that other view) and a
-//! CRC-32; one that does not check out is ignored and recomputed. Entries of the layout before
-//! it (`.iac`) are still read.
+//! An entry is named by a hash (XXH3) of everything that decides its pixels: the restorer's
+//! identity (its config and the fingerprint of its weights, or the Wiener stand-in), the PSF
+//! grid it was given, the image size and the observed pixels, and [`CACHE_VERSION`]. An entry
+//! is a safetensors file (`safetensors.numpy.load_file(p)["i_ac"]` in Python) that also holds
+//! its own key (an entry copied or renamed onto another view's name belongs to that other view)
+//! and a CRC-32; one that does not check out is ignored and recomputed. Entries named as
+//! caches before XXH3 named them (FNV-1a of the restorer's identity as it was then written),
+//! safetensors or the layout before it (`.iac`), are still read.
 
 use std::path::{Path, PathBuf};
 
@@ -58,14 +59,32 @@ pub fn for_viewing(scene: &Path, run: Option<&Path>) -> Option<PathBuf> {
 }
 
 /// Names a restorer's entries: what a key holds besides the photo (the restorer's identity,
-/// the PSF grid, [`CACHE_VERSION`]) hashed once, since it is the same for every view.
+/// the PSF grid, [`CACHE_VERSION`]) hashed once, since it is the same for every view; and
+/// the same as caches before XXH3 named them, so that their entries are still found.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Keyer {
     prefix: u64,
+    legacy_prefix: u64,
+}
+
+/// The name of one view's entry, and the name caches before XXH3 gave it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Key {
+    pub now: u64,
+    pub before: u64,
 }
 
 impl Keyer {
-    pub fn new(restorer: &str, psf: &PsfGrid) -> Self {
+    /// `restorer` and `legacy_restorer`: the restorer's identity as runs write it now and as
+    /// they wrote it before XXH3 ([`crate::train::iac::IacSource::identity`] and its legacy).
+    pub fn new(restorer: &str, legacy_restorer: &str, psf: &PsfGrid) -> Self {
+        Self {
+            prefix: base::hash::xxh3(&Self::prefix_bytes(restorer, psf)),
+            legacy_prefix: base::hash::fnv1a64(&Self::prefix_bytes(legacy_restorer, psf)),
+        }
+    }
+
+    fn prefix_bytes(restorer: &str, psf: &PsfGrid) -> Vec<u8> {
         let mut bytes = Vec::with_capacity(64 + restorer.len() + 4 * psf.planar().len());
         bytes.extend(CACHE_VERSION.to_le_bytes());
         bytes.extend((restorer.len() as u64).to_le_bytes());
@@ -76,24 +95,28 @@ impl Keyer {
                 .concat(),
         );
         bytes.extend(psf.planar().iter().flat_map(|v| v.to_le_bytes()));
-        Self {
-            prefix: base::hash::fnv1a64(&bytes),
-        }
+        bytes
     }
 
     /// The key of `I_ac` for one view.
-    pub fn key(&self, width: u32, height: u32, observed: &[Vec3]) -> u64 {
-        let mut bytes = Vec::with_capacity(16 + 12 * observed.len());
-        bytes.extend(self.prefix.to_le_bytes());
-        bytes.extend(width.to_le_bytes());
-        bytes.extend(height.to_le_bytes());
-        bytes.extend(
-            observed
-                .iter()
-                .flat_map(|p| p.to_array())
-                .flat_map(f32::to_le_bytes),
-        );
-        base::hash::fnv1a64(&bytes)
+    pub fn key(&self, width: u32, height: u32, observed: &[Vec3]) -> Key {
+        let view = |prefix: u64| {
+            let mut bytes = Vec::with_capacity(16 + 12 * observed.len());
+            bytes.extend(prefix.to_le_bytes());
+            bytes.extend(width.to_le_bytes());
+            bytes.extend(height.to_le_bytes());
+            bytes.extend(
+                observed
+                    .iter()
+                    .flat_map(|p| p.to_array())
+                    .flat_map(f32::to_le_bytes),
+            );
+            bytes
+        };
+        Key {
+            now: base::hash::xxh3(&view(self.prefix)),
+            before: base::hash::fnv1a64(&view(self.legacy_prefix)),
+        }
     }
 }
 
@@ -129,11 +152,16 @@ fn floats(body: &[u8]) -> Option<Vec<Vec3>> {
     Some(floats.chunks_exact(3).map(Vec3::from_slice).collect())
 }
 
-/// The cached image for `key`, when there is a whole one of `pixels` pixels.
-pub fn get(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
-    let Ok(bytes) = std::fs::read(path(dir, key)) else {
-        return get_legacy(dir, key, pixels);
-    };
+/// The cached image for `key`, when there is a whole one of `pixels` pixels: under its name,
+/// or under the name caches before XXH3 gave it.
+pub fn get(dir: &Path, key: Key, pixels: usize) -> Option<Vec<Vec3>> {
+    get_entry(dir, key.now, pixels)
+        .or_else(|| get_entry(dir, key.before, pixels))
+        .or_else(|| get_legacy(dir, key.before, pixels))
+}
+
+fn get_entry(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
+    let bytes = std::fs::read(path(dir, key)).ok()?;
     let tensors = safetensors::SafeTensors::deserialize(&bytes).ok()?;
     let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).ok()?;
     let meta = meta.metadata().clone()?;
@@ -162,7 +190,8 @@ fn get_legacy(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
 }
 
 /// Stores an image under `key` (atomically; the folder is made if needed).
-pub fn put(dir: &Path, key: u64, image: &[Vec3]) -> std::io::Result<()> {
+pub fn put(dir: &Path, key: Key, image: &[Vec3]) -> std::io::Result<()> {
+    let key = key.now;
     std::fs::create_dir_all(dir)?;
     let body: Vec<u8> = image
         .iter()
@@ -218,8 +247,9 @@ mod tests {
         let psf = PsfGrid::delta(3, 5);
         let observed = vec![Vec3::new(0.1, 0.2, 0.3); 12];
         let image: Vec<Vec3> = (0..12).map(|i| Vec3::splat(i as f32 / 7.0)).collect();
-        let key =
-            |net: &str, psf: &PsfGrid, w, h, obs: &[Vec3]| Keyer::new(net, psf).key(w, h, obs);
+        let key = |net: &str, psf: &PsfGrid, w, h, obs: &[Vec3]| {
+            Keyer::new(net, &format!("{net} before"), psf).key(w, h, obs)
+        };
         let k = key("net a", &psf, 4, 3, &observed);
         assert!(get(dir.path(), k, 12).is_none());
         put(dir.path(), k, &image).unwrap();
@@ -233,7 +263,7 @@ mod tests {
         assert_ne!(k, key("net a", &psf, 4, 3, &other));
         // The wrong size, a flipped byte or a truncation is a miss, not an image.
         assert!(get(dir.path(), k, 13).is_none());
-        let p = path(dir.path(), k);
+        let p = path(dir.path(), k.now);
         let good = std::fs::read(&p).unwrap();
         for at in [20, good.len() - 3] {
             let mut bad = good.clone();
@@ -249,27 +279,37 @@ mod tests {
         // Another view's entry under this view's name (swapped or copied files) is a miss.
         std::fs::write(&p, &good).unwrap();
         let k2 = key("net a", &psf, 4, 3, &other);
-        std::fs::copy(&p, path(dir.path(), k2)).unwrap();
+        std::fs::copy(&p, path(dir.path(), k2.now)).unwrap();
         assert!(get(dir.path(), k2, 12).is_none());
         assert_eq!(get(dir.path(), k, 12).unwrap(), image);
         // The entry is plain safetensors: its header, read by hand, names the tensor.
         let n = u64::from_le_bytes(good[..8].try_into().unwrap()) as usize;
         let header: serde_json::Value = serde_json::from_slice(&good[8..8 + n]).unwrap();
         assert_eq!(header[TENSOR]["shape"], serde_json::json!([12, 3]));
-        assert_eq!(header["__metadata__"]["key"], format!("{k:016x}"));
-        // An entry of the layout before safetensors is still read.
+        assert_eq!(header["__metadata__"]["key"], format!("{:016x}", k.now));
+        // An entry named as caches before XXH3 named it is still read, and one named so for
+        // another restorer is not.
         std::fs::remove_file(&p).unwrap();
+        let then = Key {
+            now: k.before,
+            before: 0,
+        };
+        put(dir.path(), then, &image).unwrap();
+        assert_eq!(get(dir.path(), k, 12).unwrap(), image);
+        assert!(get(dir.path(), key("net b", &psf, 4, 3, &observed), 12).is_none());
+        // So is an entry of the layout before safetensors.
+        std::fs::remove_file(path(dir.path(), k.before)).unwrap();
         let body: Vec<u8> = image
             .iter()
             .flat_map(|v| v.to_array())
             .flat_map(f32::to_le_bytes)
             .collect();
-        let mut keyed = k.to_le_bytes().to_vec();
+        let mut keyed = k.before.to_le_bytes().to_vec();
         keyed.extend(&body);
         let mut old = MAGIC.to_vec();
         old.extend(&keyed);
         old.extend(base::hash::fnv1a64(&keyed).to_le_bytes());
-        std::fs::write(legacy_path(dir.path(), k), &old).unwrap();
+        std::fs::write(legacy_path(dir.path(), k.before), &old).unwrap();
         assert_eq!(get(dir.path(), k, 12).unwrap(), image);
     }
 }

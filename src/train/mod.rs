@@ -551,7 +551,8 @@ pub fn train(
     let run = Run::new(config, data, device, checkpoint_path);
     let (start, resumed_from) = match checkpoint_path {
         Some(p) if resume && p.exists() => {
-            let s = checkpoint::load(p)?;
+            let mut s = checkpoint::load(p)?;
+            config::upgrade_fingerprints(&mut s.config, data);
             let diff = config_differences(config, &s.config);
             if !diff.is_empty() {
                 return Err(TrainError::file(
