@@ -665,9 +665,28 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
         "best single K",
         "median MAFG",
         "network (tiny)",
+        "PSNR on Y",
+        "the grid's own sensor",
     ] {
         assert!(text.contains(row), "{row}: {text}");
     }
+    // At a chosen blur scale: every photo's PSFs mapped to that many pixels.
+    let text = ok(&[
+        "restorer",
+        "eval",
+        "--weights",
+        s(&weights),
+        "--psf",
+        s(&psf),
+        "--val",
+        s(&imgs),
+        "--psf-px",
+        "9",
+    ]);
+    assert!(
+        text.contains("PSFs of 9 px at the photos' size (--psf-px 9)"),
+        "{text}"
+    );
 
     // Weights made for one grid are refused for another, naming the weights file.
     let other = d.join("other.npy");
@@ -690,10 +709,66 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
         s(&d.join("x.png")),
     ]);
     assert!(
-        err.contains("w.bin") && err.contains("trained for a 3x3 grid"),
+        err.contains("w.bin") && err.contains("trained for one 3x3 grid"),
         "{err}"
     );
     assert!(!d.join("x.png").exists());
+    // --any-grid restores through it all the same, to measure the weights there.
+    ok(&[
+        "restore",
+        "--psf",
+        s(&other),
+        "--weights",
+        s(&weights),
+        "--any-grid",
+        "--in",
+        s(&abr),
+        "--out",
+        s(&d.join("x.png")),
+    ]);
+    assert_eq!(image::image_dimensions(d.join("x.png")).unwrap(), (96, 80));
+    // Fine-tuning to a user's own lens: --init takes weights made for another grid, and the
+    // weights it writes serve that grid.
+    let tuned = d.join("tuned.bin");
+    let text = ok(&[
+        "restorer",
+        "train",
+        "--images",
+        s(&imgs),
+        "--val",
+        s(&val),
+        "--psf",
+        s(&other),
+        "--config",
+        "tiny",
+        "--out",
+        s(&tuned),
+        "--steps",
+        "1",
+        "--batch",
+        "1",
+        "--val-crop",
+        "64",
+        "--init",
+        s(&weights),
+    ]);
+    assert!(
+        text.contains("Fine-tuning")
+            && text.contains("w.bin")
+            && text.contains("trained to step 1"),
+        "{text}"
+    );
+    ok(&[
+        "restore",
+        "--psf",
+        s(&other),
+        "--weights",
+        s(&tuned),
+        "--in",
+        s(&abr),
+        "--out",
+        s(&d.join("y.png")),
+    ]);
 
     // The restorer supplies I_ac to splat training.
     let (clean, capture) = (d.join("clean"), d.join("capture"));

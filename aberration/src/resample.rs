@@ -86,6 +86,26 @@ impl PsfGrid {
         PsfGrid::from_planar(self.grid(), n, data).expect("area resampling keeps PSFs valid")
     }
 
+    /// The sensor size (px) that maps this grid's PSFs to about `psf_px` pixels on a
+    /// `width × height` image: the `sensor_px` of [`Self::for_image`] for a chosen blur scale
+    /// (`restorer eval --psf-px`, training pairs drawn over scales). A mapped side is odd, so
+    /// an even `psf_px` lands on a neighbour.
+    pub fn sensor_for_psf_px(&self, width: usize, height: usize, psf_px: usize) -> usize {
+        let (side, k) = (width.max(height) as f64, self.size() as f64);
+        let exact = side * k / psf_px.max(1) as f64;
+        // Of the whole sensors about the exact one, the one whose mapped side is nearest,
+        // then whose blur scale is nearest.
+        let miss = |sensor: usize| {
+            let scale = side / sensor as f64;
+            let n = resampled_size(self.size(), scale) as f64;
+            ((n - psf_px as f64).abs(), (k * scale - psf_px as f64).abs())
+        };
+        let lo = (exact.floor() as usize).max(2) - 1;
+        (lo..lo + 3)
+            .min_by(|a, b| miss(*a).partial_cmp(&miss(*b)).expect("finite"))
+            .expect("three candidates")
+    }
+
     /// The grid mapped onto a `width × height` image by the module's rule; `sensor_px`
     /// overrides the native sensor size `G·K`. Refused, before anything is allocated, when the
     /// mapped PSFs would be larger than [`MAX_MAPPED_PSF_PX`] or than twice the image (a sensor

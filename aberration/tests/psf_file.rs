@@ -252,3 +252,29 @@ fn shapes_that_overflow_or_claim_more_than_the_file_are_refused_before_allocatio
         );
     }
 }
+
+#[test]
+fn a_chosen_psf_scale_is_reached_on_any_photo_size() {
+    let k = 135;
+    let kernel = vec![1.0f32 / (k * k) as f32; k * k];
+    let grid = PsfGrid::uniform(9, k, [&kernel, &kernel, &kernel]).unwrap();
+    for (w, h) in [(500, 500), (768, 512), (504, 378), (4032, 3024), (33, 97)] {
+        for px in [15usize, 19, 38, 57, 85, 113, 135, 140] {
+            let sensor = grid.sensor_for_psf_px(w, h, px);
+            let n = grid.for_image(w, h, Some(sensor)).map(|g| g.size());
+            // A mapped side is odd: an odd target exactly, an even one a neighbour.
+            let ok = |n: usize| {
+                if px % 2 == 1 {
+                    n == px
+                } else {
+                    n.abs_diff(px) == 1
+                }
+            };
+            match n {
+                Ok(n) => assert!(ok(n), "{w}x{h} at {px} px: sensor {sensor} maps to {n}"),
+                // Only where the PSF would exceed twice the photo.
+                Err(_) => assert!(px > 2 * w.max(h), "{w}x{h} at {px} px refused"),
+            }
+        }
+    }
+}

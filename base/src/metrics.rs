@@ -75,6 +75,35 @@ fn psnr_from_se(se: f64, count: usize) -> f64 {
     -10.0 * (se / count as f64).max(PSNR_MSE_FLOOR).log10()
 }
 
+/// The luma weights of ITU-R BT.601 as the paper's code (BasicSR's `test_y_channel`) applies
+/// them to RGB in [0, 1]: `Y = (65.481 R + 128.553 G + 24.966 B + 16) / 255`. The offset
+/// cancels in a difference, so only the weights enter a PSNR.
+pub const LUMA_BT601: [f64; 3] = [65.481 / 255.0, 128.553 / 255.0, 24.966 / 255.0];
+
+/// PSNR in dB of the luma (Y) channel of two planar RGB images (all red, then green, then
+/// blue), data range 1: the figure the paper reports (without its 8-bit rounding and with no
+/// border cropped), comparable to ours only this way.
+pub fn psnr_y_planar(a: &[f32], b: &[f32]) -> Result<f64, BaseError> {
+    check_len(a.len(), b.len())?;
+    if !a.len().is_multiple_of(3) {
+        return Err(BaseError::SizeMismatch {
+            what: "planar RGB image (a multiple of 3 values)",
+            expected: a.len() / 3 * 3,
+            got: a.len(),
+        });
+    }
+    let n = a.len() / 3;
+    let se: f64 = (0..n)
+        .map(|i| {
+            let d: f64 = (0..3)
+                .map(|c| LUMA_BT601[c] * (a[c * n + i] as f64 - b[c * n + i] as f64))
+                .sum();
+            d * d
+        })
+        .sum();
+    Ok(psnr_from_se(se, n))
+}
+
 /// Mean SSIM of `a` against `b` (no gradient: what evaluation and loss probes need).
 pub fn ssim_value(a: &[Vec3], b: &[Vec3], width: u32, height: u32) -> Result<f64, BaseError> {
     check(a.len(), b.len(), width, height)?;

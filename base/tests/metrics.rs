@@ -111,3 +111,37 @@ fn ssim_has_the_same_bits_in_every_build() {
         assert!(child == here, "SSIM differs with {var}");
     }
 }
+
+#[test]
+fn luma_psnr_weights_each_channel_as_bt601_and_a_grey_error_as_plain_psnr() {
+    let (w, h) = (9, 7);
+    let n = w * h;
+    let a = planar(&image(3, n));
+    // An error in green alone of d per pixel: MSE of Y = (128.553 d / 255)^2.
+    let d = 0.02f32;
+    let mut b = a.clone();
+    for v in &mut b[n..2 * n] {
+        *v += d;
+    }
+    let want = -20.0 * (128.553 / 255.0 * d as f64).log10();
+    let got = base::metrics::psnr_y_planar(&b, &a).unwrap();
+    assert!((got - want).abs() < 1e-4, "{got} vs {want}");
+    // The same error in blue costs far less than in green (24.966 against 128.553).
+    let mut blue = a.clone();
+    for v in &mut blue[2 * n..] {
+        *v += d;
+    }
+    let in_blue = base::metrics::psnr_y_planar(&blue, &a).unwrap();
+    assert!((in_blue - got - 20.0 * (128.553f64 / 24.966).log10()).abs() < 1e-4);
+    // A grey error (all channels alike) moves Y by 219/255 of it: PSNR 1.32 dB above RGB's.
+    let grey: Vec<f32> = a.iter().map(|v| v + d).collect();
+    let rgb = psnr(&grey, &a).unwrap();
+    let y = base::metrics::psnr_y_planar(&grey, &a).unwrap();
+    assert!(
+        (y - rgb + 20.0 * (219.0f64 / 255.0).log10()).abs() < 1e-3,
+        "{y} {rgb}"
+    );
+    // Sizes that differ, or that are not RGB, are errors.
+    assert!(base::metrics::psnr_y_planar(&a, &a[1..]).is_err());
+    assert!(base::metrics::psnr_y_planar(&a[1..], &a[1..]).is_err());
+}

@@ -8,6 +8,7 @@
 
 use crate::config::RestorerConfig;
 use crate::error::{RestoreError, Result};
+use crate::family::{LensFamily, PairDraw};
 use aberration::wiener::{BANK_SIZE, bank_constants, deconvolve_many};
 use aberration::{BlurMode, BlurPlan, Image, NoiseModel, PsfGrid, Regularizer};
 use rand::{RngExt, SeedableRng};
@@ -75,7 +76,21 @@ impl Sample {
         adaptive: bool,
         seed: u64,
     ) -> Result<Self> {
-        let psf = native.for_image(clean.width, clean.height, None)?;
+        Self::make_on(clean, native, None, blur, noise, adaptive, seed)
+    }
+
+    /// [`Self::make`] on a sensor of `sensor_px` (None: the grid's own), which sets the PSF
+    /// scale at the photo's size.
+    pub fn make_on(
+        clean: &Image,
+        native: &PsfGrid,
+        sensor_px: Option<usize>,
+        blur: Blur,
+        noise: NoiseModel,
+        adaptive: bool,
+        seed: u64,
+    ) -> Result<Self> {
+        let psf = native.for_image(clean.width, clean.height, sensor_px)?;
         let psf = match blur {
             Blur::Grid => psf,
             Blur::Position(g) => {
@@ -204,6 +219,64 @@ impl TrainSet {
             psf_px = [psf_px[0].min(k), psf_px[1].max(k)];
         }
         Ok(Self { samples, psf_px })
+    }
+
+    /// Pairs over a lens family: for every photo a grid sample and a single-PSF sample, each
+    /// through a lens of `lenses` (native grids of the family's bank), at a PSF scale, noise
+    /// level and augmentation drawn by [`LensFamily::pair`]. The Wiener bank is computed
+    /// through the pair's own grid at its own scale, on the whole photo.
+    pub fn build_family(
+        photos: &[Image],
+        lenses: &[PsfGrid],
+        family: &LensFamily,
+        cfg: &RestorerConfig,
+        noise: NoiseModel,
+        seed: u64,
+        progress: &(dyn Fn() + Sync),
+    ) -> Result<Self> {
+        if lenses.is_empty() {
+            return Err(RestoreError::BadInput("a lens family of no lenses".into()));
+        }
+        let jobs: Vec<(usize, bool, PairDraw)> = photos
+            .iter()
+            .enumerate()
+            .flat_map(|(i, _)| {
+                let s = seed ^ (i as u64).wrapping_mul(base::rng::GOLDEN_GAMMA);
+                [
+                    (i, false, family.pair(lenses.len(), s)),
+                    (i, true, family.pair(lenses.len(), base::mix64(s))),
+                ]
+            })
+            .collect();
+        let samples = jobs
+            .par_iter()
+            .map(|&(i, single, draw)| {
+                let photo = draw.augment(&photos[i]);
+                let native = &lenses[draw.lens];
+                let sensor = native.sensor_for_psf_px(photo.width, photo.height, draw.psf_px);
+                let blur = if single {
+                    let g = (draw.seed % (native.grid() * native.grid()) as u64) as usize;
+                    Blur::Position(g)
+                } else {
+                    Blur::Grid
+                };
+                let r = Sample::make_on(
+                    &photo,
+                    native,
+                    Some(sensor),
+                    blur,
+                    draw.noise(noise),
+                    cfg.adaptive_k,
+                    draw.seed,
+                );
+                progress();
+                r
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Self {
+            samples,
+            psf_px: family.psf_px,
+        })
     }
 
     /// A batch of random crops: inputs `[b, 39, s, s]` and targets `[b, 3, s, s]`, flat.

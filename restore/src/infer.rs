@@ -86,8 +86,9 @@ impl Restorer {
         }
     }
 
-    /// Loads weights trained for `native` (the PSF grid as simulated, before mapping to an
-    /// image size); another grid is refused.
+    /// Loads weights that serve `native` (the PSF grid as simulated, before mapping to an
+    /// image size: the grid they were trained on, or one inside their lens family); another
+    /// grid is refused.
     pub fn load(path: &Path, native: &PsfGrid) -> Result<Self> {
         Self::load_on(path, native, Device::flex())
     }
@@ -110,7 +111,28 @@ impl Restorer {
         native: &PsfGrid,
         device: Device,
     ) -> Result<Self> {
-        let (net, header) = weights::load_bytes(bytes, name, &device, None, Some(native))?;
+        Self::from_bytes_checked_on(bytes, name, Some(native), device)
+    }
+
+    /// Weights from a file whatever grid they were trained for (`restorer eval --any-grid`:
+    /// to measure them on a lens they do not cover); a damaged file is still refused.
+    pub fn load_any_grid_on(path: &Path, device: Device) -> Result<Self> {
+        let bytes = std::fs::read(path).map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
+        Self::from_bytes_checked_on(&bytes, path, None, device)
+    }
+
+    /// [`Self::load_any_grid_on`] from bytes in memory.
+    pub fn from_bytes_any_grid_on(bytes: &[u8], name: &Path, device: Device) -> Result<Self> {
+        Self::from_bytes_checked_on(bytes, name, None, device)
+    }
+
+    fn from_bytes_checked_on(
+        bytes: &[u8],
+        name: &Path,
+        native: Option<&PsfGrid>,
+        device: Device,
+    ) -> Result<Self> {
+        let (net, header) = weights::load_bytes(bytes, name, &device, None, native)?;
         let mut r = Self::new(net, header, device);
         r.weights_hash = Some(weights::fingerprint(bytes));
         r.weights_fnv1a = Some(format!("{:016x}", base::hash::fnv1a64(bytes)));

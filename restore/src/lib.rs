@@ -8,8 +8,10 @@
 
 pub mod compute;
 pub mod config;
+pub mod coverage;
 pub mod data;
 pub mod error;
+pub mod family;
 pub mod infer;
 pub mod net;
 pub mod provenance;

@@ -50,6 +50,9 @@ pub struct TrainOptions {
     /// step that ends past this many seconds: the run is then continued with `Start::Resume`.
     pub stop_after_steps: Option<usize>,
     pub stop_after_seconds: Option<f64>,
+    /// The lens family the pairs are drawn from, written into the weights header so that
+    /// loading accepts its grids; None: the pairs come through `native` alone.
+    pub family: Option<crate::coverage::Family>,
 }
 
 /// Seed of the training pairs of refresh round `round` (round 0: the run's seed).
@@ -91,6 +94,7 @@ impl Default for TrainOptions {
             compute: Compute::Cpu,
             stop_after_steps: None,
             stop_after_seconds: None,
+            family: None,
         }
     }
 }
@@ -104,6 +108,13 @@ pub fn learning_rate(lr: f64, step: usize, steps: usize) -> f64 {
     let t = (step - warm) as f64 / (steps - warm).max(1) as f64;
     lr * (0.01 + 0.99 * 0.5 * (1.0 + (std::f64::consts::PI * t).cos()))
 }
+
+/// PSF sides (px) a family run validates at, one per photo in turn: the scales
+/// `restorer eval --psf-px` reports.
+pub const FAMILY_VAL_PSF_PX: [usize; 6] = [19, 38, 57, 85, 113, 135];
+
+/// The grid and sensor size (None: the grid's own) validation photo `i` is blurred through.
+type Through<'g> = dyn Fn(usize, &Image) -> Result<(&'g PsfGrid, Option<usize>)> + 'g;
 
 /// Validation images: each aberrated once through the whole grid with a fixed seed.
 pub struct ValSet {
@@ -122,14 +133,59 @@ impl ValSet {
         noise: NoiseModel,
         crop: Option<usize>,
     ) -> Result<Self> {
+        Self::build_through(photos, &|_, _| Ok((native, None)), cfg, noise, crop)
+    }
+
+    /// Validation over a lens family: photo `i` with PSFs of [`FAMILY_VAL_PSF_PX`]`[i % 6]` px
+    /// at its size, through lens `(i / 6) % lenses.len()` (each of the first lenses at every
+    /// scale, the centre first), so that the figure follows the range a family network serves.
+    pub fn build_family(
+        photos: &[(String, Image)],
+        lenses: &[PsfGrid],
+        cfg: &RestorerConfig,
+        noise: NoiseModel,
+        crop: Option<usize>,
+    ) -> Result<Self> {
+        if lenses.is_empty() {
+            return Err(crate::error::RestoreError::BadInput(
+                "a lens family of no lenses".into(),
+            ));
+        }
+        let through = |i: usize, img: &Image| {
+            let n = FAMILY_VAL_PSF_PX.len();
+            let lens = &lenses[(i / n) % lenses.len()];
+            let px = FAMILY_VAL_PSF_PX[i % n];
+            Ok((
+                lens,
+                Some(lens.sensor_for_psf_px(img.width, img.height, px)),
+            ))
+        };
+        Self::build_through(photos, &through, cfg, noise, crop)
+    }
+
+    /// Each photo through the grid and sensor `through(index, photo)` gives.
+    fn build_through<'g>(
+        photos: &[(String, Image)],
+        through: &Through<'g>,
+        cfg: &RestorerConfig,
+        noise: NoiseModel,
+        crop: Option<usize>,
+    ) -> Result<Self> {
         let mut v = ValSet {
             names: vec![],
             banks: vec![],
             clean: vec![],
         };
         for (i, (name, img)) in photos.iter().enumerate() {
-            let model =
-                ImagingModel::new(native, img.width, img.height, BlurMode::Tiled, None, noise)?;
+            let (native, sensor) = through(i, img)?;
+            let model = ImagingModel::new(
+                native,
+                img.width,
+                img.height,
+                BlurMode::Tiled,
+                sensor,
+                noise,
+            )?;
             let blurred = model.capture(img, 0x5EED_0000 + i as u64)?;
             let bank = bank_images(&blurred, model.psf(), cfg.adaptive_k)?;
             let (bank, clean) = match crop {
@@ -314,6 +370,7 @@ pub fn train(
                 config: cfg.clone(),
                 psf: PsfFingerprint::of(native),
                 trained_psf_px: Some(set.psf_px),
+                family: opts.family.clone(),
                 provenance: serde_json::Value::Null,
             };
             let r = Restorer::new(net.valid(), header.clone(), inner.clone());

@@ -40,6 +40,49 @@ impl Header {
         self.trained_psf_px
             .is_none_or(|[lo, hi]| px as f64 >= lo as f64 * 0.8 && px as f64 <= hi as f64 * 1.25)
     }
+
+    /// The PSF sides (px) these weights serve: the trained range widened as
+    /// [`Self::fits_psf_px`] widens it; None when the file does not say.
+    pub fn served_psf_px(&self) -> Option<[usize; 2]> {
+        self.trained_psf_px.map(|[lo, hi]| {
+            [
+                (lo as f64 * 0.8).ceil() as usize,
+                (hi as f64 * 1.25).floor() as usize,
+            ]
+        })
+    }
+
+    /// Whether these weights serve the native PSF grid `psf`: why they do (the grid they were
+    /// trained on, or a grid inside their lens family), or what they cover and what the grid
+    /// is.
+    pub fn serves(&self, psf: &PsfGrid) -> std::result::Result<String, String> {
+        if self.psf.names(psf) {
+            return Ok("trained on this PSF grid".into());
+        }
+        let grid = format!(
+            "this grid is {}x{} of {} px (hash {})",
+            psf.grid(),
+            psf.grid(),
+            psf.size(),
+            PsfFingerprint::of(psf).hash
+        );
+        match &self.family {
+            Some(family) => match family.envelope.holds(psf) {
+                Ok(()) => Ok(format!(
+                    "this PSF grid is inside the lens family it was trained on ({})",
+                    family.drawn
+                )),
+                Err(outside) => Err(format!(
+                    "weights cover a family of {}x{} lenses ({}); {grid}, outside it: {outside}",
+                    family.envelope.grid, family.envelope.grid, family.drawn
+                )),
+            },
+            None => Err(format!(
+                "weights were trained for one {}x{} grid of {} px PSFs (hash {}); {grid}",
+                self.psf.grid, self.psf.grid, self.psf.size, self.psf.hash
+            )),
+        }
+    }
 }
 
 impl PsfFingerprint {
@@ -81,6 +124,10 @@ pub struct Header {
     /// blur scales the network has seen.
     #[serde(default)]
     pub trained_psf_px: Option<[usize; 2]>,
+    /// The lens family the network was trained on ([`crate::coverage`]); None: only the grid
+    /// of [`Self::psf`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub family: Option<crate::coverage::Family>,
     /// Free-form record of how the weights were made (command, steps, seed, time, metrics).
     pub provenance: serde_json::Value,
 }
@@ -189,7 +236,8 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<(Header, Vec<u8>)> {
 }
 
 /// Loads a network. With `expected`, a file of another configuration is refused naming both;
-/// with `psf`, weights trained for another PSF grid are refused.
+/// with `psf`, weights that do not serve that native grid ([`Header::serves`]) are refused
+/// saying what they cover and what the grid is.
 pub fn load(
     path: &Path,
     device: &Device,
@@ -234,24 +282,10 @@ fn build(
             ),
         ));
     }
-    if let Some(psf) = psf {
-        if !header.psf.names(psf) {
-            let fp = PsfFingerprint::of(psf);
-            return Err(bad(
-                path,
-                format!(
-                    "weights were trained for a {}x{} grid of {} px PSFs (hash {}), this PSF grid is {}x{} of {} px (hash {})",
-                    header.psf.grid,
-                    header.psf.grid,
-                    header.psf.size,
-                    header.psf.hash,
-                    fp.grid,
-                    fp.grid,
-                    fp.size,
-                    fp.hash
-                ),
-            ));
-        }
+    if let Some(psf) = psf
+        && let Err(why) = header.serves(psf)
+    {
+        return Err(bad(path, why));
     }
     let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(record))
         .map_err(|e| bad(path, format!("bad record: {e}")))?;

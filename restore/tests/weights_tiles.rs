@@ -11,6 +11,7 @@ fn header(cfg: &RestorerConfig, psf: &PsfGrid) -> Header {
         config: cfg.clone(),
         psf: PsfFingerprint::of(psf),
         trained_psf_px: None,
+        family: None,
         provenance: serde_json::json!({"test": true}),
     }
 }
@@ -83,7 +84,7 @@ fn weights_of_another_config_or_psf_grid_are_refused_naming_both() {
         .unwrap()
         .to_string();
     assert!(
-        e.contains("tiny.bin") && e.contains("trained for a 3x3 grid"),
+        e.contains("tiny.bin") && e.contains("trained for one 3x3 grid"),
         "{e}"
     );
     // Garbage and truncation: errors naming the file, no panic.
@@ -349,4 +350,86 @@ fn tiling_that_the_network_cannot_take_is_refused() {
     }
     let ok = r().with_tiling(2 * m, m / 2).unwrap();
     assert_eq!((ok.tile, ok.overlap), (2 * m, m / 2));
+}
+
+/// A 3×3 grid of Gaussians, `w` times wider per colour than the reference widths, widening
+/// towards the corners: one lens of a made-up family.
+fn lens(w: [f64; 3]) -> PsfGrid {
+    let (g, k) = (3usize, 21usize);
+    let c = (k / 2) as f64;
+    let mut data = vec![];
+    for cell in 0..g * g {
+        let r = ((cell / g) as f64 - 1.0).hypot((cell % g) as f64 - 1.0);
+        for (ch, w) in w.iter().enumerate() {
+            let sigma = w * (1.2 + 0.5 * ch as f64) * (1.0 + 0.15 * r);
+            let kernel: Vec<f32> = (0..k * k)
+                .map(|i| {
+                    let (y, x) = ((i / k) as f64 - c, (i % k) as f64 - c);
+                    (-(x * x + y * y) / (2.0 * sigma * sigma)).exp() as f32
+                })
+                .collect();
+            let s: f32 = kernel.iter().sum();
+            data.extend(kernel.iter().map(|v| v / s));
+        }
+    }
+    PsfGrid::from_planar(g, k, data).unwrap()
+}
+
+#[test]
+fn weights_of_a_lens_family_load_for_its_grids_and_refuse_others_saying_both() {
+    let device = Device::flex();
+    let cfg = RestorerConfig::tiny();
+    let net = RestorerNet::new(&cfg, &device);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("family.bin");
+    let members = [lens([0.9, 1.0, 1.1]), lens([1.1, 1.0, 0.9])];
+    let family = restore::coverage::Family {
+        drawn: serde_json::json!({"focal_percent": 5}),
+        envelope: restore::coverage::Envelope::of(&members).unwrap(),
+    };
+    let mut h = header(&cfg, &members[0]);
+    h.trained_psf_px = Some([15, 140]);
+    h.family = Some(family.clone());
+    weights::save(&net, &h, &path).unwrap();
+    // The header round-trips with its family and range.
+    let (back, _) = weights::read(&path).unwrap();
+    assert_eq!(back.family.as_ref(), Some(&family));
+    assert_eq!(back.trained_psf_px, Some([15, 140]));
+    assert_eq!(back.served_psf_px(), Some([12, 175]));
+    // A lens between the two members loads, not only the one its fingerprint names.
+    let inside = lens([1.0, 1.0, 1.0]);
+    assert!(!back.psf.names(&inside));
+    let why = back.serves(&inside).unwrap();
+    assert!(why.contains("inside the lens family"), "{why}");
+    assert!(weights::load(&path, &device, None, Some(&inside)).is_ok());
+    // Another lens is refused naming the file, what the weights cover and what the grid is.
+    for (other, says) in [
+        (lens([0.5, 1.0, 2.0]), "width"),
+        (PsfGrid::delta(3, 21), "window"),
+        (PsfGrid::delta(5, 21), "5x5"),
+    ] {
+        let e = weights::load(&path, &device, None, Some(&other))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("family.bin")
+                && e.contains("family of 3x3 lenses")
+                && e.contains("focal_percent")
+                && e.contains("this grid is")
+                && e.contains(says),
+            "{e}"
+        );
+    }
+    // Weights of one grid name that grid when refusing another.
+    let e = header(&cfg, &members[0]).serves(&inside).unwrap_err();
+    assert!(
+        e.contains("one 3x3 grid of 21 px") && e.contains("this grid is 3x3 of 21 px"),
+        "{e}"
+    );
+    // A header written before families (no key) reads as one grid.
+    let json = serde_json::to_value(header(&cfg, &members[0])).unwrap();
+    assert!(json.get("family").is_none());
+    let old: Header = serde_json::from_value(json).unwrap();
+    assert!(old.family.is_none());
 }

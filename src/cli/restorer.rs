@@ -7,6 +7,7 @@ use aberration::{BlurMode, Image, ImagingModel, NoiseModel, PsfGrid, Regularizer
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use restore::data::{TrainSet, list_images, load_photo};
+use restore::family::LensFamily;
 use restore::provenance::Lineage;
 use restore::train::{Event, Schedule, Start, TrainOptions, TrainRun, ValSet, round_seed, train};
 use restore::{Guidance, Preset, Restorer, RestorerConfig, weights};
@@ -56,9 +57,20 @@ pub struct TrainRestorerArgs {
     /// Validate on centred crops of this side during training (whole images: 0).
     #[arg(long, default_value_t = 128, value_parser = metasplat::flags::val_crop)]
     pub val_crop: usize,
-    /// Start from these weights (same config and PSF grid) with a new optimizer and schedule.
+    /// Start from these weights (same config, any PSF grid: fine-tuning to another lens) with
+    /// a new optimizer and schedule.
     #[arg(long, conflicts_with = "resume")]
     pub init: Option<PathBuf>,
+    /// Train over a family of lenses about the paper's (focal ±5 %, sensor ±5 µm, wavelengths
+    /// ±15 nm, rotation ±3°, measured-PSF noise and pedestal), PSF scales of 15-140 px and
+    /// noise ×0.5-2, with flips, quarter turns and colour jitter; the weights then serve any
+    /// grid of the family. `--psf` is the family's centre (`psf simulate`'s default lens).
+    #[arg(long)]
+    pub family: bool,
+    /// Lenses of the family simulated for the run (each pair draws one); kept in `OUT.lenses/`
+    /// so that a resumed or later run simulates none again.
+    #[arg(long, default_value_t = 12, value_parser = clap::value_parser!(u64).range(1..=1000), requires = "family")]
+    pub lenses: u64,
     /// Continue the interrupted run that writes `--out` exactly where its last checkpoint left
     /// it (weights, `OUT.state`: optimizer moments, schedule, sampler position); --steps,
     /// --batch, --lr, --seed and --refresh-every must be the run's own (others are refused).
@@ -124,6 +136,10 @@ pub struct Inference {
     /// `cpu`, or `vulkan` in a build with `--features vulkan`.
     #[arg(long, default_value = "cpu")]
     pub backend: restore::Compute,
+    /// Restore through this grid even when the weights do not cover its lens (to measure them
+    /// there); without it such weights are refused, saying what they cover.
+    #[arg(long)]
+    pub any_grid: bool,
     #[command(flatten)]
     pub tiling: Tiling,
 }
@@ -134,22 +150,33 @@ impl Inference {
         let native = PsfGrid::load_npy(&self.psf)
             .with_context(|| format!("cannot read {}", self.psf.display()))?;
         let device = self.backend.device().context("--backend")?;
-        let net = match &self.weights {
-            Some(w) => Restorer::load_on(w, &native, device)
+        let net = match (&self.weights, self.any_grid) {
+            (Some(w), false) => Restorer::load_on(w, &native, device)
                 .with_context(|| format!("--weights with --psf {}", self.psf.display()))?,
-            None => match restore::shipped::for_psf_on(&native, device)? {
-                Some(net) => {
-                    println!(
-                        "Using the restorer shipped in the binary ({}).",
-                        restore::shipped::TINY_NAME
-                    );
-                    net
+            (Some(w), true) => Restorer::load_any_grid_on(w, device)
+                .with_context(|| format!("--weights {}", w.display()))?,
+            (None, any_grid) => {
+                match restore::shipped::for_capture_on(&native, None, device.clone())? {
+                    restore::shipped::Choice::Network(net, why) => {
+                        println!("Using {why}.");
+                        *net
+                    }
+                    restore::shipped::Choice::Declined(why) if any_grid => {
+                        println!(
+                            "Using the shipped restorer outside what it covers (--any-grid): {why}."
+                        );
+                        Restorer::from_bytes_any_grid_on(
+                            restore::shipped::TINY,
+                            Path::new(restore::shipped::TINY_NAME),
+                            device,
+                        )?
+                    }
+                    restore::shipped::Choice::Declined(why) => bail!(
+                        "--weights: none given, and {why} (--psf {}); train one with `metasplat restorer train`, or pass --any-grid to measure it there",
+                        self.psf.display()
+                    ),
                 }
-                None => bail!(
-                    "--weights: none given, and the shipped restorer was trained for the default simulated PSF grid, not {}; train one with `metasplat restorer train` and pass it",
-                    self.psf.display()
-                ),
-            },
+            }
         };
         Ok((native, self.tiling.apply(net)?))
     }
@@ -174,6 +201,10 @@ pub struct EvalArgs {
     /// Write per photo here: aberrated, residual-base Wiener, restored and clean side by side.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Blur the photos with the grid's PSFs mapped to this many pixels at each photo's size
+    /// (odd; an even number lands on a neighbour); default: the grid's own sensor, G·K px.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=aberration::resample::MAX_MAPPED_PSF_PX as u64))]
+    pub psf_px: Option<u64>,
 }
 
 #[derive(Args)]
@@ -203,6 +234,27 @@ pub fn run(c: RestorerCommand) -> Result<()> {
 
 fn metric(a: &Image, b: &Image) -> Result<(f64, f64)> {
     Ok(aberration::compare(a, b)?)
+}
+
+/// Sums of one method's scores over the photos: PSNR and SSIM on RGB, and PSNR on the luma
+/// channel, the paper's figure.
+#[derive(Clone, Copy, Default)]
+struct Score {
+    psnr: f64,
+    ssim: f64,
+    psnr_y: f64,
+}
+
+impl Score {
+    fn add(&mut self, image: &Image, clean: &Image) -> Result<()> {
+        let (p, s) = metric(image, clean)?;
+        let mut clamped = image.clone();
+        clamped.clamp01();
+        self.psnr += p;
+        self.ssim += s;
+        self.psnr_y += base::metrics::psnr_y_planar(&clamped.data, &clean.data)?;
+        Ok(())
+    }
 }
 
 fn load_folder(dir: &Path, min_side: usize) -> Result<Vec<(String, Image)>> {
@@ -271,6 +323,52 @@ fn config_from(a: &TrainRestorerArgs) -> Result<RestorerConfig> {
         })
 }
 
+/// The lenses a family run draws from: `centre` (the `--psf` grid) and `count - 1` lenses
+/// drawn about the paper's, simulated once and kept in `OUT.lenses/` (a file there that does
+/// not load is simulated again).
+fn lens_bank(
+    family: &LensFamily,
+    centre: &PsfGrid,
+    out: &Path,
+    count: usize,
+    seed: u64,
+) -> Result<Vec<PsfGrid>> {
+    let mut dir = out.as_os_str().to_owned();
+    dir.push(".lenses");
+    let dir = PathBuf::from(dir);
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let base = aberration::optics::SimConfig::default();
+    let pb = bar(count as u64, "lens family");
+    let mut lenses = vec![centre.clone()];
+    let mut simulated = 0;
+    pb.inc(1);
+    for i in 1..count {
+        let path = dir.join(format!("lens_{i:03}_seed{seed}.npy"));
+        let grid = match PsfGrid::load_npy(&path) {
+            Ok(g) => g,
+            Err(_) => {
+                let lens = family.lens(&base, i, seed);
+                let g = lens
+                    .simulate()
+                    .with_context(|| format!("simulating lens {i} of the family"))?;
+                g.save_npy(&path)
+                    .with_context(|| format!("cannot write {}", path.display()))?;
+                simulated += 1;
+                g
+            }
+        };
+        lenses.push(grid);
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    println!(
+        "lens family: --psf and {} drawn lenses ({simulated} simulated now, the rest read from {})",
+        count - 1,
+        dir.display()
+    );
+    Ok(lenses)
+}
+
 fn run_train(a: TrainRestorerArgs) -> Result<()> {
     let mut inputs = vec![
         ("--images", a.images.as_path()),
@@ -314,9 +412,11 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
     let cfg = config_from(&a)?;
     let native =
         PsfGrid::load_npy(&a.psf).with_context(|| format!("cannot read {}", a.psf.display()))?;
-    let load = |p: &Path| {
+    // A resumed run continues on the grid it was trained for; `--init` starts from weights of
+    // any lens (fine-tuning to a user's own grid).
+    let load = |p: &Path, grid: Option<&PsfGrid>| {
         let device = device.clone().autodiff();
-        weights::load(p, &device, Some(&cfg), Some(&native))
+        weights::load(p, &device, Some(&cfg), grid)
     };
     let mut schedule = Schedule {
         steps: a.steps as usize,
@@ -329,7 +429,7 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
     // What the weights file's provenance carries over from the weights it started from.
     let lineage;
     let start = if a.resume {
-        let (net, header) = load(&a.out).context("cannot resume")?;
+        let (net, header) = load(&a.out, Some(&native)).context("cannot resume")?;
         let (state, record) = restore::train_state::load(&a.out).context("cannot resume")?;
         // A flag that says otherwise than the saved run would be ignored: refuse it, naming
         // each, as `train --resume` does.
@@ -368,6 +468,18 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
                 changed.join(", ")
             );
         }
+        if header.family.is_some() != a.family {
+            bail!(
+                "{}: cannot resume {} --family: the run was made {}",
+                a.out.display(),
+                if a.family { "with" } else { "without" },
+                if header.family.is_some() {
+                    "over a lens family"
+                } else {
+                    "for one grid"
+                }
+            );
+        }
         schedule = state.schedule.clone();
         let s = &schedule;
         if state.step >= s.steps {
@@ -393,7 +505,14 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
     } else {
         match &a.init {
             Some(p) => {
-                let (net, header) = load(p)?;
+                let (net, header) = load(p, None)?;
+                if let Err(why) = header.serves(&native) {
+                    println!(
+                        "Fine-tuning {} to --psf {}: {why}",
+                        p.display(),
+                        a.psf.display()
+                    );
+                }
                 lineage = Lineage::init_from(header.provenance);
                 Start::Init(net)
             }
@@ -433,6 +552,11 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
+    let family = a.family.then(LensFamily::default);
+    let lenses = match &family {
+        Some(f) => lens_bank(f, &native, &a.out, a.lenses as usize, a.seed)?,
+        None => vec![],
+    };
     let first = match &start {
         Start::Resume(_, state, _) => state.step,
         _ => 0,
@@ -443,23 +567,34 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         noise,
         compute: a.backend,
         stop_after_seconds: a.minutes.map(|m| m * 60.0),
+        family: family.as_ref().and_then(|f| f.record(&lenses)),
         ..Default::default()
     };
     // After a resume, the saved schedule (train() takes it from the state too).
     let s = &opts.schedule;
-    let make_set = |round: usize| {
-        TrainSet::build(
+    let make_set = |round: usize| match &family {
+        Some(f) => TrainSet::build_family(
+            &photos,
+            &lenses,
+            f,
+            &cfg,
+            noise,
+            round_seed(s.seed, round),
+            &|| {},
+        ),
+        None => TrainSet::build(
             &photos,
             &native,
             &cfg,
             noise,
             round_seed(s.seed, round),
             &|| {},
-        )
+        ),
     };
     let crop = (a.val_crop > 0).then_some(a.val_crop);
-    let (val, vsecs) = step("validation set", || {
-        ValSet::build(&val_photos, &native, &cfg, noise, crop)
+    let (val, vsecs) = step("validation set", || match &family {
+        Some(_) => ValSet::build_family(&val_photos, &lenses, &cfg, noise, crop),
+        None => ValSet::build(&val_photos, &native, &cfg, noise, crop),
     });
     let val = val?;
     println!(
@@ -561,13 +696,6 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
     Ok(())
 }
 
-/// Val table row: mean PSNR and SSIM of one method over the photos.
-struct Row {
-    name: String,
-    psnr: f64,
-    ssim: f64,
-}
-
 fn run_eval(a: EvalArgs) -> Result<()> {
     if let Some(out) = &a.out {
         let mut inputs = a.net.inputs();
@@ -580,40 +708,43 @@ fn run_eval(a: EvalArgs) -> Result<()> {
     let noise = NoiseModel::default();
     let ks = bank_constants();
     // Single fixed K candidates: the bank's constants.
-    let mut single = vec![(0.0, 0.0); ks.len()];
-    let (mut input, mut median, mut net) = ((0.0, 0.0), (0.0, 0.0), (0.0, 0.0));
+    let mut single = vec![Score::default(); ks.len()];
+    let (mut input, mut median, mut net) = (Score::default(), Score::default(), Score::default());
     let base_filter = restorer.config().residual_base;
-    let mut base = (0.0, 0.0);
+    let mut base = Score::default();
     let mut net_secs = 0.0;
+    let mut mapped_px = (usize::MAX, 0);
     let pb = bar(photos.len() as u64, "evaluating");
     for (i, (name, clean)) in photos.iter().enumerate() {
+        let sensor = a
+            .psf_px
+            .map(|px| native.sensor_for_psf_px(clean.width, clean.height, px as usize));
         let model = ImagingModel::new(
             &native,
             clean.width,
             clean.height,
             BlurMode::Tiled,
-            None,
+            sensor,
             noise,
-        )?;
+        )
+        .with_context(|| format!("{name} in --val {}", a.val.display()))?;
+        let k = model.psf().size();
+        mapped_px = (mapped_px.0.min(k), mapped_px.1.max(k));
         let blurred = model.capture(clean, 0x5EED_0000 + i as u64)?;
-        let add = |acc: &mut (f64, f64), m: (f64, f64)| {
-            acc.0 += m.0;
-            acc.1 += m.1;
-        };
-        add(&mut input, metric(&blurred, clean)?);
+        input.add(&blurred, clean)?;
         let bank = restore::data::bank_images(&blurred, model.psf(), restorer.config().adaptive_k)?;
-        add(&mut median, metric(&bank[BANK_MEDIAN], clean)?);
+        median.add(&bank[BANK_MEDIAN], clean)?;
         if base_filter != BANK_MEDIAN {
-            add(&mut base, metric(&bank[base_filter], clean)?);
+            base.add(&bank[base_filter], clean)?;
         }
         for (j, &k) in ks.iter().enumerate() {
             let img = deconvolve(&blurred, model.psf(), Regularizer::Fixed(k))?;
-            add(&mut single[j], metric(&img, clean)?);
+            single[j].add(&img, clean)?;
         }
         let t = Instant::now();
         let restored = restorer.restore_bank(&bank);
         net_secs += t.elapsed().as_secs_f64();
-        add(&mut net, metric(&restored, clean)?);
+        net.add(&restored, clean)?;
         if let Some(dir) = &a.out {
             std::fs::create_dir_all(dir)
                 .with_context(|| format!("cannot create {}", dir.display()))?;
@@ -634,7 +765,7 @@ fn run_eval(a: EvalArgs) -> Result<()> {
     let (jbest, best) = single
         .iter()
         .enumerate()
-        .max_by(|a, b| a.1.0.total_cmp(&b.1.0))
+        .max_by(|a, b| a.1.psnr.total_cmp(&b.1.psnr))
         .expect("13 constants");
     let kind = if restorer.config().adaptive_k {
         "adaptive"
@@ -642,44 +773,48 @@ fn run_eval(a: EvalArgs) -> Result<()> {
         "fixed"
     };
     let mut rows = vec![
-        Row {
-            name: "aberrated input".into(),
-            psnr: input.0 / n,
-            ssim: input.1 / n,
-        },
-        Row {
-            name: format!("Wiener, best single K = {:.2e}", ks[jbest]),
-            psnr: best.0 / n,
-            ssim: best.1 / n,
-        },
-        Row {
-            name: format!("median MAFG Wiener ({kind} K {:.2e})", ks[BANK_MEDIAN]),
-            psnr: median.0 / n,
-            ssim: median.1 / n,
-        },
-        Row {
-            name: format!("network ({})", restorer.config().name),
-            psnr: net.0 / n,
-            ssim: net.1 / n,
-        },
+        ("aberrated input".to_string(), input),
+        (format!("Wiener, best single K = {:.2e}", ks[jbest]), *best),
+        (
+            format!("median MAFG Wiener ({kind} K {:.2e})", ks[BANK_MEDIAN]),
+            median,
+        ),
+        (format!("network ({})", restorer.config().name), net),
     ];
     if base_filter != BANK_MEDIAN {
         rows.insert(
             3,
-            Row {
-                name: format!(
+            (
+                format!(
                     "MAFG Wiener filter {base_filter}, the network's residual base ({kind} K {:.2e})",
                     ks[base_filter]
                 ),
-                psnr: base.0 / n,
-                ssim: base.1 / n,
-            },
+                base,
+            ),
         );
     }
-    println!("{} validation photos, {}", photos.len(), a.val.display());
-    println!("| method | PSNR (dB) | SSIM |\n|---|---:|---:|");
-    for r in &rows {
-        println!("| {} | {:.2} | {:.4} |", r.name, r.psnr, r.ssim);
+    let scale = if mapped_px.0 == mapped_px.1 {
+        format!("{} px", mapped_px.0)
+    } else {
+        format!("{}-{} px", mapped_px.0, mapped_px.1)
+    };
+    println!(
+        "{} validation photos, {}; PSFs of {scale} at the photos' size ({})",
+        photos.len(),
+        a.val.display(),
+        match a.psf_px {
+            Some(px) => format!("--psf-px {px}"),
+            None => "the grid's own sensor".into(),
+        }
+    );
+    println!("| method | PSNR (dB) | SSIM | PSNR on Y (dB) |\n|---|---:|---:|---:|");
+    for (name, r) in &rows {
+        println!(
+            "| {name} | {:.2} | {:.4} | {:.2} |",
+            r.psnr / n,
+            r.ssim / n,
+            r.psnr_y / n
+        );
     }
     let mp: f64 = photos
         .iter()
@@ -687,9 +822,10 @@ fn run_eval(a: EvalArgs) -> Result<()> {
         .sum::<f64>()
         / 1e6;
     println!(
-        "network: {:+.2} dB over the median Wiener image, {:+.2} dB over its residual base (filter {base_filter}); inference {:.0} ms per megapixel ({} threads, tiles {} px)",
-        (net.0 - median.0) / n,
-        (net.0 - base.0) / n,
+        "network: {:+.2} dB over the best single-K Wiener, {:+.2} dB over the median Wiener image, {:+.2} dB over its residual base (filter {base_filter}); inference {:.0} ms per megapixel ({} threads, tiles {} px)",
+        (net.psnr - best.psnr) / n,
+        (net.psnr - median.psnr) / n,
+        (net.psnr - base.psnr) / n,
         1000.0 * net_secs / mp,
         rayon::current_num_threads(),
         restorer.tile
@@ -720,6 +856,13 @@ pub fn run_restore(a: RestoreArgs) -> Result<()> {
     let psf = native
         .for_image(blurred.width, blurred.height, a.sensor_px)
         .with_context(|| super::sensor_flag(a.sensor_px, &a.net.psf))?;
+    if !restorer.header.fits_psf_px(psf.size()) {
+        let [lo, hi] = restorer.header.trained_psf_px.unwrap_or([0, 0]);
+        println!(
+            "warning: the network was trained on {lo}-{hi} px PSFs; this photo's are {} px",
+            psf.size()
+        );
+    }
     let (restored, secs) = step("restoring", || restorer.restore(&blurred, &psf));
     let restored = restored?;
     restored

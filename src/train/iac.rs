@@ -72,36 +72,37 @@ impl IacSource {
 pub(crate) type OpenedRestorer = (restore::Restorer, String);
 
 /// Resolves a restorer choice for the capture's PSF grid (`native`, as simulated) whose PSFs
-/// are `psf_px` wide at the capture's size. Also returns a note when `auto` passes over the
-/// shipped network, or when given weights never saw this blur scale.
+/// are `psf_px` wide at the capture's size. Also returns a note: with `auto`, which network
+/// serves and why, or why none does and the Wiener image stands in; with given weights, a
+/// warning when they never saw this blur scale.
 pub(crate) fn open_restorer(
     choice: &RestorerChoice,
     native: &PsfGrid,
     psf_px: usize,
 ) -> Result<(Option<OpenedRestorer>, Option<String>)> {
-    let scale_note = |r: &restore::Restorer, name: &str| {
-        let [lo, hi] = r.header.trained_psf_px.unwrap_or([0, 0]);
-        format!("{name} was trained on {lo}-{hi} px PSFs; this capture's are {psf_px} px")
-    };
     Ok(match choice {
         RestorerChoice::Wiener => (None, None),
-        RestorerChoice::Auto => match restore::shipped::for_psf(native)? {
-            Some(r) if r.header.fits_psf_px(psf_px) => {
-                (Some((r, restore::shipped::TINY_NAME.to_string())), None)
-            }
-            Some(r) => (
+        RestorerChoice::Auto => match restore::shipped::for_capture(native, Some(psf_px))? {
+            restore::shipped::Choice::Network(r, why) => (
+                Some((*r, restore::shipped::TINY_NAME.to_string())),
+                Some(format!("--restorer auto: using {why}")),
+            ),
+            restore::shipped::Choice::Declined(why) => (
                 None,
                 Some(format!(
-                    "{}: using the Wiener image instead",
-                    scale_note(&r, "the shipped restorer")
+                    "--restorer auto: {why}; using the Wiener image instead"
                 )),
             ),
-            None => (None, None),
         },
         RestorerChoice::Weights(p) => {
             let r = restore::Restorer::load(p, native)?;
-            let note = (!r.header.fits_psf_px(psf_px))
-                .then(|| format!("warning: {}", scale_note(&r, &p.display().to_string())));
+            let note = (!r.header.fits_psf_px(psf_px)).then(|| {
+                let [lo, hi] = r.header.trained_psf_px.unwrap_or([0, 0]);
+                format!(
+                    "warning: {} was trained on {lo}-{hi} px PSFs; this capture's are {psf_px} px",
+                    p.display()
+                )
+            });
             (Some((r, p.display().to_string())), note)
         }
     })
