@@ -126,7 +126,11 @@ pub fn write_log_csv(path: &Path, log: &[LogRow]) -> Result<()> {
 #[derive(Clone, Debug, Serialize)]
 pub struct RunSummary {
     pub mode: String,
+    /// Steps trained (with `--iters auto`, where the rule ended the run).
     pub iters: u64,
+    /// With `--iters auto`: when and why training stopped paying.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stopped: Option<String>,
     pub train_seconds: f64,
     pub splats: usize,
     pub model_bytes: usize,
@@ -280,7 +284,8 @@ pub fn write_run(
         psf_change,
         psf_warp: outcome.psf_warp.clone(),
         mode: config.mode.to_string(),
-        iters: config.iters,
+        iters: outcome.steps,
+        stopped: outcome.stopped.clone(),
         train_seconds: outcome.train_seconds,
         splats: model.len(),
         model_bytes: model.param_bytes(),

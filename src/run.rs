@@ -102,6 +102,31 @@ fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String
         None
     };
     if let Some(saved) = &saved {
+        // A run of `--iters auto` ends by its rule: it resumes as such, and a fixed-length run
+        // is not turned into one.
+        match (saved.stop.is_some(), config.stop.is_some()) {
+            (true, false) => {
+                return Err(TrainError::file(
+                    &ckpt,
+                    format!(
+                        "--iters {}: the run was made with --iters auto, which ends it when training stops paying; resume it with --iters auto",
+                        request.training.iters
+                    ),
+                ));
+            }
+            (false, true) => {
+                return Err(TrainError::file(
+                    &ckpt,
+                    format!(
+                        "--iters auto: the run has {} steps; resume it with --iters {} (or a larger count to extend it)",
+                        saved.iters, saved.iters
+                    ),
+                ));
+            }
+            _ => {}
+        }
+    }
+    if let Some(saved) = saved.as_ref().filter(|s| s.stop.is_none()) {
         // `--resume --iters N` past the run's length extends it: the settings are the run's,
         // built for the length its schedules were made for, and only the length grows.
         let base = saved.schedule_iters.unwrap_or(saved.iters);
@@ -116,7 +141,7 @@ fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String
         }
         if config.iters != base {
             let settings = crate::settings::TrainSettings {
-                iters: base,
+                iters: crate::settings::Iters::Steps(base),
                 ..request.training.clone()
             };
             let iters = config.iters;

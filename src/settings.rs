@@ -86,6 +86,50 @@ pub enum Toggle {
     Off,
 }
 
+/// How long a run trains (`--iters`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Iters {
+    /// Until training stops paying ([`crate::train::stop`]), with schedules made for a
+    /// length that follows the number of views ([`crate::train::config::auto_horizon`]).
+    Auto,
+    /// Exactly this many steps.
+    Steps(u64),
+}
+
+impl Iters {
+    /// The step count, when one was given.
+    pub fn steps(self) -> Option<u64> {
+        match self {
+            Iters::Auto => None,
+            Iters::Steps(n) => Some(n),
+        }
+    }
+}
+
+impl std::str::FromStr for Iters {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s.trim() {
+            "auto" => Ok(Iters::Auto),
+            n => match n.parse::<u64>() {
+                Ok(n) if (1..=100_000_000).contains(&n) => Ok(Iters::Steps(n)),
+                _ => Err(format!(
+                    "'{s}' is not auto or a step count from 1 to 100000000"
+                )),
+            },
+        }
+    }
+}
+
+impl std::fmt::Display for Iters {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Iters::Auto => f.write_str("auto"),
+            Iters::Steps(n) => write!(f, "{n}"),
+        }
+    }
+}
+
 /// When aware's λ falls to zero (`--lambda-fade`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum LambdaFade {
@@ -165,9 +209,11 @@ pub struct TrainSettings {
     /// FROM:TO (held until FROM, zero at TO).
     #[arg(long, default_value_t = LambdaFade::Auto)]
     pub lambda_fade: LambdaFade,
-    /// Training steps.
-    #[arg(long, default_value_t = 7000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
-    pub iters: u64,
+    /// Training steps, or `auto`: until the training views stop improving (after
+    /// densification, then a short final phase), with schedules made for 150 steps per
+    /// training view (1000 to 7000).
+    #[arg(long, default_value_t = Iters::Steps(7000))]
+    pub iters: Iters,
     /// Splat budget; default: one per two pixels of a view, twice that for a capture whose
     /// cameras surround the scene.
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
@@ -338,11 +384,16 @@ mod tests {
         let r = RunRequest::new("scene", "run");
         assert_eq!(r.scene, PathBuf::from("scene"));
         assert_eq!(r.training.mode, Mode::Aware);
-        assert_eq!(r.training.iters, 7000);
+        assert_eq!(r.training.iters, Iters::Steps(7000));
         assert_eq!(r.data.downsample, DataOptions::default().downsample);
         assert_eq!(r.data.llffhold, scenes::LLFFHOLD);
         let t: TrainSettings = parse_args(&["--iters".as_ref(), "12".as_ref()]);
-        assert_eq!(t.iters, 12);
+        assert_eq!(t.iters, Iters::Steps(12));
+        let t: TrainSettings = parse_args(&["--iters".as_ref(), "auto".as_ref()]);
+        assert_eq!(t.iters, Iters::Auto);
+        for bad in ["0", "-3", "soon", "100000001"] {
+            assert!(bad.parse::<Iters>().is_err(), "{bad}");
+        }
         assert_eq!(t.max_sh_degree, TrainSettings::default().max_sh_degree);
     }
 }

@@ -31,7 +31,7 @@ fn around(dir: &std::path::Path) -> std::path::PathBuf {
 fn config(data: &Dataset, strategy: StrategyChoice, iters: u64) -> TrainConfig {
     let settings = TrainSettings {
         mode: Mode::Plain,
-        iters,
+        iters: metasplat::settings::Iters::Steps(iters),
         strategy,
         eval_every: Some(iters / 10),
         checkpoint_every: Some(0),
@@ -149,7 +149,7 @@ fn mcmc_from_random_points_starts_with_a_stronger_opacity_penalty() {
     }
     let settings = TrainSettings {
         mode: Mode::Plain,
-        iters: 3000,
+        iters: metasplat::settings::Iters::Steps(3000),
         opacity_reg: Some(0.03),
         ..Default::default()
     };

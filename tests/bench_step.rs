@@ -29,7 +29,7 @@ fn the_step_benchmark_times_the_training_step() {
     let data = data::load(&aberrated, Mode::Aware, &options).unwrap();
     let settings = metasplat::settings::TrainSettings {
         mode: Mode::Aware,
-        iters: 3,
+        iters: metasplat::settings::Iters::Steps(3),
         eval_every: Some(0),
         checkpoint_every: Some(0),
         ..Default::default()

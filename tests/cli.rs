@@ -1950,3 +1950,64 @@ fn train_without_downsample_uses_the_folder_the_capture_has() {
     let render = image::open(run.join("test").join("view000.png")).unwrap();
     assert_eq!((render.width(), render.height()), (64, 48));
 }
+
+#[test]
+fn iters_auto_stops_when_training_stops_paying_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let clean = d.join("clean");
+    procedural(&clean, 48, 32, 9);
+    let run = d.join("run");
+    // Forty splats without SH bands: the model is soon as good as it can get.
+    let args = [
+        "train",
+        "--scene",
+        s(&clean),
+        "--out",
+        s(&run),
+        "--mode",
+        "plain",
+        "--iters",
+        "auto",
+        "--downsample",
+        "1",
+        "--spiral",
+        "1",
+        "--max-splats",
+        "40",
+        "--max-sh-degree",
+        "0",
+    ];
+    let text = ok(&args);
+    // 7 training views: schedules for 1050 steps, densification until 525, windows of 105.
+    assert!(
+        text.contains("--iters auto: schedules made for 1050 steps")
+            && text.contains("from step 525 on")
+            && text.contains("at most 3150 steps"),
+        "{text}"
+    );
+    assert!(text.contains("--iters auto: stopped at step"), "{text}");
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("metrics.json")).unwrap()).unwrap();
+    let steps = metrics["iters"].as_u64().unwrap();
+    let stopped = metrics["stopped"].as_str().unwrap();
+    // Never before two whole windows past densification, plus the final phase; before the cap.
+    assert!((525 + 2 * 105 + 105..3150).contains(&steps), "{steps}");
+    let at: u64 = stopped
+        .strip_prefix("stopped at step ")
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap();
+    assert_eq!(at + 105, steps, "{stopped}");
+    assert!(at.is_multiple_of(105), "windows are whole epochs: {at}");
+    // An auto run resumes as one, and a fixed count is refused naming the way.
+    let mut fixed = args.to_vec();
+    let at_iters = fixed.iter().position(|a| *a == "auto").unwrap();
+    fixed[at_iters] = "5000";
+    fixed.push("--resume");
+    let err = fails(&fixed);
+    assert!(
+        err.contains("--iters 5000") && err.contains("made with --iters auto"),
+        "{err}"
+    );
+}

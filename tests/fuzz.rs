@@ -140,7 +140,7 @@ fn valid() -> &'static Valid {
         let data = metasplat::train::data::load(&scene, mode, &options).unwrap();
         let settings = metasplat::settings::TrainSettings {
             mode,
-            iters: 4,
+            iters: metasplat::settings::Iters::Steps(4),
             eval_every: Some(0),
             checkpoint_every: Some(4),
             ..Default::default()

@@ -49,7 +49,7 @@ fn options() -> DataOptions {
 fn refining_config(iters: u64, data: &Dataset) -> TrainConfig {
     let settings = metasplat::settings::TrainSettings {
         mode: Mode::Aware,
-        iters,
+        iters: metasplat::settings::Iters::Steps(iters),
         eval_every: Some(0),
         checkpoint_every: Some(0),
         refine_psf: Some(metasplat::train::psf_refine::PsfModel::Free),
@@ -229,7 +229,7 @@ fn refining_wins_back_half_of_what_a_wrong_calibration_costs() {
         let data = data::load(&aberrated, Mode::Aware, &options).unwrap();
         let settings = metasplat::settings::TrainSettings {
             mode: Mode::Aware,
-            iters: 1500,
+            iters: metasplat::settings::Iters::Steps(1500),
             eval_every: Some(0),
             checkpoint_every: Some(0),
             refine_psf: refine.then_some(metasplat::train::psf_refine::PsfModel::Warp),

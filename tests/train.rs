@@ -58,7 +58,7 @@ fn options() -> DataOptions {
 fn config(mode: Mode, iters: u64, data: &Dataset) -> TrainConfig {
     let settings = metasplat::settings::TrainSettings {
         mode,
-        iters,
+        iters: metasplat::settings::Iters::Steps(iters),
         eval_every: Some(0),
         checkpoint_every: Some(0),
         ..Default::default()
@@ -540,7 +540,7 @@ fn a_capture_taken_all_around_gets_a_larger_budget_and_mcmc_or_resets() {
         let data = data::load(capture, Mode::Plain, &options()).unwrap();
         let settings = metasplat::settings::TrainSettings {
             mode: Mode::Plain,
-            iters: 1000,
+            iters: metasplat::settings::Iters::Steps(1000),
             strategy,
             ..Default::default()
         };
@@ -594,7 +594,7 @@ fn the_stand_in_restorer_fades_lambda_out() {
     // A λ given explicitly is used as given.
     let settings = metasplat::settings::TrainSettings {
         mode: Mode::Aware,
-        iters: 1000,
+        iters: metasplat::settings::Iters::Steps(1000),
         lambda: Some(0.25),
         ..Default::default()
     };
@@ -610,7 +610,7 @@ fn the_stand_in_restorer_fades_lambda_out() {
     ] {
         let settings = metasplat::settings::TrainSettings {
             mode: Mode::Aware,
-            iters: 1000,
+            iters: metasplat::settings::Iters::Steps(1000),
             lambda_fade: fade,
             ..Default::default()
         };
@@ -620,7 +620,7 @@ fn the_stand_in_restorer_fades_lambda_out() {
     // Held, then falling: FROM:TO.
     let settings = metasplat::settings::TrainSettings {
         mode: Mode::Aware,
-        iters: 1000,
+        iters: metasplat::settings::Iters::Steps(1000),
         lambda: Some(0.4),
         lambda_fade: LambdaFade::Range(200, 600),
         ..Default::default()
@@ -742,7 +742,7 @@ fn the_log_file_holds_every_evaluation_while_the_run_trains() {
     let mut request = metasplat::settings::RunRequest::new(&fixture().aberrated, &out);
     request.data.downsample = 1;
     request.training.mode = Mode::Plain;
-    request.training.iters = 30;
+    request.training.iters = metasplat::settings::Iters::Steps(30);
     request.training.eval_every = Some(10);
     request.spiral = 0;
     let mut prepared = metasplat::run::prepare(&request).unwrap();

@@ -210,7 +210,7 @@ fn step(a: StepArgs) -> Result<()> {
     data.initial = initial;
     let settings = TrainSettings {
         mode: a.mode,
-        iters: a.steps,
+        iters: metasplat::settings::Iters::Steps(a.steps),
         eval_every: Some(0),
         checkpoint_every: Some(0),
         ..TrainSettings::default()

@@ -142,7 +142,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         args.data.downsample = 1;
         args.data.seed = a.seed;
         args.training.mode = mode;
-        args.training.iters = iters;
+        args.training.iters = metasplat::settings::Iters::Steps(iters);
         args.training.checkpoint_every = Some(0);
         // The demo's own folders under --out: a second demo replaces them.
         args.overwrite = true;

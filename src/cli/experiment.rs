@@ -433,7 +433,7 @@ impl ExperimentRuns {
         args.overwrite = overwrite;
         args.resume = resume;
         args.training.mode = mode;
-        args.training.iters = self.iters;
+        args.training.iters = metasplat::settings::Iters::Steps(self.iters);
         args.training.strategy = self.strategy;
         args
     }

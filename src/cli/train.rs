@@ -51,7 +51,7 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
     let t = &a.training;
     if !quiet {
         println!(
-            "{} views {}x{} ({} train, {} test), {} initial points, mode {}, {} steps, budget {} splats",
+            "{} views {}x{} ({} train, {} test), {} initial points, mode {}, {}, budget {} splats",
             data.capture.len(),
             data.width,
             data.height,
@@ -67,7 +67,10 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
                 data.points.len().to_string()
             },
             t.mode,
-            t.iters,
+            match &config.stop {
+                Some(_) => format!("up to {} steps (--iters auto)", config.iters),
+                None => format!("{} steps", config.iters),
+            },
             config.max_splats
         );
         println!("{}", prepared.device_note);
@@ -84,7 +87,17 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             ),
             (Strategy::Adaptive, _) => {}
         }
-        if let Some(base) = config.schedule_iters {
+        if let (Some(rule), Some(base)) = (&config.stop, config.schedule_iters) {
+            println!(
+                "--iters auto: schedules made for {base} steps (150 per training view, 1000 to 7000); from step {} on, the run ends once the training views' PSNR gains less than {:.3} dB per {} steps ({} windows in a row), after a final phase of {} steps at the final position learning rate; at most {} steps.",
+                rule.not_before,
+                rule.min_gain_db,
+                rule.window,
+                rule.patience,
+                rule.final_steps,
+                config.iters
+            );
+        } else if let Some(base) = config.schedule_iters {
             println!(
                 "The run is extended to {} steps; its schedules stay as made for {base} (densification, lambda, SH bands, PSF refinement), and the position learning rate holds its final value after step {base}.",
                 config.iters
@@ -198,7 +211,7 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
     let pb = if quiet {
         ProgressBar::hidden()
     } else {
-        ProgressBar::new(t.iters)
+        ProgressBar::new(prepared.config.iters)
     };
     pb.set_style(
         ProgressStyle::with_template(
@@ -214,7 +227,7 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
     // Away from a terminal (nohup, a batch queue) the bar is hidden: each evaluation prints a
     // line instead, so the log can be followed.
     let lines = pb.is_hidden() && !quiet;
-    let iters = t.iters;
+    let iters = prepared.config.iters;
     let mut last_step = (0u64, 0.0f64, 0.0f64, 0usize, 0.0f64);
     let mut on_event = |e: Event| match e {
         Event::Step {
@@ -268,6 +281,13 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             last_edit = format!(" | step {step}: {done}");
         }
         Event::Checkpoint { .. } | Event::Logged { .. } => {}
+        Event::Stopping { step, end, reason } => {
+            pb.set_length(end);
+            super::progress::say(
+                &pb,
+                format!("Step {step}: {reason}; a final phase to step {end}."),
+            );
+        }
         Event::Snapshot { step, .. } => {
             super::progress::say(&pb, format!("Step {step}: kept the splats (--save-at)."));
         }
@@ -301,6 +321,9 @@ fn print_summary(dir: &Path, s: &RunSummary, outcome: &train::Outcome) {
             "not evaluated: {}",
             s.not_evaluated.as_deref().unwrap_or("no metrics")
         ),
+    }
+    if let Some(why) = &s.stopped {
+        println!("--iters auto: {why}.");
     }
     println!(
         "{} steps in {:.1} s; {} splats ({:.1} MB, SH degree {}); {} never-visible splats dropped at the end; wrote {}",

@@ -23,6 +23,7 @@ use crate::train::config::TrainConfig;
 use crate::train::densify::DensifyState;
 use crate::train::psf_refine::PsfRefinement;
 use crate::train::sh::ShState;
+use crate::train::stop::StopState;
 use aberration::refine::RefineState;
 
 /// Version 2 ends with the FNV-1a checksum of everything before it; version 1 (no checksum)
@@ -46,6 +47,9 @@ struct Header {
     psf_values: usize,
     #[serde(default)]
     psf_steps: u64,
+    /// What `--iters auto`'s rule has seen (empty for other runs and older checkpoints).
+    #[serde(default)]
+    stop: StopState,
 }
 
 impl Header {
@@ -62,6 +66,7 @@ impl Header {
             adam_step: adam.steps_taken(),
             psf_values: p.psf.as_ref().map_or(0, |r| r.state().logits.len()),
             psf_steps: p.psf.as_ref().map_or(0, |r| r.state().steps),
+            stop: p.stop.clone(),
         }
     }
 
@@ -97,6 +102,8 @@ pub struct Progress {
     pub log: Vec<LogRow>,
     /// The PSF grid being refined (`--refine-psf`).
     pub psf: Option<PsfRefinement>,
+    /// What `--iters auto`'s rule has seen, and the end it decided.
+    pub stop: StopState,
 }
 
 /// A checkpoint read back: the run's config, its progress, the model and its optimiser.
@@ -623,6 +630,7 @@ pub fn load(path: &Path) -> Result<State> {
             sh: h.sh,
             log: h.log,
             psf: None,
+            stop: h.stop,
         },
         model,
         adam,

@@ -5,10 +5,11 @@ use serde::{Deserialize, Serialize};
 use splat::optim::LearningRates;
 
 pub use crate::settings::Mode;
-use crate::settings::{Background, LambdaFade, StrategyChoice, Toggle, TrainSettings};
+use crate::settings::{Background, Iters, LambdaFade, StrategyChoice, Toggle, TrainSettings};
 use crate::train::data::Dataset;
 use crate::train::iac::IacSource;
 use crate::train::psf_refine::PsfRefineConfig;
+use crate::train::stop::StopRule;
 
 /// The 3DGS schedule (INRIA defaults at 30k steps) and thresholds.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -222,7 +223,22 @@ pub struct TrainConfig {
     /// [`Self::background`] is then only the renders' and the evaluation's.
     #[serde(default)]
     pub random_background: bool,
+    /// `--iters auto`: the rule that ends the run once training stops paying; [`Self::iters`]
+    /// is then only the most it may run, and [`Self::schedule_iters`] the length its
+    /// schedules were made for.
+    #[serde(default)]
+    pub stop: Option<StopRule>,
 }
+
+/// Steps the schedules of an `--iters auto` run are made for: 150 per training view (how
+/// often 3DGS's schedules see each view at 30k steps on a capture of 200), from 1000 to 7000.
+pub fn auto_horizon(views: usize) -> u64 {
+    (150 * views as u64).clamp(1000, 7000)
+}
+
+/// How far past its horizon an `--iters auto` run may go while it still pays (the position
+/// learning rate holds its final value there).
+pub const AUTO_CAP_FACTOR: u64 = 3;
 
 /// The background of training step `step` under `--background random`: uniform in the RGB
 /// cube, a function of the seed and the step alone, so that a resumed run draws what the
@@ -400,7 +416,14 @@ impl TrainConfig {
     /// on the capture (budget, λ for the capture's `I_ac`, evaluation and checkpoint cadence)
     /// are decided.
     pub fn build(settings: &TrainSettings, seed: u64, data: &Dataset) -> TrainConfig {
-        let iters = settings.iters;
+        // The length the schedules are made for, and the most the run may take.
+        let (iters, cap) = match settings.iters {
+            Iters::Steps(n) => (n, n),
+            Iters::Auto => {
+                let h = auto_horizon(data.train.len());
+                (h, AUTO_CAP_FACTOR * h)
+            }
+        };
         let random_start = data.initial.is_none()
             && matches!(
                 data.capture.point_source,
@@ -429,7 +452,7 @@ impl TrainConfig {
         let stand_in = settings.mode == Mode::Aware
             && settings.lambda.is_none()
             && matches!(data.restorer, Some(IacSource::Wiener));
-        TrainConfig {
+        let mut config = TrainConfig {
             mode: settings.mode,
             iters,
             lambda: settings
@@ -480,6 +503,19 @@ impl TrainConfig {
                 at
             },
             recipe,
+            stop: None,
+        };
+        if settings.iters == Iters::Auto {
+            // No stop while splats are still added and removed, or while λ still falls.
+            let densified = match &config.strategy {
+                Strategy::Adaptive => config.recipe.densify_until,
+                Strategy::Mcmc(m) => m.refine_until,
+            };
+            let not_before = densified.max(config.lambda_fade_until.unwrap_or(0));
+            config.stop = Some(StopRule::new(data.train.len(), not_before));
+            config.schedule_iters = Some(iters);
+            config.iters = cap;
         }
+        config
     }
 }

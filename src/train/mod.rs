@@ -13,6 +13,7 @@ pub mod iac_cache;
 pub mod objective;
 pub mod psf_refine;
 pub mod sh;
+pub mod stop;
 
 use std::path::Path;
 use std::time::Instant;
@@ -78,6 +79,12 @@ pub enum Event<'a> {
     Checkpoint {
         step: u64,
     },
+    /// `--iters auto`: training stopped paying after `step`; a final phase runs to `end`.
+    Stopping {
+        step: u64,
+        end: u64,
+        reason: &'a str,
+    },
     /// The run's log so far, after each evaluation added its row (for a log file that can be
     /// followed while the run trains).
     Logged {
@@ -99,6 +106,10 @@ pub struct Outcome {
     pub final_pruned: usize,
     pub sh_events: Vec<ShEvent>,
     pub resumed_from: Option<u64>,
+    /// Steps trained: the config's count, or where `--iters auto`'s rule ended the run.
+    pub steps: u64,
+    /// With `--iters auto`: at which step the rule fired and why.
+    pub stopped: Option<String>,
     /// With `--refine-psf`: the supplied grid and the refined one, at the image's scale.
     pub psf: Option<(aberration::PsfGrid, aberration::PsfGrid)>,
     /// With `--refine-psf warp`: the warp learnt.
@@ -192,6 +203,7 @@ fn fresh_start(config: &TrainConfig, data: &Dataset, densify: &DensifyStrategy) 
             sh: ShState::default(),
             log: Vec::new(),
             psf: None,
+            stop: Default::default(),
         },
         adam: Adam::new(&model),
         model,
@@ -337,11 +349,13 @@ impl<'a> Run<'a> {
                 "a non-finite pixel in the capture's images or I_ac, a huge --lambda, or an --init scene whose values overflow, is the likely cause",
             ));
         }
-        let lr = self
-            .config
-            .recipe
-            .lrs
-            .with_means(self.position_lr.at(p.step));
+        // The final phase of an `--iters auto` run trains at the final position rate.
+        let means_lr = if p.stop.end.is_some() {
+            self.position_lr.lr_final
+        } else {
+            self.position_lr.at(p.step)
+        };
+        let lr = self.config.recipe.lrs.with_means(means_lr);
         let report = t.step(
             saved,
             PixelGradients::color(&v),
@@ -438,7 +452,8 @@ impl<'a> Run<'a> {
         on_event: &mut dyn FnMut(Event),
     ) -> Result<()> {
         let (config, step) = (self.config, p.step);
-        if step == config.iters || (config.eval_every > 0 && step % config.eval_every == 0) {
+        let last = step == self.end(p);
+        if last || (config.eval_every > 0 && step % config.eval_every == 0) {
             let (model, _) = t.host()?;
             let settings = self.settings(model.sh_degree);
             let metrics = eval::evaluate(model, &self.data.test, &settings, self.device)?;
@@ -463,7 +478,7 @@ impl<'a> Run<'a> {
         }
         if let Some(path) = self.checkpoint_path
             && config.checkpoint_every > 0
-            && (step % config.checkpoint_every == 0 || step == config.iters)
+            && (step % config.checkpoint_every == 0 || last)
         {
             let (model, adam) = t.host()?;
             checkpoint::save(path, config, p, model, adam)?;
@@ -495,7 +510,17 @@ impl<'a> Run<'a> {
         }
     }
 
-    /// Steps until the configured count, then the end-of-run pruning and band tests.
+    /// The step the run ends at: the configured count, or sooner where `--iters auto`'s rule
+    /// has decided.
+    fn end(&self, p: &Progress) -> u64 {
+        p.stop
+            .end
+            .as_ref()
+            .map_or(self.config.iters, |(end, _)| (*end).min(self.config.iters))
+    }
+
+    /// Steps until the configured count (or the stop rule's end), then the end-of-run pruning
+    /// and band tests.
     fn train<T: SplatTrainer>(
         &self,
         mut t: T,
@@ -503,13 +528,22 @@ impl<'a> Run<'a> {
         on_event: &mut dyn FnMut(Event),
     ) -> Result<(Gaussians, Progress, Vec<ShEvent>, usize)> {
         let mut sh_events = Vec::new();
-        while p.step < self.config.iters {
+        while p.step < self.end(&p) {
             if base::interrupt::requested() {
                 return Err(self.interrupted(&mut t, &p));
             }
             let started = Instant::now();
             let parts = self.step(&mut t, &mut p)?;
             p.step += 1;
+            if let Some(rule) = &self.config.stop
+                && let Some((end, reason)) = rule.observe(&mut p.stop, p.step, parts.psnr)
+            {
+                on_event(Event::Stopping {
+                    step: p.step,
+                    end: end.min(self.config.iters),
+                    reason: &reason,
+                });
+            }
             self.hooks(&mut t, &mut p, on_event, &mut sh_events)?;
             p.train_seconds += started.elapsed().as_secs_f64();
             on_event(Event::Step {
@@ -599,5 +633,13 @@ pub fn train(
         final_pruned,
         sh_events,
         resumed_from,
+        steps: progress.step,
+        stopped: progress.stop.end.as_ref().map(|(end, why)| {
+            format!(
+                "stopped at step {} of at most {}: {why}, then a final phase at the final position learning rate",
+                end.saturating_sub(config.stop.map_or(0, |r| r.final_steps)),
+                config.iters
+            )
+        }),
     })
 }
