@@ -769,6 +769,67 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
         "--out",
         s(&d.join("y.png")),
     ]);
+    // Or on captured pairs (here made through the other grid), validated on pairs too.
+    let (pairs, val_pairs) = (d.join("pairs"), d.join("val_pairs"));
+    for (dir, from) in [(&pairs, &imgs), (&val_pairs, &val)] {
+        for sub in ["captured", "clean"] {
+            std::fs::create_dir_all(dir.join(sub)).unwrap();
+        }
+        for name in ["p0.png", "p1.png"] {
+            std::fs::copy(from.join(name), dir.join("clean").join(name)).unwrap();
+            ok(&[
+                "aberrate",
+                "--psf",
+                s(&other),
+                "--in",
+                s(&from.join(name)),
+                "--out",
+                s(&dir.join("captured").join(name)),
+            ]);
+        }
+    }
+    let paired = d.join("paired.bin");
+    let text = ok(&[
+        "restorer",
+        "train",
+        "--pairs",
+        s(&pairs),
+        "--val",
+        s(&val_pairs),
+        "--psf",
+        s(&other),
+        "--config",
+        "tiny",
+        "--out",
+        s(&paired),
+        "--steps",
+        "1",
+        "--batch",
+        "1",
+        "--val-crop",
+        "64",
+        "--init",
+        s(&weights),
+    ]);
+    assert!(
+        text.contains("2 captured pairs; 2 validation pairs") && text.contains("trained to step 1"),
+        "{text}"
+    );
+    // A pairs folder without its two folders is refused naming it, before anything is written.
+    let err = fails(&[
+        "restorer",
+        "train",
+        "--pairs",
+        s(&imgs),
+        "--val",
+        s(&val),
+        "--psf",
+        s(&other),
+        "--out",
+        s(&d.join("never.bin")),
+    ]);
+    assert!(err.contains("--pairs") && err.contains("captured"), "{err}");
+    assert!(!d.join("never.bin").exists());
 
     // The restorer supplies I_ac to splat training.
     let (clean, capture) = (d.join("clean"), d.join("capture"));

@@ -101,18 +101,42 @@ impl Sample {
         let plan = BlurPlan::new(&psf, clean.width, clean.height, BlurMode::Tiled)?;
         let blurred = noise.apply(&plan.apply(clean)?, seed);
         let bank = bank_images(&blurred, &psf, adaptive)?;
+        Ok(Self::of_bank(&bank, clean))
+    }
+
+    /// A captured pair (the photo as the lens took it, and the same scene clean, as a lab
+    /// gets by photographing a display): the bank made from the captured photo through
+    /// `native` mapped to its size.
+    pub fn from_pair(
+        captured: &Image,
+        clean: &Image,
+        native: &PsfGrid,
+        adaptive: bool,
+    ) -> Result<Self> {
+        if (captured.width, captured.height) != (clean.width, clean.height) {
+            return Err(RestoreError::BadInput(format!(
+                "a captured photo of {}x{} and its clean photo of {}x{}",
+                captured.width, captured.height, clean.width, clean.height
+            )));
+        }
+        let psf = native.for_image(captured.width, captured.height, None)?;
+        let bank = bank_images(captured, &psf, adaptive)?;
+        Ok(Self::of_bank(&bank, clean))
+    }
+
+    fn of_bank(bank: &[Image], clean: &Image) -> Self {
         let mut inputs = Vec::with_capacity(BANK_SIZE * clean.data.len());
-        for b in &bank {
+        for b in bank {
             quantise(&mut inputs, b);
         }
         let mut c = Vec::with_capacity(clean.data.len());
         quantise(&mut c, clean);
-        Ok(Self {
+        Self {
             width: clean.width,
             height: clean.height,
             inputs,
             clean: c,
-        })
+        }
     }
 
     /// Copies the `s × s` crop at `(x0, y0)` into `inputs` (39 planes) and `target` (3).
@@ -157,6 +181,62 @@ pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>> {
         )));
     }
     Ok(v)
+}
+
+/// The folders of a pairs folder: the photos as the lens took them, and the same scenes clean.
+pub const CAPTURED_DIR: &str = "captured";
+pub const CLEAN_DIR: &str = "clean";
+
+/// Whether `dir` is a pairs folder (`captured/` and `clean/` inside).
+pub fn is_pairs_folder(dir: &Path) -> bool {
+    dir.join(CAPTURED_DIR).is_dir() && dir.join(CLEAN_DIR).is_dir()
+}
+
+/// The pairs of a pairs folder, by name: every photo of `captured/` with the photo of the
+/// same name in `clean/`, of the same size (both at least `min_side`). A photo without its
+/// partner, or of another size, is an error naming it.
+pub fn load_pairs(dir: &Path, min_side: usize) -> Result<Vec<(String, Image, Image)>> {
+    let captured = list_images(&dir.join(CAPTURED_DIR))?;
+    let clean_dir = dir.join(CLEAN_DIR);
+    let clean = list_images(&clean_dir)?;
+    let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned());
+    if let Some(lone) = clean
+        .iter()
+        .find(|c| !captured.iter().any(|p| name(p) == name(c)))
+    {
+        return Err(RestoreError::BadInput(format!(
+            "{}: no captured photo of that name in {}",
+            lone.display(),
+            dir.join(CAPTURED_DIR).display()
+        )));
+    }
+    captured
+        .iter()
+        .map(|p| {
+            let n = name(p).unwrap_or_default();
+            let c = clean_dir.join(&n);
+            if !c.is_file() {
+                return Err(RestoreError::BadInput(format!(
+                    "{}: no clean photo of that name in {}",
+                    p.display(),
+                    clean_dir.display()
+                )));
+            }
+            let (a, b) = (load_photo(p, min_side)?, load_photo(&c, min_side)?);
+            if (a.width, a.height) != (b.width, b.height) {
+                return Err(RestoreError::BadInput(format!(
+                    "{} is {}x{} and {} is {}x{}: a pair must be of one size",
+                    p.display(),
+                    a.width,
+                    a.height,
+                    c.display(),
+                    b.width,
+                    b.height
+                )));
+            }
+            Ok((n, a, b))
+        })
+        .collect()
 }
 
 /// Loads a photo as RGB in [0, 1] (alpha dropped, 16-bit scaled), refusing ones smaller
@@ -277,6 +357,31 @@ impl TrainSet {
             samples,
             psf_px: family.psf_px,
         })
+    }
+
+    /// Captured pairs (`(captured, clean)`), each one sample whose bank comes through
+    /// `native`: fine-tuning to a lens that exists. The PSF scale is the grid's at the
+    /// photos' size.
+    pub fn from_pairs(
+        pairs: &[(Image, Image)],
+        native: &PsfGrid,
+        cfg: &RestorerConfig,
+        progress: &(dyn Fn() + Sync),
+    ) -> Result<Self> {
+        let samples = pairs
+            .par_iter()
+            .map(|(captured, clean)| {
+                let r = Sample::from_pair(captured, clean, native, cfg.adaptive_k);
+                progress();
+                r
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let mut psf_px = [usize::MAX, 0];
+        for (p, _) in pairs {
+            let k = native.for_image(p.width, p.height, None)?.size();
+            psf_px = [psf_px[0].min(k), psf_px[1].max(k)];
+        }
+        Ok(Self { samples, psf_px })
     }
 
     /// A batch of random crops: inputs `[b, 39, s, s]` and targets `[b, 3, s, s]`, flat.

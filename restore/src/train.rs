@@ -163,6 +163,44 @@ impl ValSet {
         Self::build_through(photos, &through, cfg, noise, crop)
     }
 
+    /// Validation on captured pairs (`(name, captured, clean)`): each captured photo's bank
+    /// through `native`, against its clean photo.
+    pub fn from_pairs(
+        pairs: &[(String, Image, Image)],
+        native: &PsfGrid,
+        cfg: &RestorerConfig,
+        crop: Option<usize>,
+    ) -> Result<Self> {
+        let mut v = ValSet {
+            names: vec![],
+            banks: vec![],
+            clean: vec![],
+        };
+        for (name, captured, clean) in pairs {
+            let psf = native.for_image(captured.width, captured.height, None)?;
+            let bank = bank_images(captured, &psf, cfg.adaptive_k)?;
+            v.push(name, bank, clean, crop);
+        }
+        Ok(v)
+    }
+
+    /// Adds one photo's bank and clean image, cropped to the centred `crop²` when asked.
+    fn push(&mut self, name: &str, bank: Vec<Image>, img: &Image, crop: Option<usize>) {
+        let (bank, clean) = match crop {
+            Some(s) if s < img.width.min(img.height) => {
+                let (x0, y0) = ((img.width - s) / 2, (img.height - s) / 2);
+                (
+                    bank.iter().map(|b| crop_image(b, x0, y0, s)).collect(),
+                    crop_image(img, x0, y0, s),
+                )
+            }
+            _ => (bank, img.clone()),
+        };
+        self.names.push(name.to_string());
+        self.banks.push(bank);
+        self.clean.push(clean);
+    }
+
     /// Each photo through the grid and sensor `through(index, photo)` gives.
     fn build_through<'g>(
         photos: &[(String, Image)],
@@ -188,19 +226,7 @@ impl ValSet {
             )?;
             let blurred = model.capture(img, 0x5EED_0000 + i as u64)?;
             let bank = bank_images(&blurred, model.psf(), cfg.adaptive_k)?;
-            let (bank, clean) = match crop {
-                Some(s) if s < img.width.min(img.height) => {
-                    let (x0, y0) = ((img.width - s) / 2, (img.height - s) / 2);
-                    (
-                        bank.iter().map(|b| crop_image(b, x0, y0, s)).collect(),
-                        crop_image(img, x0, y0, s),
-                    )
-                }
-                _ => (bank, img.clone()),
-            };
-            v.names.push(name.clone());
-            v.banks.push(bank);
-            v.clean.push(clean);
+            v.push(name, bank, img, crop);
         }
         Ok(v)
     }

@@ -24,10 +24,16 @@ pub enum RestorerCommand {
 
 #[derive(Args)]
 pub struct TrainRestorerArgs {
-    /// Folder of clean training photos.
-    #[arg(long)]
-    pub images: PathBuf,
-    /// Folder of clean validation photos.
+    /// Folder of clean training photos (aberrated on the fly through --psf).
+    #[arg(long, required_unless_present = "pairs")]
+    pub images: Option<PathBuf>,
+    /// Instead of --images: a folder of captured pairs, `captured/` (photos the lens took)
+    /// and `clean/` (the same scenes clean, same file names), as a lab gets by photographing
+    /// a display; --psf still feeds the network's Wiener bank.
+    #[arg(long, conflicts_with_all = ["images", "family"])]
+    pub pairs: Option<PathBuf>,
+    /// Folder of clean validation photos (aberrated through --psf), or of captured pairs
+    /// (`captured/` and `clean/`).
     #[arg(long)]
     pub val: PathBuf,
     /// The PSF grid (.npy) the training photos are aberrated with on the fly.
@@ -370,8 +376,13 @@ fn lens_bank(
 }
 
 fn run_train(a: TrainRestorerArgs) -> Result<()> {
+    let (train_flag, train_dir) = match (&a.images, &a.pairs) {
+        (_, Some(p)) => ("--pairs", p.as_path()),
+        (Some(i), None) => ("--images", i.as_path()),
+        (None, None) => bail!("--images or --pairs: name the training photos"),
+    };
     let mut inputs = vec![
-        ("--images", a.images.as_path()),
+        (train_flag, train_dir),
         ("--val", a.val.as_path()),
         ("--psf", a.psf.as_path()),
     ];
@@ -385,7 +396,15 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
             a.out.display()
         );
     }
-    for (flag, dir) in [("--images", &a.images), ("--val", &a.val)] {
+    if a.pairs.is_some() && !restore::data::is_pairs_folder(train_dir) {
+        bail!(
+            "--pairs {}: needs the folders {} and {} inside",
+            train_dir.display(),
+            restore::data::CAPTURED_DIR,
+            restore::data::CLEAN_DIR
+        );
+    }
+    for (flag, dir) in [(train_flag, train_dir), ("--val", a.val.as_path())] {
         if !dir.is_dir() {
             bail!(
                 "{flag} {}: {}; name a folder of photos",
@@ -399,13 +418,13 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         }
     }
     // Validation on the training photos would measure memory, not restoration.
-    if let (Ok(i), Ok(v)) = (a.images.canonicalize(), a.val.canonicalize())
+    if let (Ok(i), Ok(v)) = (train_dir.canonicalize(), a.val.canonicalize())
         && (i.starts_with(&v) || v.starts_with(&i))
     {
         anyhow::bail!(
-            "--val {} and --images {} hold the same photos: validate on photos the network does not train on",
+            "--val {} and {train_flag} {} hold the same photos: validate on photos the network does not train on",
             a.val.display(),
-            a.images.display()
+            train_dir.display()
         );
     }
     let device = a.backend.device().context("--backend")?;
@@ -526,11 +545,31 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
     if a.backend == restore::Compute::Cpu {
         refuse_training_memory(&cfg, schedule.batch, a.resume)?;
     }
-    let photos: Vec<Image> = load_folder(&a.images, cfg.crop)?
-        .into_iter()
-        .map(|(_, i)| i)
-        .collect();
-    let val_photos = load_folder(&a.val, cfg.crop)?;
+    let (photos, pairs): (Vec<Image>, Vec<(Image, Image)>) = match &a.pairs {
+        Some(dir) => (
+            vec![],
+            restore::data::load_pairs(dir, cfg.crop)?
+                .into_iter()
+                .map(|(_, captured, clean)| (captured, clean))
+                .collect(),
+        ),
+        None => (
+            load_folder(train_dir, cfg.crop)?
+                .into_iter()
+                .map(|(_, i)| i)
+                .collect(),
+            vec![],
+        ),
+    };
+    let val_pairs = if restore::data::is_pairs_folder(&a.val) {
+        Some(restore::data::load_pairs(&a.val, cfg.crop)?)
+    } else {
+        None
+    };
+    let val_photos = match &val_pairs {
+        Some(p) => p.iter().map(|(n, _, c)| (n.clone(), c.clone())).collect(),
+        None => load_folder(&a.val, cfg.crop)?,
+    };
     // A crop no photo can give would silently validate on whole images instead.
     if a.val_crop > 0
         && let Some((name, img)) = val_photos
@@ -573,6 +612,7 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
     // After a resume, the saved schedule (train() takes it from the state too).
     let s = &opts.schedule;
     let make_set = |round: usize| match &family {
+        _ if a.pairs.is_some() => TrainSet::from_pairs(&pairs, &native, &cfg, &|| {}),
         Some(f) => TrainSet::build_family(
             &photos,
             &lenses,
@@ -592,20 +632,33 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         ),
     };
     let crop = (a.val_crop > 0).then_some(a.val_crop);
-    let (val, vsecs) = step("validation set", || match &family {
-        Some(_) => ValSet::build_family(&val_photos, &lenses, &cfg, noise, crop),
-        None => ValSet::build(&val_photos, &native, &cfg, noise, crop),
+    let (val, vsecs) = step("validation set", || match (&val_pairs, &family) {
+        (Some(p), _) => ValSet::from_pairs(p, &native, &cfg, crop),
+        (None, Some(_)) => ValSet::build_family(&val_photos, &lenses, &cfg, noise, crop),
+        (None, None) => ValSet::build(&val_photos, &native, &cfg, noise, crop),
     });
     let val = val?;
     println!(
-        "{} training photos, aberrated {}; {} validation photos ({vsecs:.1} s); config '{}', {} parameters",
-        photos.len(),
-        if s.refresh_every > 0 {
-            format!("again every {} steps", s.refresh_every)
+        "{}; {} validation {} ({vsecs:.1} s); config '{}', {} parameters",
+        if a.pairs.is_some() {
+            format!("{} captured pairs", pairs.len())
         } else {
-            "once for the whole run".into()
+            format!(
+                "{} training photos, aberrated {}",
+                photos.len(),
+                if s.refresh_every > 0 {
+                    format!("again every {} steps", s.refresh_every)
+                } else {
+                    "once for the whole run".into()
+                }
+            )
         },
         val.names.len(),
+        if val_pairs.is_some() {
+            "pairs"
+        } else {
+            "photos"
+        },
         cfg.name,
         cfg.analytic_params()
     );
@@ -618,7 +671,8 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
             "seed": s.seed,
             "seconds": seconds,
             "threads": rayon::current_num_threads(),
-            "train_photos": photos.len(),
+            "train_photos": photos.len().max(pairs.len()),
+            "captured_pairs": a.pairs.is_some(),
             "val_psnr": m.0,
             "val_ssim": m.1,
             "val_crop": a.val_crop,
