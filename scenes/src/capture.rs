@@ -137,6 +137,9 @@ pub struct Capture {
     pub remaps: Vec<Option<std::sync::Arc<Remap>>>,
     /// Where photos made at load (shrunk or undistorted) are cached; None: made at each load.
     pub photo_cache: Option<PathBuf>,
+    /// Per camera, the mask a `transforms.json` frame names (`mask_path`); empty for other
+    /// formats and for captures whose frames name none.
+    pub mask_paths: Vec<Option<PathBuf>>,
 }
 
 impl Capture {
@@ -214,13 +217,45 @@ impl Capture {
         })
     }
 
+    /// The folder masks come from: `masks_N/` beside `images_N/` when there is one, else
+    /// `masks/` (at the photos' size, or at full size and shrunk with them); None without
+    /// either.
+    pub fn mask_folder(&self) -> Option<PathBuf> {
+        let beside = self
+            .image_dir
+            .file_name()
+            .and_then(|n| n.to_str())
+            .and_then(|n| n.strip_prefix("images_"))
+            .map(|n| self.root.join(format!("{MASK_DIR}_{n}")))
+            .filter(|d| d.is_dir());
+        beside.or_else(|| Some(self.root.join(MASK_DIR)).filter(|d| d.is_dir()))
+    }
+
+    /// Where the loss masks come from, in words (`scene info`, `train`).
+    pub fn mask_source(&self) -> String {
+        if self.mask_paths.iter().any(Option::is_some) {
+            return "the mask_path of each frame in transforms.json".into();
+        }
+        match self.mask_folder() {
+            Some(d) if d.file_name().is_some_and(|n| n == MASK_DIR) => format!(
+                "{MASK_DIR}/ (at the photos' size, or larger by a whole factor and shrunk to it)"
+            ),
+            Some(d) => format!("{}/", d.strip_prefix(&self.root).unwrap_or(&d).display()),
+            None => "none in a folder; the photos' alpha channel where they have one".into(),
+        }
+    }
+
     fn load_mask_as_taken(&self, index: usize) -> Result<Option<Vec<f32>>> {
         let (Some(path), Some(camera)) = (self.image_paths.get(index), self.cameras.get(index))
         else {
             return Ok(None);
         };
-        let folder = self.root.join(MASK_DIR);
-        let decoded = if folder.is_dir() {
+        let named = self.mask_paths.get(index).cloned().flatten();
+        let folder = self.mask_folder();
+        let decoded = if let Some(mask) = named {
+            let grey = images::load_grey(&mask)?;
+            Some((mask, grey))
+        } else if let Some(folder) = folder {
             let stem = stem(path);
             let Some(mask) = ["png", "jpg", "jpeg"]
                 .iter()
@@ -230,8 +265,11 @@ impl Capture {
                 return Err(SceneError::NotFound {
                     path: folder.join(format!("{stem}.png")),
                     what: format!(
-                        "mask of {} (the capture has a masks/ folder)",
-                        path.display()
+                        "mask of {} (the capture has a {}/ folder)",
+                        path.display(),
+                        folder
+                            .file_name()
+                            .map_or_else(|| MASK_DIR.into(), |n| n.to_string_lossy().into_owned())
                     ),
                 });
             };
@@ -243,12 +281,13 @@ impl Capture {
         let Some((source, mut mask)) = decoded else {
             return Ok(None);
         };
-        // A mask at the file's size goes through the photo's own shrink.
-        if self.shrink > 1
-            && (mask.width / self.shrink, mask.height / self.shrink)
-                == (camera.width, camera.height)
+        // A mask larger than its photo by a whole factor (a full-size `masks/` beside
+        // `images_N/`, or beside `images/` shrunk at load) is shrunk by that factor.
+        let factor = mask.width / camera.width.max(1);
+        if factor > 1
+            && (mask.width / factor, mask.height / factor) == (camera.width, camera.height)
         {
-            mask = mask.shrunk(self.shrink);
+            mask = mask.shrunk(factor);
         }
         if (mask.width, mask.height) != (camera.width, camera.height) {
             return Err(SceneError::invalid(
@@ -597,6 +636,7 @@ fn open_llff(root: &Path, options: &OpenOptions) -> Result<Capture> {
         distortion_source,
         remaps: Vec::new(),
         photo_cache: None,
+        mask_paths: Vec::new(),
         shrink,
     })
 }
@@ -628,6 +668,7 @@ fn open_transforms(root: &Path, options: &OpenOptions) -> Result<Capture> {
     let image_paths: Vec<PathBuf> = frames.iter().map(|f| f.path.clone()).collect();
     check_stems(&image_paths)?;
     images::common_size(&image_paths)?;
+    let mask_paths: Vec<Option<PathBuf>> = frames.iter().map(|f| f.mask.clone()).collect();
     let cameras: Vec<Camera> = frames.into_iter().map(|f| f.camera).collect();
     let bounds = nerfstudio::rig_bounds(&cameras);
     let (points, point_source) = match ply_file {
@@ -655,6 +696,7 @@ fn open_transforms(root: &Path, options: &OpenOptions) -> Result<Capture> {
         distortion_source,
         remaps: Vec::new(),
         photo_cache: None,
+        mask_paths,
         shrink,
     })
 }
@@ -827,6 +869,7 @@ fn open_colmap(root: &Path, sparse: &Path, options: &OpenOptions) -> Result<Capt
         distortion_source,
         remaps: Vec::new(),
         photo_cache: None,
+        mask_paths: Vec::new(),
         shrink,
     })
 }

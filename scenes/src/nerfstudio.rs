@@ -40,6 +40,9 @@ pub struct Transforms {
 pub struct Frame {
     pub path: PathBuf,
     pub camera: Camera,
+    /// The frame's `mask_path` (white = keep), inside the capture: `masks_N/` at
+    /// `downsample` N when that copy exists, else the file as named (shrunk at load).
+    pub mask: Option<PathBuf>,
 }
 
 /// A number of the frame, else of the file (nerfstudio allows both), else `default`.
@@ -89,6 +92,27 @@ fn frame_path(root: &Path, file: &str, downsample: u32) -> std::result::Result<P
             ));
         }
     })
+}
+
+/// A frame's `mask_path` at `downsample`: inside the capture, under `masks_N/` when the
+/// path starts with `masks/` and that copy exists (as `ns-process-data` writes them), else as
+/// named (a full-size mask, shrunk with the photo at load).
+fn mask_path(root: &Path, file: &str, downsample: u32) -> std::result::Result<PathBuf, String> {
+    let full = frame_path(root, file, 1)?;
+    if downsample > 1 {
+        let rel = Path::new(file);
+        let mut parts = rel
+            .components()
+            .filter(|c| matches!(c, Component::Normal(_)));
+        if parts.next().is_some_and(|c| c.as_os_str() == "masks") {
+            let mut p = root.join(format!("masks_{downsample}"));
+            p.extend(parts);
+            if p.is_file() {
+                return Ok(p);
+            }
+        }
+    }
+    Ok(full)
 }
 
 /// Reads `root/transforms.json`: each frame's photo path (at `downsample`) and camera, in the
@@ -201,11 +225,25 @@ pub fn read_transforms(root: &Path, downsample: u32) -> Result<Transforms> {
                 photo.display()
             )));
         }
+        let mask = match &frame["mask_path"] {
+            Value::Null => None,
+            Value::String(m) => {
+                Some(mask_path(root, m, downsample).map_err(|p| bad(format!("mask_path {p}")))?)
+            }
+            v => return Err(bad(format!("mask_path is {v}, not a file name"))),
+        };
+        if let Some(m) = mask.as_ref().filter(|m| !m.is_file()) {
+            return Err(SceneError::NotFound {
+                path: m.clone(),
+                what: format!("mask of frame {i} in {}", path.display()),
+            });
+        }
         let name = photo
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
         out.push(Frame {
+            mask,
             path: photo,
             camera: Camera {
                 name,

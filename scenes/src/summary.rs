@@ -32,6 +32,8 @@ pub struct SceneSummary {
     pub distortion_source: Option<PathBuf>,
     /// Pixels of the first undistorted photo with no source in it (None: kept as taken).
     pub undistorted_without_source: Option<usize>,
+    /// Where the loss masks come from ([`Capture::mask_source`]).
+    pub masks: String,
 }
 
 impl SceneSummary {
@@ -78,6 +80,7 @@ impl SceneSummary {
                 .flatten()
                 .next()
                 .map(|r| r.invalid_count()),
+            masks: capture.mask_source(),
         }
     }
 }
@@ -93,6 +96,7 @@ impl fmt::Display for SceneSummary {
         writeln!(f, "scene       {}", self.root.display())?;
         writeln!(f, "format      {format}")?;
         writeln!(f, "images      {}", self.image_dir.display())?;
+        writeln!(f, "masks       {}", self.masks)?;
         writeln!(f, "cameras     {}", self.cameras)?;
         let sizes: Vec<String> = self
             .resolutions

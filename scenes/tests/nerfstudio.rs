@@ -400,3 +400,61 @@ fn a_camera_path_reads_back_as_its_cameras() {
         "{e}"
     );
 }
+
+#[test]
+fn a_frames_mask_path_is_its_mask_at_every_downsample() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("ns");
+    let (cameras, _) = common::arc_cameras(3, 80, 60, 3);
+    write_capture(&dir, &cameras, json!({}));
+    // Full-size masks/ named by each frame (black left quarter), as ns-process-data writes.
+    let path = dir.join("transforms.json");
+    let mut doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    std::fs::create_dir_all(dir.join("masks")).unwrap();
+    for frame in doc["frames"].as_array_mut().unwrap() {
+        let name = Path::new(frame["file_path"].as_str().unwrap())
+            .file_name()
+            .unwrap()
+            .to_str()
+            .unwrap()
+            .to_string();
+        image::GrayImage::from_fn(80, 60, |x, _| image::Luma([if x < 20 { 0 } else { 255 }]))
+            .save(dir.join("masks").join(&name))
+            .unwrap();
+        frame["mask_path"] = json!(format!("masks/{name}"));
+    }
+    std::fs::write(&path, doc.to_string()).unwrap();
+    let full = open(&dir, 1).unwrap();
+    assert!(full.summary().to_string().contains("mask_path"));
+    let m = full.load_mask(0).unwrap().unwrap();
+    assert_eq!((m[19], m[20]), (0.0, 1.0));
+    // At half size: shrunk from masks/ (left 10 of 40 black) ...
+    let half = open(&dir, 2).unwrap();
+    let m = half.load_mask(0).unwrap().unwrap();
+    assert_eq!(m.len(), 40 * 30);
+    assert_eq!((m[9], m[10]), (0.0, 1.0));
+    // ... or read from masks_2/ where that copy exists (left 5 black here, to tell them apart).
+    std::fs::create_dir_all(dir.join("masks_2")).unwrap();
+    for e in std::fs::read_dir(dir.join("masks")).unwrap() {
+        let name = e.unwrap().file_name();
+        image::GrayImage::from_fn(40, 30, |x, _| image::Luma([if x < 5 { 0 } else { 255 }]))
+            .save(dir.join("masks_2").join(name))
+            .unwrap();
+    }
+    let m = open(&dir, 2).unwrap().load_mask(0).unwrap().unwrap();
+    assert_eq!((m[4], m[5]), (0.0, 1.0));
+    // A mask_path that leaves the capture, names nothing, or is not a string: refused naming
+    // the frame.
+    for (bad, says) in [
+        (json!("../outside.png"), "leaves the capture"),
+        (json!("masks/none.png"), "none.png"),
+        (json!(7), "not a file name"),
+    ] {
+        let mut d = doc.clone();
+        d["frames"][1]["mask_path"] = bad;
+        std::fs::write(&path, d.to_string()).unwrap();
+        let e = open(&dir, 1).map(|_| ()).unwrap_err().to_string();
+        assert!(e.contains(says), "{e}");
+    }
+}

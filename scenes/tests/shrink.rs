@@ -183,3 +183,82 @@ fn photos_made_at_load_are_cached_beside_the_capture_and_read_back_bit_for_bit()
     assert_ne!(fresh, first);
     assert_eq!(entries(), 2);
 }
+
+/// A grey mask of `w × h` whose left `edge` columns are black (left out), the rest white.
+fn edge_mask(path: &std::path::Path, w: u32, h: u32, edge: u32) {
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    image::GrayImage::from_fn(w, h, |x, _| image::Luma([if x < edge { 0 } else { 255 }]))
+        .save(path)
+        .unwrap();
+}
+
+#[test]
+fn masks_n_beside_images_n_else_full_size_masks_shrunk_to_the_photos() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("llff");
+    let (cameras, bounds) = common::arc_cameras(2, 40, 24, 4);
+    let photos: Vec<_> = (0..2).map(|k| common::pattern(40, 24, k)).collect();
+    // images/ at 40x24 and images_4/ at 10x6, as LLFF captures come.
+    scenes::write_llff(&dir, &cameras, &bounds, &photos, 1, BitDepth::Eight).unwrap();
+    let full = open(&dir, 1).unwrap();
+    let stems: Vec<String> = full
+        .image_paths
+        .iter()
+        .map(|p| p.file_stem().unwrap().to_str().unwrap().to_string())
+        .collect();
+    std::fs::create_dir_all(dir.join("images_4")).unwrap();
+    for (k, p) in full.image_paths.iter().enumerate() {
+        scenes::images::write_png(
+            &dir.join("images_4").join(p.file_name().unwrap()),
+            &common::pattern(10, 6, k + 5),
+            BitDepth::Eight,
+        )
+        .unwrap();
+    }
+    // Full-size masks/ only: shrunk four times for images_4/ (black for the left 8 of 40
+    // columns: the left 2 of 10).
+    for s in &stems {
+        edge_mask(&dir.join("masks").join(format!("{s}.png")), 40, 24, 8);
+    }
+    let quarter = open(&dir, 4).unwrap();
+    assert_eq!(quarter.mask_folder(), Some(dir.join("masks")));
+    assert!(quarter.summary().to_string().contains("masks       masks/"));
+    let m = quarter.load_mask(0).unwrap().unwrap();
+    assert_eq!(m.len(), 60);
+    assert_eq!((m[1], m[2]), (0.0, 1.0));
+    // masks_4/ beside images_4/ wins, at the photos' size (black for the left 5 of 10).
+    for s in &stems {
+        edge_mask(&dir.join("masks_4").join(format!("{s}.png")), 10, 6, 5);
+    }
+    let quarter = open(&dir, 4).unwrap();
+    assert_eq!(quarter.mask_folder(), Some(dir.join("masks_4")));
+    assert!(
+        quarter
+            .summary()
+            .to_string()
+            .contains("masks       masks_4/")
+    );
+    let m = quarter.load_mask(1).unwrap().unwrap();
+    assert_eq!((m[4], m[5]), (0.0, 1.0));
+    // The full-size run still reads masks/.
+    assert_eq!(
+        open(&dir, 1).unwrap().mask_folder(),
+        Some(dir.join("masks"))
+    );
+    // A masks_4/ file of another size (not a whole multiple) is refused naming it; a missing
+    // one names the folder it was looked for in.
+    edge_mask(
+        &dir.join("masks_4").join(format!("{}.png", stems[0])),
+        7,
+        6,
+        2,
+    );
+    let e = quarter.load_mask(0).unwrap_err().to_string();
+    assert!(
+        e.contains("masks_4") && e.contains(&stems[0]) && e.contains("7x6"),
+        "{e}"
+    );
+    std::fs::remove_file(dir.join("masks_4").join(format!("{}.png", stems[0]))).unwrap();
+    let e = quarter.load_mask(0).unwrap_err().to_string();
+    assert!(e.contains("masks_4/ folder"), "{e}");
+}
