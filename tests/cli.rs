@@ -1635,7 +1635,14 @@ fn an_experiment_resumes_where_it_stopped() {
     ok(&exp(&["--resume"]));
     assert_eq!(seconds(&run), before);
     assert_eq!(std::fs::read(run.join("point_cloud.ply")).unwrap(), ply);
-    assert!(out.join("table.md").exists());
+    // The table says per mode where the run came within 0.5 and 0.1 dB of its end.
+    let table = std::fs::read_to_string(out.join("table.md")).unwrap();
+    assert!(
+        table.contains("- plain: within 0.5 dB at step")
+            && table.contains("within 0.1 dB at step")
+            && table.contains("20 steps in"),
+        "{table}"
+    );
 }
 
 /// Completion scripts for each shell and the man page come from the commands themselves:
