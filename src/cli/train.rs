@@ -89,10 +89,11 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
         }
         if let (Some(rule), Some(base)) = (&config.stop, config.schedule_iters) {
             println!(
-                "--iters auto: schedules made for {base} steps (150 per training view, 1000 to 7000); from step {} on, the run ends once the training views' PSNR gains less than {:.3} dB per {} steps ({} windows in a row), after a final phase of {} steps at the final position learning rate; at most {} steps.",
+                "--iters auto: schedules made for {base} steps (150 per training view, 1000 to 7000); from step {} on, the run ends once the training views' PSNR trends up by less than {:.3} dB per {} steps (through the last {} windows, at {} window ends in a row), after a final phase of {} steps at the final position learning rate; at most {} steps.",
                 rule.not_before,
                 rule.min_gain_db,
                 rule.window,
+                train::stop::SPAN,
                 rule.patience,
                 rule.final_steps,
                 config.iters
