@@ -54,7 +54,15 @@ pub struct AberrationRecord {
     /// in records written before undistortion existed, which kept them as taken).
     #[serde(default)]
     pub undistorted: bool,
+    /// When the source had masks: the colour every photo was composited over outside its mask
+    /// before the blur (a consistent scene: the object alone, as a turntable capture's poses
+    /// describe it), and the masks are carried beside the copy's photos. None: no masks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub composited_over: Option<[f32; 3]>,
 }
+
+/// The colour a masked capture's photos are composited over before the blur.
+pub const COMPOSITE_BACKGROUND: [f32; 3] = [0.0; 3];
 
 impl AberrationRecord {
     pub fn blur_mode(&self, path: &Path) -> Result<BlurMode> {
@@ -193,6 +201,9 @@ pub struct AberrateReport {
     pub psf_px: usize,
     /// Mean PSNR (dB) of the aberrated images against the clean ones.
     pub mean_psnr: f64,
+    /// Whether the source had masks: its photos were composited over
+    /// [`COMPOSITE_BACKGROUND`] outside them before the blur, and the masks carried.
+    pub masked: bool,
 }
 
 /// Interleaved RGB (scenes) to planar (aberration).
@@ -308,13 +319,24 @@ pub fn make_aberrated(
     std::fs::create_dir(&clean_dir).map_err(|e| SceneError::io(&clean_dir, e))?;
 
     // Images are independent: aberrate in parallel, then hand them to the writer in order.
-    let made: Vec<Result<(Photo, Photo, f64)>> = (0..capture.len())
+    // A masked photo is first composited over a constant colour outside its mask: the blur
+    // then spreads the object, not a background the poses do not describe.
+    type Made = (Photo, Photo, f64, Option<Vec<f32>>);
+    let made: Vec<Result<Made>> = (0..capture.len())
         .into_par_iter()
         .map(|i| {
             if base::interrupt::requested() {
                 return Err(SceneError::Interrupted);
             }
-            let clean = capture.load_image(i)?;
+            let mut clean = capture.load_image(i)?;
+            let mask = capture.load_mask(i)?;
+            if let Some(m) = &mask {
+                for (p, &k) in clean.data.chunks_exact_mut(3).zip(m) {
+                    for (v, bg) in p.iter_mut().zip(COMPOSITE_BACKGROUND) {
+                        *v = k * *v + (1.0 - k) * bg;
+                    }
+                }
+            }
             let planar = to_planar(&clean);
             let bad = |e: aberration::AberrationError| {
                 SceneError::invalid(&capture.image_paths[i], e.to_string())
@@ -324,16 +346,33 @@ pub fn make_aberrated(
                 .map_err(bad)?;
             let psnr = aberration::psnr(&abr, &planar).map_err(bad)?;
             on_image();
-            Ok((clean, from_planar(&abr), psnr))
+            Ok((clean, from_planar(&abr), psnr, mask))
         })
         .collect();
     let mut psnr_sum = 0.0;
+    // One masked photo makes every photo carry a mask (all kept where it had none), so that
+    // the copy's masks folder names each of them.
+    let masked = made.iter().any(|r| r.as_ref().is_ok_and(|m| m.3.is_some()));
+    let mask_dir = mask_dir_of(&staging, downsample);
+    if masked {
+        std::fs::create_dir(&mask_dir).map_err(|e| SceneError::io(&mask_dir, e))?;
+    }
     for (i, result) in made.into_iter().enumerate() {
-        let (clean, abr, psnr) = result?;
+        let (clean, abr, psnr, mask) = result?;
         let camera = &capture.cameras[i];
         let name = format!("{}.png", camera.name);
         images::write_png(&clean_dir.join(&name), &clean, options.depth)?;
         writer.add(camera, capture.bounds[i], &abr)?;
+        if masked {
+            let n = camera.width as usize * camera.height as usize;
+            let m = mask.unwrap_or_else(|| vec![1.0; n]);
+            let grey = Photo {
+                width: camera.width,
+                height: camera.height,
+                data: m.iter().flat_map(|&k| [k; 3]).collect(),
+            };
+            images::write_png(&mask_dir.join(&name), &grey, options.depth)?;
+        }
         psnr_sum += psnr;
     }
 
@@ -355,6 +394,7 @@ pub fn make_aberrated(
             &std::fs::read(&psf_dest).map_err(|e| SceneError::io(&psf_dest, e))?,
         )),
         undistorted: capture.undistorted(),
+        composited_over: masked.then_some(COMPOSITE_BACKGROUND),
     };
     let record_path = staging.join(RECORD_FILE);
     let text = serde_json::to_string_pretty(&record)
@@ -370,6 +410,16 @@ pub fn make_aberrated(
         height,
         psf_px: model.psf().size(),
         mean_psnr: psnr_sum / capture.len() as f64,
+        masked,
+    })
+}
+
+/// Where an aberrated copy's masks go: beside its photos, at their size (`masks_N/` beside
+/// `images_N/`).
+fn mask_dir_of(staging: &Path, downsample: u32) -> PathBuf {
+    staging.join(match downsample {
+        1 => crate::capture::MASK_DIR.to_string(),
+        n => format!("{}_{n}", crate::capture::MASK_DIR),
     })
 }
 

@@ -241,6 +241,7 @@ impl Capture {
                 "{MASK_DIR}/ (at the photos' size, or larger by a whole factor and shrunk to it)"
             ),
             Some(d) => format!("{}/", d.strip_prefix(&self.root).unwrap_or(&d).display()),
+            None if self.undistorted() => "none in a folder; the photos' alpha channel where they have one, and the border undistortion leaves without a source".into(),
             None => "none in a folder; the photos' alpha channel where they have one".into(),
         }
     }

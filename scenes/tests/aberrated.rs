@@ -319,3 +319,88 @@ fn clean_capture_has_no_record_and_no_clean_images() {
     let err = AberrationRecord::read(&src).unwrap_err().to_string();
     assert!(err.contains("aberration.json"), "{err}");
 }
+
+#[test]
+fn a_masked_capture_is_composited_before_the_blur_and_keeps_its_masks() {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = tmp.path().join("src");
+    write_source(&src);
+    let capture = open(&src);
+    // masks_4/ beside images_4/: the left third of every photo is not the object.
+    std::fs::create_dir_all(src.join("masks_4")).unwrap();
+    for c in &capture.cameras {
+        image::GrayImage::from_fn(W, H, |x, _| image::Luma([if x < W / 3 { 0 } else { 255 }]))
+            .save(src.join("masks_4").join(format!("{}.png", c.name)))
+            .unwrap();
+    }
+    let capture = open(&src);
+    let psf_path = tmp.path().join("grid.npy");
+    let psf = write_psf(&psf_path);
+    let dest = tmp.path().join("abr");
+    make_aberrated(&capture, &psf_path, &dest, &options(3), &|| {}).unwrap();
+    let out = open(&dest);
+    let record = AberrationRecord::read(&dest).unwrap().unwrap();
+    assert_eq!(record.composited_over, Some([0.0; 3]));
+    // The copy's masks are the source's, beside its photos; its clean photos the composites.
+    assert_eq!(out.mask_folder(), Some(dest.join("masks_4")));
+    let model = ImagingModel::new(
+        &psf,
+        W as usize,
+        H as usize,
+        BlurMode::Blend,
+        Some(54),
+        NoiseModel::default(),
+    )
+    .unwrap();
+    for i in 0..capture.len() {
+        let (a, b) = (
+            out.load_mask(i).unwrap().unwrap(),
+            capture.load_mask(i).unwrap().unwrap(),
+        );
+        let off = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max);
+        assert!(a.len() == b.len() && off < 1e-6, "mask {i} off by {off}");
+        let mut composite = capture.load_image(i).unwrap();
+        for (k, p) in composite.data.chunks_exact_mut(3).enumerate() {
+            if (k as u32 % W) < W / 3 {
+                p.fill(0.0);
+            }
+        }
+        let clean = aberrated::load_clean_image(&out, i).unwrap().unwrap();
+        let worst = |a: &[f32], b: &[f32]| {
+            a.iter()
+                .zip(b)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0f32, f32::max)
+        };
+        assert!(worst(&clean.data, &composite.data) <= 0.51 / 65535.0);
+        // The photo is the lens's blur of the composite, not of the whole photo.
+        let expect = model
+            .capture(
+                &aberrated::to_planar(&composite),
+                aberrated::image_seed(3, i),
+            )
+            .unwrap();
+        let got = aberrated::to_planar(&out.load_image(i).unwrap());
+        assert!(
+            worst(&got.data, &expect.data) <= 0.51 / 65535.0 + 1e-6,
+            "image {i}"
+        );
+    }
+    // Without masks the copy has none and the record says nothing of compositing.
+    let plain = tmp.path().join("plain");
+    let src2 = tmp.path().join("src2");
+    write_source(&src2);
+    make_aberrated(&open(&src2), &psf_path, &plain, &options(3), &|| {}).unwrap();
+    assert_eq!(open(&plain).mask_folder(), None);
+    assert_eq!(
+        AberrationRecord::read(&plain)
+            .unwrap()
+            .unwrap()
+            .composited_over,
+        None
+    );
+}

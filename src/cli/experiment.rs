@@ -201,8 +201,17 @@ fn aberrated_capture(
         };
         let made = scenes::make_aberrated(&capture, &psf_path, &aberrated, &options, &|| {})?;
         println!(
-            "aberrated {} images {}x{} ({} px PSFs): {:.2} dB vs clean",
-            made.images, made.width, made.height, made.psf_px, made.mean_psnr
+            "aberrated {} images {}x{} ({} px PSFs): {:.2} dB vs clean{}",
+            made.images,
+            made.width,
+            made.height,
+            made.psf_px,
+            made.mean_psnr,
+            if made.masked {
+                "; masked: composited over black outside the masks before the blur"
+            } else {
+                ""
+            }
         );
     }
     Ok((aberrated, lock))

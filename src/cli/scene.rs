@@ -164,5 +164,11 @@ fn aberrate(a: SceneAberrateArgs) -> Result<()> {
         report.dest.display(),
         scenes::aberrated::CLEAN_DIR,
     );
+    if report.masked {
+        println!(
+            "The capture has masks ({}): each photo was composited over black outside its mask before the blur, so the copy is the object alone, and the masks are carried beside the copy's photos.",
+            capture.mask_source()
+        );
+    }
     Ok(())
 }
