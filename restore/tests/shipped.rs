@@ -170,3 +170,39 @@ fn off_its_range_the_shipped_network_still_beats_wiener() {
         );
     }
 }
+
+#[test]
+fn the_family_increment_serves_the_default_lens_and_a_perturbed_one_at_every_scale() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("weights/family_tiny_1.bin");
+    let (header, _) = restore::weights::read(&path).unwrap();
+    assert_eq!(header.trained_psf_px, Some([15, 140]));
+    assert!(header.family.is_some());
+    for (name, grid) in [
+        ("default", default_grid().clone()),
+        ("focal +3 %", perturbed_grid()),
+    ] {
+        let why = header
+            .serves(&grid)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        // The default lens is the family's centre, the grid its fingerprint names.
+        let expect = if name == "default" {
+            "trained on this PSF grid"
+        } else {
+            "inside the lens family"
+        };
+        assert!(why.contains(expect), "{name}: {why}");
+        for px in [19, 57, 113] {
+            assert!(header.fits_psf_px(px), "{name} at {px} px");
+        }
+    }
+    // Another design is not served.
+    let mut ideal = SimConfig::default();
+    ideal.lens = aberration::optics::Lens::ideal(
+        ideal.lens.aperture_um,
+        ideal.lens.focal_um,
+        ideal.lens.pitch_um,
+        511.0,
+    );
+    let other = simulate_grid(&ideal, &|_, _| {}).unwrap().0;
+    assert!(header.serves(&other).is_err());
+}
