@@ -96,14 +96,21 @@ impl PsfGrid {
         // Of the whole sensors about the exact one, the one whose mapped side is nearest,
         // then whose blur scale is nearest.
         let miss = |sensor: usize| {
+            let n = self.mapped_size(width, height, Some(sensor)) as f64;
             let scale = side / sensor as f64;
-            let n = resampled_size(self.size(), scale) as f64;
             ((n - psf_px as f64).abs(), (k * scale - psf_px as f64).abs())
         };
         let lo = (exact.floor() as usize).max(2) - 1;
         (lo..lo + 3)
             .min_by(|a, b| miss(*a).partial_cmp(&miss(*b)).expect("finite"))
             .expect("three candidates")
+    }
+
+    /// The PSF side [`Self::for_image`] maps this grid to on a `width × height` image, without
+    /// resampling a kernel (a sensor of 0 px counts as 1).
+    pub fn mapped_size(&self, width: usize, height: usize, sensor_px: Option<usize>) -> usize {
+        let sensor = sensor_px.unwrap_or(self.native_sensor_px()).max(1);
+        resampled_size(self.size(), width.max(height) as f64 / sensor as f64)
     }
 
     /// The grid mapped onto a `width × height` image by the module's rule; `sensor_px`
@@ -121,7 +128,7 @@ impl PsfGrid {
             return Err(AberrationError::BadParameter("a sensor of 0 px".into()));
         }
         let scale = width.max(height) as f64 / sensor as f64;
-        let n = resampled_size(self.size(), scale);
+        let n = self.mapped_size(width, height, Some(sensor));
         let limit = MAX_MAPPED_PSF_PX.min(2 * width.max(height)).max(1);
         if n > limit {
             return Err(AberrationError::BadParameter(format!(

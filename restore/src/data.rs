@@ -254,6 +254,14 @@ pub fn load_photo(path: &Path, min_side: usize) -> Result<Image> {
     Ok(img)
 }
 
+/// Smallest and largest PSF side (px) `native` maps to over the photos' sizes.
+fn psf_px_range<'a>(photos: impl Iterator<Item = &'a Image>, native: &PsfGrid) -> [usize; 2] {
+    photos.fold([usize::MAX, 0], |[lo, hi], p| {
+        let k = native.mapped_size(p.width, p.height, None);
+        [lo.min(k), hi.max(k)]
+    })
+}
+
 /// The training set: every photo as a grid sample and as a single-PSF sample.
 pub struct TrainSet {
     pub samples: Vec<Sample>,
@@ -293,11 +301,7 @@ impl TrainSet {
                 r
             })
             .collect::<Result<Vec<_>>>()?;
-        let mut psf_px = [usize::MAX, 0];
-        for p in photos {
-            let k = native.for_image(p.width, p.height, None)?.size();
-            psf_px = [psf_px[0].min(k), psf_px[1].max(k)];
-        }
+        let psf_px = psf_px_range(photos.iter(), native);
         Ok(Self { samples, psf_px })
     }
 
@@ -376,11 +380,7 @@ impl TrainSet {
                 r
             })
             .collect::<Result<Vec<_>>>()?;
-        let mut psf_px = [usize::MAX, 0];
-        for (p, _) in pairs {
-            let k = native.for_image(p.width, p.height, None)?.size();
-            psf_px = [psf_px[0].min(k), psf_px[1].max(k)];
-        }
+        let psf_px = psf_px_range(pairs.iter().map(|(p, _)| p), native);
         Ok(Self { samples, psf_px })
     }
 

@@ -117,6 +117,7 @@ pub const FAMILY_VAL_PSF_PX: [usize; 6] = [19, 38, 57, 85, 113, 135];
 type Through<'g> = dyn Fn(usize, &Image) -> Result<(&'g PsfGrid, Option<usize>)> + 'g;
 
 /// Validation images: each aberrated once through the whole grid with a fixed seed.
+#[derive(Default)]
 pub struct ValSet {
     pub names: Vec<String>,
     pub banks: Vec<Vec<Image>>,
@@ -171,11 +172,7 @@ impl ValSet {
         cfg: &RestorerConfig,
         crop: Option<usize>,
     ) -> Result<Self> {
-        let mut v = ValSet {
-            names: vec![],
-            banks: vec![],
-            clean: vec![],
-        };
+        let mut v = ValSet::default();
         for (name, captured, clean) in pairs {
             let psf = native.for_image(captured.width, captured.height, None)?;
             let bank = bank_images(captured, &psf, cfg.adaptive_k)?;
@@ -209,11 +206,7 @@ impl ValSet {
         noise: NoiseModel,
         crop: Option<usize>,
     ) -> Result<Self> {
-        let mut v = ValSet {
-            names: vec![],
-            banks: vec![],
-            clean: vec![],
-        };
+        let mut v = ValSet::default();
         for (i, (name, img)) in photos.iter().enumerate() {
             let (native, sensor) = through(i, img)?;
             let model = ImagingModel::new(
