@@ -143,6 +143,9 @@ pub struct RunSummary {
     pub metrics: Option<Metrics>,
     /// Mean PSNR of the observed (aberrated) test images against the clean ones.
     pub observed_psnr: Option<f64>,
+    /// The same inside the held-out views' object masks (a run scored on the object).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub observed_psnr_in_mask: Option<f64>,
     /// With `--refine-psf`: how far the refined grid moved from the supplied one (mean over
     /// grid cells of the relative L2 distance).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -188,7 +191,7 @@ pub fn write_run(
     let model = &outcome.model;
     splat::formats::ply::write_ply(dir.join(PLY_FILE), model)?;
     write_log_csv(&dir.join(LOG_FILE), &outcome.log)?;
-    let metrics = eval::evaluate(model, &data.test, &outcome.settings, device)?;
+    let metrics = eval::evaluate(model, &data.test, &outcome.settings, device, config.masks)?;
     let not_evaluated = metrics
         .is_none()
         .then(|| "no held-out views (llffhold 0 or too few images)".to_string());
@@ -256,17 +259,40 @@ pub fn write_run(
 
     let observed_psnr = match &metrics {
         Some(m) if m.against == crate::train::eval::Against::Clean => {
-            let mut sum = 0.0;
+            let (mut sum, mut in_mask) = (0.0, Vec::new());
+            // On the object, the photo is scored as a render that learnt nothing outside it.
+            let masks = config.masks.map(|_| crate::train::object::MaskUse::Loss);
             for v in &data.test {
                 // Against::Clean: every held-out view has its clean image.
                 let clean = v.clean.as_deref().ok_or_else(|| {
                     TrainError::Invalid(format!("held-out view {} has no clean image", v.name))
                 })?;
-                sum += base::psnr_rgb(&v.observed, clean)?;
+                let eval::Scored {
+                    image: observed,
+                    reference: clean,
+                    mask,
+                } = eval::scored(
+                    &v.observed,
+                    clean,
+                    v.mask.as_deref(),
+                    masks,
+                    outcome.settings.background,
+                );
+                sum += base::psnr_rgb(&observed, &clean)?;
+                in_mask.extend(
+                    mask.and_then(|m| crate::train::object::psnr_in_mask(&observed, &clean, m)),
+                );
             }
-            Some(sum / data.test.len() as f64)
+            Some((
+                sum / data.test.len() as f64,
+                (!in_mask.is_empty()).then(|| in_mask.iter().sum::<f64>() / in_mask.len() as f64),
+            ))
         }
         _ => None,
+    };
+    let (observed_psnr, observed_psnr_in_mask) = match observed_psnr {
+        Some((all, mask)) => (Some(all), mask),
+        None => (None, None),
     };
     let psf_change = match &outcome.psf {
         Some((supplied, refined)) => {
@@ -295,6 +321,7 @@ pub fn write_run(
         not_evaluated,
         metrics,
         observed_psnr,
+        observed_psnr_in_mask,
     };
     write_json(&dir.join(METRICS_FILE), &summary)?;
     Ok(summary)

@@ -10,6 +10,7 @@ use crate::settings::{LambdaFade, Mode, RestorerChoice, RunRequest};
 use crate::train::config::TrainConfig;
 use crate::train::data::{self, Dataset};
 use crate::train::{self, Event, Outcome};
+use clap::ValueEnum;
 
 /// A run ready to train: the run folder exists and is writable, the capture is loaded (with
 /// the `I_ac` images the cache held), and the config is built and written to `config.json`.
@@ -90,6 +91,26 @@ fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String
             return Err(TrainError::file(path, "--init: the scene has no splats"));
         }
         data.initial = Some(g);
+    }
+    if request.training.mask_mode != crate::settings::MaskChoice::Auto
+        && !crate::train::config::has_object_masks(&data)
+    {
+        return Err(TrainError::file(
+            &request.scene,
+            format!(
+                "--mask-mode {}: the capture has no object masks (masks_N/ beside images_N/, masks/, or a frame's mask_path in transforms.json){}",
+                request
+                    .training
+                    .mask_mode
+                    .to_possible_value()
+                    .map_or(String::new(), |v| v.get_name().to_string()),
+                if data.masks_from_undistortion {
+                    "; its masks are only the border undistortion left"
+                } else {
+                    ""
+                }
+            ),
+        ));
     }
     // The photos the capture's model names, wherever they are.
     inputs.add_capture(&data.capture);

@@ -185,6 +185,18 @@ pub enum Background {
     Random,
 }
 
+/// What the capture's masks mean, as asked for.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MaskChoice {
+    /// `object` for a capture with object masks (a folder of them, `transforms.json`'s
+    /// `mask_path` or the photos' alpha), `loss` for the border undistortion leaves alone.
+    Auto,
+    /// Pixels outside a mask leave the loss.
+    Loss,
+    /// The object alone, on the background.
+    Object,
+}
+
 /// The densification strategy asked for.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum StrategyChoice {
@@ -249,6 +261,14 @@ pub struct TrainSettings {
     /// background through splats; renders and evaluation use `auto`'s colour).
     #[arg(long, default_value = "auto", value_parser = crate::flags::background)]
     pub background: Background,
+    /// What a capture's masks mean: `object` (the object alone: the photos are composited
+    /// over the background outside their masks, empty space is learnt as empty, and the
+    /// exported splats hold the object only; the background is then black, or the colour a
+    /// `scene aberrate` copy was composited over, unless --background names one), `loss`
+    /// (pixels outside leave the loss: what shows there is unknown), or `auto` (object for
+    /// a capture with object masks, loss for the border undistortion leaves).
+    #[arg(long, value_enum, default_value_t = MaskChoice::Auto)]
+    pub mask_mode: MaskChoice,
     /// An SH band stays when dropping it raises the training loss by at least this fraction
     /// (default 0.001); 0 keeps every band that lowers it at all.
     #[arg(long, value_parser = crate::flags::non_negative, allow_negative_numbers = true)]

@@ -237,10 +237,15 @@ fn refining_wins_back_half_of_what_a_wrong_calibration_costs() {
         };
         let cfg = TrainConfig::build(&settings, 0, &data);
         let out = train::train(&cfg, &data, &Device::Cpu, None, false, &mut |_| {}).unwrap();
-        let m =
-            metasplat::train::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu)
-                .unwrap()
-                .unwrap();
+        let m = metasplat::train::eval::evaluate(
+            &out.model,
+            &data.test,
+            &out.settings,
+            &Device::Cpu,
+            None,
+        )
+        .unwrap()
+        .unwrap();
         let grid_error = out.psf.map(|(supplied, refined)| {
             let t = data.imaging.as_ref().unwrap();
             let truth_here = truth

@@ -76,9 +76,10 @@ fn mean_psnr_on(device: &Device, mode: Mode, iters: u64, lambda: f32) -> f64 {
     cfg.lambda = lambda;
     let out = train::train(&cfg, &data, device, None, false, &mut |_| {}).unwrap();
     assert!(out.model.means.iter().all(|m| m.is_finite()));
-    let m = metasplat::train::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu)
-        .unwrap()
-        .expect("the aberrated capture has clean images");
+    let m =
+        metasplat::train::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu, None)
+            .unwrap()
+            .expect("the aberrated capture has clean images");
     m.mean_psnr
 }
 
@@ -170,7 +171,7 @@ fn a_gpu_run_resumes_exactly_and_carries_on_on_the_cpu() {
     assert_eq!(full.model, resumed.model, "the resumed GPU run diverged");
     let on_cpu = train::train(&cfg, &data, &Device::Cpu, Some(&kept), true, &mut |_| {}).unwrap();
     let psnr = |m: &splat::Gaussians, s: &RenderSettings| {
-        metasplat::train::eval::evaluate(m, &data.test, s, &Device::Cpu)
+        metasplat::train::eval::evaluate(m, &data.test, s, &Device::Cpu, None)
             .unwrap()
             .unwrap()
             .mean_psnr
@@ -433,9 +434,10 @@ fn bad_input_is_reported_clearly() {
     assert_eq!(data.evaluated_against(), Some(Against::Photos));
     let cfg = config(Mode::Aware, 20, &data);
     let out = train::train(&cfg, &data, &Device::Cpu, None, false, &mut |_| {}).unwrap();
-    let m = metasplat::train::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu)
-        .unwrap()
-        .unwrap();
+    let m =
+        metasplat::train::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu, None)
+            .unwrap()
+            .unwrap();
     assert_eq!(m.against, Against::Photos);
     let v = &data.test[0];
     let render = Device::Cpu
@@ -872,10 +874,15 @@ fn a_random_background_leaves_no_see_through_pixels() {
                 n += 1;
             }
         }
-        let psnr =
-            metasplat::train::eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu)
-                .unwrap()
-                .map(|m| m.mean_psnr);
+        let psnr = metasplat::train::eval::evaluate(
+            &out.model,
+            &data.test,
+            &out.settings,
+            &Device::Cpu,
+            None,
+        )
+        .unwrap()
+        .map(|m| m.mean_psnr);
         (sum / n as f64, psnr)
     };
     let (black, black_psnr) = run(false);

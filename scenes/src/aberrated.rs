@@ -59,6 +59,10 @@ pub struct AberrationRecord {
     /// describe it), and the masks are carried beside the copy's photos. None: no masks.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub composited_over: Option<[f32; 3]>,
+    /// The carried masks are only the border undistortion left without a source (the source
+    /// had no masks of its own): pixels without data, not an object's outline.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub masks_from_undistortion: bool,
 }
 
 /// The colour a masked capture's photos are composited over before the blur.
@@ -395,6 +399,7 @@ pub fn make_aberrated(
         )),
         undistorted: capture.undistorted(),
         composited_over: masked.then_some(COMPOSITE_BACKGROUND),
+        masks_from_undistortion: masked && !capture.has_own_masks(),
     };
     let record_path = staging.join(RECORD_FILE);
     let text = serde_json::to_string_pretty(&record)

@@ -231,6 +231,12 @@ impl Capture {
         beside.or_else(|| Some(self.root.join(MASK_DIR)).filter(|d| d.is_dir()))
     }
 
+    /// Whether the capture has masks of its own (a folder of them or `transforms.json`'s
+    /// `mask_path`), besides the photos' alpha and the border undistortion leaves.
+    pub fn has_own_masks(&self) -> bool {
+        self.mask_paths.iter().any(Option::is_some) || self.mask_folder().is_some()
+    }
+
     /// Where the loss masks come from, in words (`scene info`, `train`).
     pub fn mask_source(&self) -> String {
         if self.mask_paths.iter().any(Option::is_some) {

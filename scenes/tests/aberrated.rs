@@ -341,6 +341,7 @@ fn a_masked_capture_is_composited_before_the_blur_and_keeps_its_masks() {
     let out = open(&dest);
     let record = AberrationRecord::read(&dest).unwrap().unwrap();
     assert_eq!(record.composited_over, Some([0.0; 3]));
+    assert!(!record.masks_from_undistortion, "the source's own masks");
     // The copy's masks are the source's, beside its photos; its clean photos the composites.
     assert_eq!(out.mask_folder(), Some(dest.join("masks_4")));
     let model = ImagingModel::new(

@@ -458,3 +458,56 @@ fn a_frames_mask_path_is_its_mask_at_every_downsample() {
         assert!(e.contains(says), "{e}");
     }
 }
+
+/// The aberrated copy of a distorted capture without masks of its own carries the border
+/// undistortion leaves as masks, and its record says that is all they are (not an object's
+/// outline); a capture with masks of its own says otherwise.
+#[test]
+fn a_copys_record_says_when_its_masks_are_only_the_undistortion_border() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (cameras, _) = common::arc_cameras(4, 40, 30, 7);
+    let psf = tmp.path().join("psf.npy");
+    let (grid, _) =
+        aberration::optics::simulate_grid(&aberration::optics::SimConfig::small(9), &|_, _| {})
+            .unwrap();
+    grid.save_npy(&psf).unwrap();
+    for own_masks in [false, true] {
+        let dir = tmp.path().join(format!("src_{own_masks}"));
+        write_capture(&dir, &cameras, json!({"k1": 0.2}));
+        if own_masks {
+            std::fs::create_dir(dir.join("masks")).unwrap();
+            for c in &cameras {
+                let white = scenes::Photo {
+                    width: c.width,
+                    height: c.height,
+                    data: vec![1.0; (c.width * c.height * 3) as usize],
+                };
+                scenes::images::write_png(
+                    &dir.join("masks").join(format!("{}.png", c.name)),
+                    &white,
+                    BitDepth::Eight,
+                )
+                .unwrap();
+            }
+        }
+        let capture = open(&dir, 1).unwrap();
+        assert!(capture.undistorted());
+        assert_eq!(capture.has_own_masks(), own_masks);
+        let abr = tmp.path().join(format!("abr_{own_masks}"));
+        scenes::make_aberrated(
+            &capture,
+            &psf,
+            &abr,
+            &scenes::AberrateOptions::default(),
+            &|| {},
+        )
+        .unwrap();
+        let record = scenes::AberrationRecord::read(&abr).unwrap().unwrap();
+        assert_eq!(record.composited_over, Some([0.0; 3]));
+        assert_eq!(record.masks_from_undistortion, !own_masks);
+        assert!(
+            open(&abr, 1).unwrap().has_own_masks(),
+            "the copy carries its masks"
+        );
+    }
+}

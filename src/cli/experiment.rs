@@ -88,6 +88,9 @@ pub struct ExperimentRuns {
     /// Densification strategy of every run (as `train --strategy`).
     #[arg(long, value_enum, default_value_t = metasplat::settings::StrategyChoice::Auto)]
     pub strategy: metasplat::settings::StrategyChoice,
+    /// What the capture's masks mean to every run (as `train --mask-mode`).
+    #[arg(long, value_enum, default_value_t = metasplat::settings::MaskChoice::Auto)]
+    pub mask_mode: metasplat::settings::MaskChoice,
     /// Also train plain 3DGS on the clean photos with the same settings: the ceiling every
     /// mode is measured against (`--ceiling false` leaves it out).
     #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
@@ -449,6 +452,7 @@ impl ExperimentRuns {
         args.training.mode = mode;
         args.training.iters = metasplat::settings::Iters::Steps(self.iters);
         args.training.strategy = self.strategy;
+        args.training.mask_mode = self.mask_mode;
         args
     }
 }
@@ -528,15 +532,32 @@ fn llff(a: LlffArgs) -> Result<()> {
         .and_then(|(s, _)| s.metrics.as_ref())
         .map(|m| m.mean_psnr);
     let below = |p: f64| ceiling_psnr.map_or(String::new(), |c| format!("{:+.2}", p - c));
+    // A capture with object masks is scored on the object, every row alike.
+    let on_object = rows
+        .iter()
+        .map(|r| &r.1)
+        .chain(ceiling.iter().map(|c| &c.0))
+        .find_map(|s| s.metrics.as_ref().and_then(|m| m.on_object.clone()));
+    let (mask_head, mask_rule) = if on_object.is_some() {
+        (" in the mask |", "---:|")
+    } else {
+        ("", "")
+    };
+    let in_mask = |p: Option<f64>| match (&on_object, p) {
+        (None, _) => String::new(),
+        (Some(_), Some(p)) => format!(" {p:.2} |"),
+        (Some(_), None) => " |".into(),
+    };
     writeln!(
         table,
-        "| method | PSNR (dB) | vs ceiling | SSIM | minutes | splats | SH |"
+        "| method | PSNR (dB) | vs ceiling | SSIM | minutes | splats | SH |{mask_head}"
     )?;
-    writeln!(table, "|---|---:|---:|---:|---:|---:|---:|")?;
+    writeln!(table, "|---|---:|---:|---:|---:|---:|---:|{mask_rule}")?;
     writeln!(
         table,
-        "| aberrated input | {observed:.2} | {} | | | | |",
-        below(observed)
+        "| aberrated input | {observed:.2} | {} | | | | |{}",
+        below(observed),
+        in_mask(rows.iter().find_map(|r| r.1.observed_psnr_in_mask))
     )?;
     let named = ceiling
         .iter()
@@ -556,11 +577,25 @@ fn llff(a: LlffArgs) -> Result<()> {
             .map_or((f64::NAN, f64::NAN), |m| (m.mean_psnr, m.mean_ssim));
         writeln!(
             table,
-            "| {name} | {p:.2} | {} | {ss:.4} | {:.1} | {} | {} |",
+            "| {name} | {p:.2} | {} | {ss:.4} | {:.1} | {} | {} |{}",
             below(p),
             s.train_seconds / 60.0,
             s.splats,
-            s.sh_degree
+            s.sh_degree,
+            in_mask(
+                s.metrics
+                    .as_ref()
+                    .and_then(|m| m.on_object.as_ref())
+                    .map(|o| o.mean_psnr_in_mask)
+            )
+        )?;
+    }
+    if let Some(o) = &on_object {
+        let [r, g, b] = o.background;
+        writeln!(
+            table,
+            "\nScored on the object (mask mode {}): renders and references over {r:.3},{g:.3},{b:.3} outside the held-out views' masks (the aberrated input composited as a render that learnt nothing there), and PSNR inside the masks alone.",
+            o.masks
         )?;
     }
     writeln!(

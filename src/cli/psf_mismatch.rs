@@ -249,6 +249,7 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
         device: a.device,
         overwrite: a.overwrite,
         strategy: metasplat::settings::StrategyChoice::Auto,
+        mask_mode: metasplat::settings::MaskChoice::Auto,
         ceiling: false,
         resume: a.resume,
         keep_distortion: a.keep_distortion,

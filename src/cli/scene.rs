@@ -164,7 +164,11 @@ fn aberrate(a: SceneAberrateArgs) -> Result<()> {
         report.dest.display(),
         scenes::aberrated::CLEAN_DIR,
     );
-    if report.masked {
+    if report.masked && !capture.has_own_masks() {
+        println!(
+            "Undistortion leaves border pixels without a source: each photo was composited over black there before the blur, and the border is carried as masks beside the copy's photos (they leave its pixels out of the loss; the record says they are not an object's)."
+        );
+    } else if report.masked {
         println!(
             "The capture has masks ({}): each photo was composited over black outside its mask before the blur, so the copy is the object alone, and the masks are carried beside the copy's photos.",
             capture.mask_source()

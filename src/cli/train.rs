@@ -6,9 +6,10 @@ use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use metasplat::outputs::{self, RunSummary};
 use metasplat::run;
-use metasplat::settings::{Background, RunRequest, StrategyChoice, Toggle};
+use metasplat::settings::{Background, MaskChoice, RunRequest, StrategyChoice, Toggle};
 use metasplat::train::config::{Mode, Strategy};
 use metasplat::train::eval::Against;
+use metasplat::train::object::MaskUse;
 use metasplat::train::{self, Event};
 
 /// Makes the run's missing `I_ac` images with a bar of views done and time left (a line
@@ -113,7 +114,9 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             let [r, g, b] = config.background;
             println!(
                 "Background {r:.3},{g:.3},{b:.3}{}.",
-                if t.background == Background::Auto {
+                if t.background == Background::Auto && config.masks == Some(MaskUse::Object) {
+                    ": the colour the copy's photos were composited over outside their masks"
+                } else if t.background == Background::Auto {
                     ": the median colour of the photos' borders, as the cameras surround an object on its backdrop"
                 } else {
                     ""
@@ -186,11 +189,28 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             );
         }
         let masked = data.train.iter().filter(|v| v.mask.is_some()).count();
-        if masked > 0 {
-            println!(
+        let [r, g, b] = config.background;
+        match config.masks {
+            _ if masked == 0 => {}
+            Some(MaskUse::Object) => println!(
+                "Masks ({}): the object alone{}: {masked} of {} training views are composited over the background ({r:.3},{g:.3},{b:.3}) outside their masks, so everything outside the object is learnt as empty and the splats hold the object only; held-out views are scored on the object over the same background, and inside the masks. --mask-mode loss leaves those pixels out of the loss instead.",
+                data.capture.mask_source(),
+                if t.mask_mode == MaskChoice::Auto {
+                    " (the default for object masks)"
+                } else {
+                    ""
+                },
+                data.train.len()
+            ),
+            Some(MaskUse::Loss) => println!(
+                "Masks ({}): {masked} of {} training views leave the pixels outside their masks out of the loss (--mask-mode loss); held-out views are scored on the object over the background, and inside the masks.",
+                data.capture.mask_source(),
+                data.train.len()
+            ),
+            None => println!(
                 "masks: {masked} of {} training views leave pixels out of the loss (held-out views are scored whole)",
                 data.train.len()
-            );
+            ),
         }
         match data.evaluated_against() {
             Some(Against::Photos) if data.imaging.is_some() => println!(
@@ -308,14 +328,50 @@ fn print_summary(dir: &Path, s: &RunSummary, outcome: &train::Outcome) {
     }
     match &s.metrics {
         Some(m) => {
-            println!("{:<16} {:>8} {:>7}", "test view", "PSNR", "SSIM");
+            let in_mask = |p: Option<f64>| p.map_or(String::new(), |p| format!(" {p:>11.2}"));
+            let header = if m.on_object.is_some() {
+                " in the mask"
+            } else {
+                ""
+            };
+            println!("{:<16} {:>8} {:>7}{header}", "test view", "PSNR", "SSIM");
             for v in &m.views {
-                println!("{:<16} {:>8.2} {:>7.4}", v.name, v.psnr, v.ssim);
+                println!(
+                    "{:<16} {:>8.2} {:>7.4}{}",
+                    v.name,
+                    v.psnr,
+                    v.ssim,
+                    in_mask(v.psnr_in_mask)
+                );
             }
-            println!("{:<16} {:>8.2} {:>7.4}", "mean", m.mean_psnr, m.mean_ssim);
-            println!("(rendered test views vs {})", m.against);
+            println!(
+                "{:<16} {:>8.2} {:>7.4}{}",
+                "mean",
+                m.mean_psnr,
+                m.mean_ssim,
+                in_mask(m.on_object.as_ref().map(|o| o.mean_psnr_in_mask))
+            );
+            match &m.on_object {
+                Some(o) => {
+                    let [r, g, b] = o.background;
+                    println!(
+                        "(rendered test views vs {}, on the object: both over {r:.3},{g:.3},{b:.3} outside its masks{}; and inside the masks alone)",
+                        m.against,
+                        if o.masks == MaskUse::Loss {
+                            ", the render composited as the reference is"
+                        } else {
+                            ", the render as drawn"
+                        }
+                    )
+                }
+                None => println!("(rendered test views vs {})", m.against),
+            }
             if let Some(o) = s.observed_psnr {
-                println!("(observed images vs clean: {o:.2} dB)");
+                println!(
+                    "(observed images vs clean: {o:.2} dB{})",
+                    s.observed_psnr_in_mask
+                        .map_or(String::new(), |p| format!(", {p:.2} dB in the masks"))
+                );
             }
         }
         None => println!(

@@ -137,6 +137,12 @@ pub struct CaptureModel {
     /// Where `I_ac` comes from, when it was asked for and the capture has a PSF grid.
     pub restorer: Option<IacSource>,
     pub restorer_note: Option<String>,
+    /// The colour the photos were composited over outside their masks before the blur
+    /// (`scene aberrate` on a masked capture); None: photos as taken.
+    pub composited_over: Option<[f32; 3]>,
+    /// The capture's masks are only the border undistortion left (a `scene aberrate` copy
+    /// of a capture without masks of its own).
+    pub masks_from_undistortion: bool,
     network: Option<OpenedRestorer>,
     /// Names cached `I_ac` images (None without a restorer).
     keyer: Option<crate::train::iac_cache::Keyer>,
@@ -239,6 +245,7 @@ impl CaptureModel {
             _ => (None, None),
         };
         let restoring = restoring.map(|(_, model)| model);
+        let record = AberrationRecord::read(dir)?;
         let restorer = (with_restorer && imaging.is_some()).then(|| match &network {
             Some((r, source)) => IacSource::Network {
                 config: r.config().name.clone(),
@@ -263,6 +270,8 @@ impl CaptureModel {
             imaging,
             restorer,
             restorer_note,
+            composited_over: record.as_ref().and_then(|r| r.composited_over),
+            masks_from_undistortion: record.as_ref().is_some_and(|r| r.masks_from_undistortion),
             network,
             keyer,
             restoring,

@@ -5,9 +5,12 @@ use serde::{Deserialize, Serialize};
 use splat::optim::LearningRates;
 
 pub use crate::settings::Mode;
-use crate::settings::{Background, Iters, LambdaFade, StrategyChoice, Toggle, TrainSettings};
+use crate::settings::{
+    Background, Iters, LambdaFade, MaskChoice, StrategyChoice, Toggle, TrainSettings,
+};
 use crate::train::data::Dataset;
 use crate::train::iac::IacSource;
+use crate::train::object::MaskUse;
 use crate::train::psf_refine::PsfRefineConfig;
 use crate::train::stop::StopRule;
 
@@ -223,6 +226,9 @@ pub struct TrainConfig {
     /// [`Self::background`] is then only the renders' and the evaluation's.
     #[serde(default)]
     pub random_background: bool,
+    /// What the capture's masks mean (None: it has none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub masks: Option<MaskUse>,
     /// `--iters auto`: the rule that ends the run once training stops paying; [`Self::iters`]
     /// is then only the most it may run, and [`Self::schedule_iters`] the length its
     /// schedules were made for.
@@ -384,6 +390,34 @@ pub fn auto_background(data: &Dataset) -> [f32; 3] {
     })
 }
 
+/// Whether a capture has an object's masks (a folder of them or `transforms.json`'s
+/// `mask_path`), not only the border undistortion leaves without a source or the photos'
+/// alpha, which leave pixels out of the loss as they always did.
+pub fn has_object_masks(data: &Dataset) -> bool {
+    data.capture.has_own_masks()
+        && !data.masks_from_undistortion
+        && data.train.iter().any(|v| v.mask.is_some())
+}
+
+/// What an object's masks mean for a run with `choice` on `data`: `object` unless the user
+/// asks for `loss` (measured on the turntable capture, RESULTS.md); None without object
+/// masks (other masks leave pixels out of the loss, and the run is scored on whole images).
+pub fn mask_use(choice: MaskChoice, data: &Dataset) -> Option<MaskUse> {
+    if !has_object_masks(data) {
+        return None;
+    }
+    Some(match choice {
+        MaskChoice::Loss => MaskUse::Loss,
+        MaskChoice::Object | MaskChoice::Auto => MaskUse::Object,
+    })
+}
+
+/// The colour behind an object run's splats when the user names none: the one a `scene
+/// aberrate` copy was composited over (its photos then need no change), else black.
+pub fn object_background(data: &Dataset) -> [f32; 3] {
+    data.composited_over.unwrap_or([0.0; 3])
+}
+
 impl TrainConfig {
     /// λ at `step`.
     pub fn lambda_at(&self, step: u64) -> f32 {
@@ -449,6 +483,7 @@ impl TrainConfig {
                 },
             )
         };
+        let masks = mask_use(settings.mask_mode, data);
         let stand_in = settings.mode == Mode::Aware
             && settings.lambda.is_none()
             && matches!(data.restorer, Some(IacSource::Wiener));
@@ -464,10 +499,12 @@ impl TrainConfig {
             ),
             max_sh_degree: settings.max_sh_degree,
             seed,
-            background: match settings.background {
-                Background::Auto | Background::Random => auto_background(data),
-                Background::Colour(c) => c,
+            background: match (settings.background, masks) {
+                (Background::Colour(c), _) => c,
+                (_, Some(MaskUse::Object)) => object_background(data),
+                (Background::Auto | Background::Random, _) => auto_background(data),
             },
+            masks,
             random_background: settings.background == Background::Random,
             schedule_iters: None,
             eval_every: settings.eval_every.unwrap_or((iters / 10).max(1)),

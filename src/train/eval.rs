@@ -10,12 +10,28 @@ use splat::{Gaussians, RenderSettings};
 use crate::device::Device;
 use crate::error::{Result, TrainError};
 use crate::train::data::View;
+use crate::train::object::{MaskUse, over, psnr_in_mask};
+use std::borrow::Cow;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ViewMetrics {
     pub name: String,
     pub psnr: f64,
     pub ssim: f64,
+    /// PSNR over the pixels the view's object mask keeps (a run scored on the object).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub psnr_in_mask: Option<f64>,
+}
+
+/// How a run on an object's masks was scored: the reference composited over the run's
+/// background outside each mask, and the render as drawn (`object`: what it shows outside
+/// the object counts against it) or composited the same way (`loss`: it learnt nothing
+/// there); beside it, PSNR inside the masks alone.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OnObject {
+    pub masks: MaskUse,
+    pub background: [f32; 3],
+    pub mean_psnr_in_mask: f64,
 }
 
 /// What the held-out renders were compared with.
@@ -46,18 +62,59 @@ pub struct Metrics {
     /// Metrics files written before photos could be the reference compared with clean images.
     #[serde(default)]
     pub against: Against,
+    /// Scored on the object (a capture with object masks); None: on the whole images.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub on_object: Option<OnObject>,
+}
+
+/// What a held-out view is scored on ([`scored`]).
+pub struct Scored<'v> {
+    pub image: Cow<'v, [Vec3]>,
+    pub reference: Cow<'v, [Vec3]>,
+    /// The object's mask, for PSNR inside it; None: scored whole.
+    pub mask: Option<&'v [f32]>,
+}
+
+/// What a held-out view is scored on: the image and reference composited over `background`
+/// outside an object's mask as [`OnObject`] says (unchanged without object masks or a mask).
+pub fn scored<'v>(
+    image: &'v [Vec3],
+    reference: &'v [Vec3],
+    mask: Option<&'v [f32]>,
+    masks: Option<MaskUse>,
+    background: Vec3,
+) -> Scored<'v> {
+    match (masks, mask) {
+        (Some(use_), Some(m)) => Scored {
+            image: match use_ {
+                MaskUse::Object => Cow::Borrowed(image),
+                MaskUse::Loss => Cow::Owned(over(image, m, background)),
+            },
+            reference: Cow::Owned(over(reference, m, background)),
+            mask: Some(m),
+        },
+        _ => Scored {
+            image: Cow::Borrowed(image),
+            reference: Cow::Borrowed(reference),
+            mask: None,
+        },
+    }
 }
 
 /// PSNR and SSIM (the 3DGS SSIM, data range 1) of `image` against `reference`.
 pub fn compare(image: &[Vec3], reference: &[Vec3], width: u32, height: u32) -> Result<(f64, f64)> {
-    let clamped: Vec<Vec3> = image
-        .iter()
-        .map(|p| p.clamp(Vec3::ZERO, Vec3::ONE))
-        .collect();
+    let clamped = clamp01(image);
     Ok((
         base::psnr_rgb(&clamped, reference)?,
         base::ssim_value(&clamped, reference, width, height)?,
     ))
+}
+
+fn clamp01(image: &[Vec3]) -> Vec<Vec3> {
+    image
+        .iter()
+        .map(|p| p.clamp(Vec3::ZERO, Vec3::ONE))
+        .collect()
 }
 
 /// What `views` are compared with: their clean images when every one has them, else their
@@ -72,12 +129,14 @@ pub fn reference(views: &[View]) -> Option<Against> {
     }
 }
 
-/// Metrics of `model` on `views` against their [`reference`]; `None` without views.
+/// Metrics of `model` on `views` against their [`reference`], on the object when `masks`
+/// says the views' masks are an object's; `None` without views.
 pub fn evaluate(
     model: &Gaussians,
     views: &[View],
     settings: &RenderSettings,
     device: &Device,
+    masks: Option<MaskUse>,
 ) -> Result<Option<Metrics>> {
     let Some(against) = reference(views) else {
         return Ok(None);
@@ -96,16 +155,35 @@ pub fn evaluate(
                 })?,
                 Against::Photos => &v.observed,
             };
-            let (p, s) = compare(&image, target, v.camera.width, v.camera.height)?;
+            let Scored {
+                image,
+                reference: target,
+                mask,
+            } = scored(
+                &image,
+                target,
+                v.mask.as_deref(),
+                masks,
+                settings.background,
+            );
+            let (p, s) = compare(&image, &target, v.camera.width, v.camera.height)?;
             Ok(ViewMetrics {
                 name: v.name.clone(),
                 psnr: p,
                 ssim: s,
+                psnr_in_mask: mask.and_then(|m| psnr_in_mask(&clamp01(&image), &target, m)),
             })
         })
         .collect::<Result<Vec<_>>>()?;
     let n = per_view.len() as f64;
+    let in_mask: Vec<f64> = per_view.iter().filter_map(|v| v.psnr_in_mask).collect();
+    let on_object = masks.filter(|_| !in_mask.is_empty()).map(|masks| OnObject {
+        masks,
+        background: settings.background.to_array(),
+        mean_psnr_in_mask: in_mask.iter().sum::<f64>() / in_mask.len() as f64,
+    });
     Ok(Some(Metrics {
+        on_object,
         mean_psnr: per_view.iter().map(|v| v.psnr).sum::<f64>() / n,
         mean_ssim: per_view.iter().map(|v| v.ssim).sum::<f64>() / n,
         views: per_view,

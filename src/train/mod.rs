@@ -10,6 +10,7 @@ pub mod densify;
 pub mod eval;
 pub mod iac;
 pub mod iac_cache;
+pub mod object;
 pub mod objective;
 pub mod psf_refine;
 pub mod sh;
@@ -32,8 +33,10 @@ use config::{Strategy, TrainConfig};
 use data::Dataset;
 use densify::{DensifyStrategy, Edit, Mcmc, Unseen};
 use eval::Metrics;
+use object::ObjectTargets;
 use objective::{LossParts, Objective};
 use psf_refine::PsfRefinement;
+use rayon::prelude::*;
 use sh::{ShEvent, ShSchedule, ShState};
 
 /// One line of `train_log.csv`.
@@ -225,6 +228,8 @@ struct Run<'a> {
     /// The training views the SH-band probes render: up to 8, evenly spread.
     probe: Vec<usize>,
     checkpoint_path: Option<&'a Path>,
+    /// `--mask-mode object`: how the training views become the object's targets.
+    object: Option<ObjectTargets>,
 }
 
 impl<'a> Run<'a> {
@@ -233,7 +238,7 @@ impl<'a> Run<'a> {
         data: &'a Dataset,
         device: &'a Device,
         checkpoint_path: Option<&'a Path>,
-    ) -> Self {
+    ) -> Result<Self> {
         let recipe = &config.recipe;
         let n_views = data.train.len();
         let position_lr = ExponentialLr {
@@ -251,7 +256,8 @@ impl<'a> Run<'a> {
                 position_lr: position_lr.clone(),
             }),
         };
-        Run {
+        Ok(Run {
+            object: object_targets(config, data)?,
             config,
             data,
             device,
@@ -270,6 +276,16 @@ impl<'a> Run<'a> {
                 .map(|k| k * n_views / n_views.min(8))
                 .collect(),
             checkpoint_path,
+        })
+    }
+
+    /// Training view `index` as step training compares a render drawn over `background` with:
+    /// the object's targets in `object` mask mode, the view itself otherwise.
+    fn train_view(&self, index: usize, background: Vec3) -> std::borrow::Cow<'a, data::View> {
+        let view = &self.data.train[index];
+        match &self.object {
+            Some(o) => o.view(index, view, background),
+            None => std::borrow::Cow::Borrowed(view),
         }
     }
 
@@ -312,11 +328,10 @@ impl<'a> Run<'a> {
         move |model, degree| {
             let mut sum = 0.0;
             for &i in &self.probe {
-                let view = &self.data.train[i];
-                let out = self
-                    .device
-                    .render(model, &view.camera, &self.settings(degree))?;
-                sum += objective.value(&out.color, view)? as f64;
+                let settings = self.settings(degree);
+                let view = self.train_view(i, settings.background);
+                let out = self.device.render(model, &view.camera, &settings)?;
+                sum += objective.value(&out.color, &view)? as f64;
             }
             Ok(sum / self.probe.len() as f64)
         }
@@ -327,7 +342,12 @@ impl<'a> Run<'a> {
     /// reaches the model or a checkpoint.
     fn step<T: SplatTrainer>(&self, t: &mut T, p: &mut Progress) -> Result<LossParts> {
         let n_views = self.data.train.len();
-        let view = &self.data.train[view_index(self.config.seed, p.step, n_views)];
+        let settings = self.step_settings(t.sh_degree(), p.step);
+        let view = self.train_view(
+            view_index(self.config.seed, p.step, n_views),
+            settings.background,
+        );
+        let view = view.as_ref();
         let at = |what: &str, cause: &str| {
             TrainError::Invalid(format!(
                 "step {}: {what} is not finite (view {}); {cause}. This step reached neither the model nor a checkpoint",
@@ -335,7 +355,7 @@ impl<'a> Run<'a> {
                 view.name
             ))
         };
-        let (out, saved) = t.render(&view.camera, &self.step_settings(t.sh_degree(), p.step))?;
+        let (out, saved) = t.render(&view.camera, &settings)?;
         let refine_now = self
             .config
             .refine_psf
@@ -456,7 +476,8 @@ impl<'a> Run<'a> {
         if last || (config.eval_every > 0 && step % config.eval_every == 0) {
             let (model, _) = t.host()?;
             let settings = self.settings(model.sh_degree);
-            let metrics = eval::evaluate(model, &self.data.test, &settings, self.device)?;
+            let metrics =
+                eval::evaluate(model, &self.data.test, &settings, self.device, config.masks)?;
             if let Some(m) = &metrics {
                 on_event(Event::Evaluated { step, metrics: m });
             }
@@ -571,6 +592,47 @@ impl<'a> Run<'a> {
     }
 }
 
+/// The object targets of an `object` run: `PSF ⊛ (1 − mask)` per training view where the targets
+/// need it ([`ObjectTargets::needs_spread`]); None for any other run.
+fn object_targets(config: &TrainConfig, data: &Dataset) -> Result<Option<ObjectTargets>> {
+    if config.masks != Some(object::MaskUse::Object) {
+        return Ok(None);
+    }
+    let through_lens = config.mode == crate::settings::Mode::Aware;
+    let composited_over = data.composited_over.map(Vec3::from_array);
+    let fixed = (!config.random_background).then(|| Vec3::from_array(config.background));
+    let (spread, blur_of_one) = match (
+        ObjectTargets::needs_spread(through_lens, composited_over, fixed),
+        data.imaging.as_ref(),
+    ) {
+        (true, Some(imaging)) => {
+            let spread = data
+                .train
+                .par_iter()
+                .map(|v| {
+                    v.mask
+                        .as_deref()
+                        .map(|m| {
+                            let outside: Vec<Vec3> =
+                                m.iter().map(|&k| Vec3::splat(1.0 - k)).collect();
+                            imaging.blur_pixels(&outside)
+                        })
+                        .transpose()
+                })
+                .collect::<std::result::Result<Vec<_>, _>>()?;
+            let n = (data.width * data.height) as usize;
+            (spread, imaging.blur_pixels(&vec![Vec3::ONE; n])?)
+        }
+        _ => (Vec::new(), Vec::new()),
+    };
+    Ok(Some(ObjectTargets {
+        through_lens,
+        composited_over,
+        spread,
+        blur_of_one,
+    }))
+}
+
 /// Trains on `data`. With `checkpoint_path`, saves there every `checkpoint_every` steps;
 /// with `resume` too, continues from the checkpoint if one exists (same config required).
 /// The loop is the same wherever it trains: `device` only picks the [`SplatTrainer`].
@@ -582,7 +644,7 @@ pub fn train(
     resume: bool,
     on_event: &mut dyn FnMut(Event),
 ) -> Result<Outcome> {
-    let run = Run::new(config, data, device, checkpoint_path);
+    let run = Run::new(config, data, device, checkpoint_path)?;
     let (start, resumed_from) = match checkpoint_path {
         Some(p) if resume && p.exists() => {
             let mut s = checkpoint::load(p)?;
