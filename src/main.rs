@@ -1,6 +1,43 @@
 //! metasplat: clean Gaussian-splat scenes from metalens-aberrated photos.
 
+// What the commands print goes through these, which shadow the standard macros in every
+// module below: output that cannot be written (a pipe whose reader has gone, `| head`; a full
+// device) is dropped instead of panicking, so the work and its files still complete.
+macro_rules! println {
+    () => {
+        $crate::write_out(format_args!("\n"))
+    };
+    ($($arg:tt)*) => {
+        $crate::write_out(format_args!("{}\n", format_args!($($arg)*)))
+    };
+}
+macro_rules! print {
+    ($($arg:tt)*) => {
+        $crate::write_out(format_args!($($arg)*))
+    };
+}
+macro_rules! eprintln {
+    () => {
+        $crate::write_err(format_args!("\n"))
+    };
+    ($($arg:tt)*) => {
+        $crate::write_err(format_args!("{}\n", format_args!($($arg)*)))
+    };
+}
+
 mod cli;
+
+/// Writes to standard output, dropping what cannot be written (see the macros above).
+fn write_out(args: std::fmt::Arguments) {
+    use std::io::Write;
+    let _ = std::io::stdout().lock().write_fmt(args);
+}
+
+/// Writes to standard error, dropping what cannot be written.
+fn write_err(args: std::fmt::Arguments) {
+    use std::io::Write;
+    let _ = std::io::stderr().lock().write_fmt(args);
+}
 
 // The restorer's tensors are large and short-lived: glibc returns each to the kernel (mmap /
 // munmap), and the page faults of zeroing them again dominate inference; mimalloc reuses the
@@ -25,12 +62,12 @@ fn keep_freed_memory() {
 /// The exit status after an interruption, as shells report a process ended by SIGINT.
 const INTERRUPTED: u8 = 130;
 
-/// Ctrl-C and SIGTERM ask long work to stop at its next safe point
-/// ([`base::interrupt`]); a second one ends the process at once.
+/// Ctrl-C, SIGTERM and SIGHUP (the terminal closed) ask long work to stop at its next safe
+/// point ([`base::interrupt`]); a second one ends the process at once.
 fn handle_signals() {
-    use signal_hook::consts::{SIGINT, SIGTERM};
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
     let flag = base::interrupt::flag();
-    for signal in [SIGINT, SIGTERM] {
+    for signal in [SIGINT, SIGTERM, SIGHUP] {
         // Registered first, so it sees the flag as the earlier signal left it.
         let _ = signal_hook::flag::register_conditional_shutdown(
             signal,

@@ -46,7 +46,7 @@ pub fn snapshot_file(step: u64) -> String {
 }
 
 /// Whether `name` is a file [`snapshot_file`] names.
-fn is_snapshot(name: &str) -> bool {
+pub fn is_snapshot(name: &str) -> bool {
     name.strip_prefix("point_cloud_")
         .and_then(|r| r.strip_suffix(".ply"))
         .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))

@@ -30,6 +30,7 @@ pub struct PreparedRun {
 
 /// Checks and loads everything a run needs, before any training time is spent.
 pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
+    let request = &restartable(request);
     let (data, config, device, device_note) = checked(request)?;
     let out = &request.out;
     let lock = outputs::prepare_run_dir(out, "train")
@@ -53,7 +54,37 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
 /// outputs before this run starts (an experiment's aberrated copy) and must not make them
 /// for a run that would be refused.
 pub fn check(request: &RunRequest) -> Result<()> {
-    checked(request).map(|_| ())
+    checked(&restartable(request)).map(|_| ())
+}
+
+/// `request`, made to start again when its run folder holds a run that stopped before its
+/// first checkpoint (killed, or its terminal closed): such a folder has nothing to continue
+/// and nothing worth keeping (its `config.json`, and the log of its first evaluations), so
+/// neither the same command nor `--resume` is refused for it.
+fn restartable(request: &RunRequest) -> RunRequest {
+    let out = &request.out;
+    let kept: Vec<&str> = outputs::RUN_FILES
+        .iter()
+        .copied()
+        .filter(|f| out.join(f.trim_end_matches('/')).exists())
+        .collect();
+    // Splats kept by --save-at are the user's: such a folder is not started again.
+    let snapshots = std::fs::read_dir(out)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .any(|e| e.file_name().to_str().is_some_and(outputs::is_snapshot));
+    let stopped_early = kept.contains(&outputs::CONFIG_FILE)
+        && !snapshots
+        && kept
+            .iter()
+            .all(|f| [outputs::CONFIG_FILE, outputs::LOG_FILE].contains(f));
+    let mut request = request.clone();
+    if stopped_early && !request.overwrite {
+        request.resume = false;
+        request.overwrite = true;
+    }
+    request
 }
 
 /// The inputs read and checked, the config built; no folder made.

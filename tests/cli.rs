@@ -1728,7 +1728,10 @@ fn a_transforms_json_capture_trains_and_aberrates() {
         "--device",
         "cpu",
     ]);
-    assert!(text.contains("masks: 4 of 4 training views"), "{text}");
+    assert!(
+        text.contains("Masks (masks/") && text.contains("4 of 4 training views are composited"),
+        "{text}"
+    );
     assert!(run.join("point_cloud.ply").is_file() && run.join("spiral").is_dir());
     let psf = d.join("psf.npy");
     small_psf(&psf);

@@ -175,7 +175,7 @@ fn a_killed_run_leaves_complete_files_and_resumes_to_the_same_result() {
 
     let run = d.join("run");
     let mut kills = 0;
-    // 1. Killed at once: at most config.json; nothing to resume, so the folder is replaced.
+    // 1. Killed at once: at most config.json; nothing to resume, so --resume starts again.
     if run_and_kill(
         &train_args(&scene, &run, &[]),
         &run,
@@ -190,7 +190,7 @@ fn a_killed_run_leaves_complete_files_and_resumes_to_the_same_result() {
     let fresh = if checkpoint_step(&run).is_some() {
         vec!["--resume"]
     } else if run.join("config.json").exists() {
-        vec!["--overwrite"]
+        vec!["--resume"]
     } else {
         vec![]
     };
