@@ -124,12 +124,19 @@ impl CaptureComparison {
         if let Some(c) = &view.clean {
             images.push((CLEAN, c));
         }
+        // On a capture with an object's masks, what matters is the object: each panel is
+        // scored inside the view's mask, as a run's held-out views are beside their composite.
+        let object = view
+            .mask
+            .as_deref()
+            .filter(|_| self.model.capture.has_own_masks() && !self.model.masks_from_undistortion);
         images
             .into_iter()
             .map(|(name, pixels)| {
-                let psnr_vs_clean = match (&view.clean, name) {
-                    (Some(_), CLEAN) | (None, _) => None,
-                    (Some(c), _) => Some(base::psnr_rgb(pixels, c)?),
+                let psnr_vs_clean = match (&view.clean, name, object) {
+                    (Some(_), CLEAN, _) | (None, ..) => None,
+                    (Some(c), _, Some(m)) => crate::train::object::psnr_in_mask(pixels, c, m),
+                    (Some(c), _, None) => Some(base::psnr_rgb(pixels, c)?),
                 };
                 Ok(Panel {
                     name: name.to_string(),
@@ -137,6 +144,7 @@ impl CaptureComparison {
                     height: h,
                     pixels: pixels.to_vec(),
                     psnr_vs_clean,
+                    on_object: object.is_some(),
                 })
             })
             .collect()

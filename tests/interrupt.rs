@@ -187,9 +187,8 @@ fn a_killed_run_leaves_complete_files_and_resumes_to_the_same_result() {
             assert_only_complete_files(&run, "killed at start");
         }
     }
-    let fresh = if checkpoint_step(&run).is_some() {
-        vec!["--resume"]
-    } else if run.join("config.json").exists() {
+    // With a checkpoint --resume continues; with config.json alone it starts again.
+    let fresh = if checkpoint_step(&run).is_some() || run.join("config.json").exists() {
         vec!["--resume"]
     } else {
         vec![]

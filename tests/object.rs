@@ -504,3 +504,80 @@ fn an_experiment_on_a_masked_capture_scores_every_row_on_the_object() {
         assert_eq!(config["masks"], "object", "{run}");
     }
 }
+
+/// The viewer's comparison of a capture with object masks scores every panel on the object
+/// (inside the view's mask) and says so; a capture without masks is scored whole.
+#[test]
+fn the_viewers_comparison_scores_an_object_capture_on_the_object() {
+    let dir = tempfile::tempdir().unwrap();
+    let (masked, _) = turntable(&dir.path().join("masked"), true);
+    let psf = dir.path().join("psf.npy");
+    let (grid, _) =
+        aberration::optics::simulate_grid(&aberration::optics::SimConfig::small(9), &|_, _| {})
+            .unwrap();
+    grid.save_npy(&psf).unwrap();
+    let capture = scenes::open(
+        &masked,
+        &scenes::OpenOptions {
+            resolution: scenes::Resolution::Downsample(1),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let copy = dir.path().join("copy");
+    scenes::make_aberrated(
+        &capture,
+        &psf,
+        &copy,
+        &scenes::AberrateOptions::default(),
+        &|| {},
+    )
+    .unwrap();
+    let mut comparison = metasplat::view::CaptureComparison::open(&copy, &options()).unwrap();
+    let data = data::load(&copy, Mode::Plain, &options()).unwrap();
+    let i = data.capture.split.train[0];
+    let view = &data.train[0];
+    let mask = view.mask.as_deref().unwrap();
+    let clean = view.clean.as_deref().unwrap();
+    let render: Vec<Vec3> = view.observed.iter().map(|p| *p * 0.9).collect();
+    let panels = comparison.panels_for(i, &render).unwrap();
+    for p in panels.iter().filter(|p| p.psnr_vs_clean.is_some()) {
+        assert!(p.on_object, "{}", p.name);
+        let want = metasplat::train::object::psnr_in_mask(&p.pixels, clean, mask);
+        assert_eq!(p.psnr_vs_clean, want, "{}", p.name);
+    }
+    assert!(panels.iter().any(|p| p.psnr_vs_clean.is_some()));
+}
+
+/// Masks that leave out every pixel of every training view are refused before any work,
+/// naming where the masks come from, instead of training to a loss of 0 and a perfect score.
+#[test]
+fn masks_that_keep_nothing_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let (masked, _) = turntable(&dir.path().join("masked"), true);
+    for e in std::fs::read_dir(masked.join("masks")).unwrap() {
+        let p = e.unwrap().path();
+        let black = scenes::Photo {
+            width: SIDE,
+            height: SIDE,
+            data: vec![0.0; (SIDE * SIDE * 3) as usize],
+        };
+        scenes::images::write_png(&p, &black, scenes::BitDepth::Eight).unwrap();
+    }
+    let run = dir.path().join("run");
+    let mut request = metasplat::settings::RunRequest::new(&masked, &run);
+    request.data.downsample = 1;
+    request.training.mode = Mode::Plain;
+    let e = metasplat::run::prepare(&request).err().unwrap();
+    let mut err = e.to_string();
+    let mut cause = std::error::Error::source(&e);
+    while let Some(c) = cause {
+        err += &format!(": {c}");
+        cause = c.source();
+    }
+    assert!(
+        err.contains("leaves out every pixel") && err.contains("masks/"),
+        "{err}"
+    );
+    assert!(!run.exists(), "a refused run made its folder");
+}

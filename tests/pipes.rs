@@ -8,9 +8,12 @@ use std::process::{Output, Stdio};
 
 use common::cli::{metasplat, procedural, s};
 
+/// Makes what standard output goes to.
+type Sink = fn() -> Stdio;
+
 /// Runs the binary with standard output and error going to `stdout` (a closed pipe or a full
 /// device).
-fn run_into(args: &[&str], out: impl Fn() -> Stdio) -> Output {
+fn run_into(args: &[&str], out: Sink) -> Output {
     metasplat()
         .args(args)
         .stdout(out())
@@ -54,16 +57,12 @@ fn commands_finish_their_work_when_their_output_cannot_be_written() {
     if full.is_none() {
         eprintln!("SKIP part: /dev/full is not on this system; the closed pipe is tested alone");
     }
-    let sinks: Vec<(&str, Box<dyn Fn() -> Stdio>)> = {
-        let mut v: Vec<(&str, Box<dyn Fn() -> Stdio>)> =
-            vec![("a closed pipe", Box::new(closed_pipe))];
-        if full.is_some() {
-            v.push(("a full device", Box::new(|| full_device().unwrap())));
-        }
-        v
-    };
+    let mut sinks: Vec<(&str, Sink)> = vec![("a closed pipe", closed_pipe)];
+    if full.is_some() {
+        sinks.push(("a full device", || full_device().unwrap()));
+    }
     for (sink, out) in &sinks {
-        let o = run_into(&["scene", "info", s(&scene)], out);
+        let o = run_into(&["scene", "info", s(&scene)], *out);
         check(&format!("scene info into {sink}"), &o);
         let run = d.join(format!("run {sink}"));
         let o = run_into(
@@ -84,7 +83,7 @@ fn commands_finish_their_work_when_their_output_cannot_be_written() {
                 "--device",
                 "cpu",
             ],
-            out,
+            *out,
         );
         check(&format!("train into {sink}"), &o);
         for f in ["point_cloud.ply", "metrics.json", "config.json"] {
@@ -103,7 +102,7 @@ fn commands_finish_their_work_when_their_output_cannot_be_written() {
                 "--out",
                 s(&frames),
             ],
-            out,
+            *out,
         );
         check(&format!("render into {sink}"), &o);
         assert!(

@@ -203,6 +203,22 @@ pub fn load_cached(dir: &Path, mode: Mode, options: &DataOptions) -> Result<Data
         .par_iter()
         .map(|&i| make_view(i, restores))
         .collect::<Result<Vec<_>>>()?;
+    // Masks that keep nothing leave nothing to learn: the loss would be 0 and every score
+    // perfect. Refused before any work, naming where the masks come from.
+    let keeps = |v: &View| {
+        v.mask
+            .as_deref()
+            .is_none_or(|m| m.iter().sum::<f32>() >= 1.0)
+    };
+    if !train.is_empty() && !train.iter().any(keeps) {
+        return Err(TrainError::file(
+            &model.capture.root,
+            format!(
+                "every training view's mask leaves out every pixel (masks from {}): nothing would be learnt; white keeps a pixel, black leaves it out",
+                model.capture.mask_source()
+            ),
+        ));
+    }
     let pending = if restores {
         (0..train.len())
             .filter(|&k| train[k].restored.is_none())

@@ -52,6 +52,9 @@ pub struct Panel {
     pub pixels: Vec<Vec3>,
     /// PSNR against the capture's clean image, when it has one.
     pub psnr_vs_clean: Option<f64>,
+    /// The PSNR is inside the view's object mask (a capture with object masks), not over the
+    /// whole image.
+    pub on_object: bool,
 }
 
 /// What a capture shows beside a render, from one of its cameras.

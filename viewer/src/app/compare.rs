@@ -195,6 +195,7 @@ impl Compare {
 /// A panel's name, with its PSNR against the clean photo after `gap` when it has one.
 fn caption(p: &Panel, gap: &str) -> String {
     match p.psnr_vs_clean {
+        Some(db) if p.on_object => format!("{}{gap}{db:.2} dB on the object", p.name),
         Some(db) => format!("{}{gap}{db:.2} dB", p.name),
         None => p.name.clone(),
     }
