@@ -1990,6 +1990,43 @@ fn render_writes_a_video_with_or_without_ffmpeg() {
         text.contains("3 frames 48x32") && text.contains("at 10 frames per second"),
         "{text}"
     );
+    // A stand-in that exits 0 and writes nothing: refused, and no empty video is left.
+    std::fs::write(&fake, "#!/bin/sh\nexit 0\n").unwrap();
+    let empty = d.join("empty.mp4");
+    let out = common::cli::metasplat()
+        .env("PATH", &bin)
+        .args([
+            "render",
+            "--in",
+            s(&ply),
+            "--path",
+            s(&path),
+            "--video",
+            s(&empty),
+            "--device",
+            "cpu",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("wrote nothing"),
+        "{err}"
+    );
+    assert!(!empty.exists(), "an empty video was left");
+    // A frame rate without a video is refused, naming the flag.
+    let err = fails(&[
+        "render",
+        "--in",
+        s(&ply),
+        "--path",
+        s(&path),
+        "--out",
+        s(&d.join("frames")),
+        "--fps",
+        "12",
+    ]);
+    assert!(err.contains("--fps 12") && err.contains("--video"), "{err}");
 }
 
 /// `train` without `--downsample` trains at the folder the capture has: `images/` for a

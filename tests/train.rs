@@ -285,6 +285,41 @@ fn resuming_from_a_checkpoint_gives_the_same_splats() {
         .expect("must refuse")
         .to_string();
     assert!(err.contains("at100.bin"), "{err}");
+    // Checkpoints edited and saved again, so their checksum holds, that lie: a value that is
+    // not finite, a scale that overflows, a step past the run's end. Each is refused at
+    // load, naming the file and the problem.
+    type Edit = fn(&mut metasplat::train::checkpoint::State);
+    let edits: [(&str, Edit, &str); 3] = [
+        (
+            "a NaN rotation",
+            |s| s.model.rotations[0][1] = f32::NAN,
+            "not finite",
+        ),
+        (
+            "a huge scale",
+            |s| s.model.log_scales[0].x = 85.0,
+            "overflows",
+        ),
+        (
+            "a step past the end",
+            |s| s.progress.step = 10_000,
+            "past the run's",
+        ),
+    ];
+    for (what, edit, says) in edits {
+        let mut s = metasplat::train::checkpoint::load(&tmp.path().join("v2.bin")).unwrap();
+        edit(&mut s);
+        metasplat::train::checkpoint::save(&kept, &s.config, &s.progress, &s.model, &s.adam)
+            .unwrap();
+        let err = train::train(&cfg, &data, &Device::Cpu, Some(&kept), true, &mut |_| {})
+            .err()
+            .unwrap_or_else(|| panic!("{what}: resumed"))
+            .to_string();
+        assert!(
+            err.contains("at100.bin") && err.contains(says),
+            "{what}: {err}"
+        );
+    }
 }
 
 #[test]
@@ -733,6 +768,12 @@ fn a_refused_resume_names_each_changed_setting_by_its_path() {
     let mut other = then.clone();
     other.capture = Some("another capture".into());
     assert_eq!(train::config_differences(&other, &then).len(), 1);
+    // When the splats are kept, checkpointed and evaluated changes none of them.
+    let mut cadence = then.clone();
+    cadence.save_at = vec![5];
+    cadence.checkpoint_every = 3;
+    cadence.eval_every = 2;
+    assert!(train::config_differences(&cadence, &then).is_empty());
 }
 
 /// The log file grows with the run: after each evaluation `train_log.csv` already holds a

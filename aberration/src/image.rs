@@ -85,8 +85,9 @@ impl Image {
             return Err(bad("file not found".into()));
         }
         let reader = || {
-            image::ImageReader::open(path)
-                .map_err(|e| bad(e.to_string()))?
+            // A regular file alone: a FIFO or a device is refused before it is opened.
+            let file = base::input::open(path).map_err(|e| bad(e.to_string()))?;
+            image::ImageReader::new(std::io::BufReader::new(file))
                 .with_guessed_format()
                 .map_err(|e| bad(e.to_string()))
         };

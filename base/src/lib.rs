@@ -7,6 +7,7 @@ pub mod alloc_watch;
 pub mod atomic;
 pub mod error;
 pub mod hash;
+pub mod input;
 pub mod interrupt;
 pub mod isa;
 pub mod limits;

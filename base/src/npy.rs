@@ -61,7 +61,7 @@ fn data_offset(path: &Path, file_len: u64) -> Result<u64, NpyError> {
         problem: problem.to_string(),
     };
     let mut prefix = [0u8; 12];
-    let mut f = std::fs::File::open(path).map_err(|source| NpyError::Io {
+    let mut f = crate::input::open(path).map_err(|source| NpyError::Io {
         path: path.to_path_buf(),
         source,
     })?;
@@ -108,7 +108,7 @@ fn read<T>(
         path: path.to_path_buf(),
         source,
     };
-    let file = std::fs::File::open(path).map_err(io)?;
+    let file = crate::input::open(path).map_err(io)?;
     let file_len = file.metadata().map_err(io)?.len();
     let offset = data_offset(path, file_len)?;
     let npy = npyz::NpyFile::new(BufReader::new(file)).map_err(|e| NpyError::Header {

@@ -95,7 +95,7 @@ impl Restorer {
 
     /// [`Restorer::load`] on a given device (see [`crate::Compute`]).
     pub fn load_on(path: &Path, native: &PsfGrid, device: Device) -> Result<Self> {
-        let bytes = std::fs::read(path).map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
+        let bytes = base::input::read(path).map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
         Self::from_bytes_on(&bytes, path, native, device)
     }
 
@@ -117,7 +117,7 @@ impl Restorer {
     /// Weights from a file whatever grid they were trained for (`restorer eval --any-grid`:
     /// to measure them on a lens they do not cover); a damaged file is still refused.
     pub fn load_any_grid_on(path: &Path, device: Device) -> Result<Self> {
-        let bytes = std::fs::read(path).map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
+        let bytes = base::input::read(path).map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
         Self::from_bytes_checked_on(&bytes, path, None, device)
     }
 

@@ -66,7 +66,7 @@ pub fn save(state: &TrainState, optim: OptimizerRecord, path: &Path) -> Result<(
 /// were written at the same checkpoint.
 pub fn load(weights: &Path) -> Result<(TrainState, OptimizerRecord)> {
     let path = state_path(weights);
-    let bytes = std::fs::read(&path).map_err(|e| {
+    let bytes = base::input::read(&path).map_err(|e| {
         RestoreError::Io(
             path.clone(),
             std::io::Error::new(
@@ -96,7 +96,7 @@ pub fn load(weights: &Path) -> Result<(TrainState, OptimizerRecord)> {
         ));
     }
     let weights_bytes =
-        std::fs::read(weights).map_err(|e| RestoreError::Io(weights.to_path_buf(), e))?;
+        base::input::read(weights).map_err(|e| RestoreError::Io(weights.to_path_buf(), e))?;
     if !base::hash::names(&state.weights_hash, &weights_bytes) {
         let hash = crate::weights::fingerprint(&weights_bytes);
         return Err(bad(

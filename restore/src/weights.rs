@@ -188,7 +188,7 @@ pub fn save(net: &RestorerNet, header: &Header, path: &Path) -> Result<String> {
 
 /// Reads a weights file: its header and the record bytes.
 pub fn read(path: &Path) -> Result<(Header, Vec<u8>)> {
-    let bytes = std::fs::read(path).map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
+    let bytes = base::input::read(path).map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
     parse(&bytes, path)
 }
 

@@ -123,7 +123,7 @@ impl AberrationRecord {
             return Ok(None);
         }
         SceneError::check_file_size(&path, base::limits::MAX_TEXT_FILE_BYTES)?;
-        let text = std::fs::read_to_string(&path).map_err(|e| SceneError::io(&path, e))?;
+        let text = base::input::read_to_string(&path).map_err(|e| SceneError::io(&path, e))?;
         let value: serde_json::Value = serde_json::from_str(&text)
             .map_err(|e| SceneError::invalid(&path, format!("not a valid record: {e}")))?;
         // serde reads a number beyond f32 as infinity; say what was written instead.
@@ -151,7 +151,7 @@ impl AberrationRecord {
         let path = capture_dir.join(&self.psf);
         if let Some(want) = &self.psf_checksum {
             SceneError::check_file_size(&path, base::limits::MAX_NPY_BYTES)?;
-            let bytes = std::fs::read(&path).map_err(|e| SceneError::io(&path, e))?;
+            let bytes = base::input::read(&path).map_err(|e| SceneError::io(&path, e))?;
             if !base::hash::names(want, &bytes) {
                 let got = psf_checksum(&bytes);
                 return Err(SceneError::invalid(

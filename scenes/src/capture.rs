@@ -164,10 +164,13 @@ impl Capture {
         // A photo made at load is read from the cache when it holds it; the file's bytes are
         // read for the key (a photo edited since is another entry), not decoded.
         let cached = match &self.photo_cache {
-            Some(dir) if self.shrink > 1 || remap.is_some() => std::fs::read(path).ok().map(|b| {
-                let key = crate::photo_cache::key(&b, self.shrink, remap.map(|r| r.fingerprint));
-                (dir, key)
-            }),
+            Some(dir) if self.shrink > 1 || remap.is_some() => {
+                base::input::read(path).ok().map(|b| {
+                    let key =
+                        crate::photo_cache::key(&b, self.shrink, remap.map(|r| r.fingerprint));
+                    (dir, key)
+                })
+            }
             _ => None,
         };
         if let Some((dir, key)) = &cached

@@ -97,13 +97,39 @@ pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(paths)
 }
 
+/// A reader of the image file `path`: a regular file alone ([`base::input`]), its format
+/// read from its first bytes (PNG data in a file named `.jpg` is a PNG), else from its name.
+fn reader(path: &Path) -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
+    let file = base::input::open(path).map_err(|e| SceneError::io(path, e))?;
+    let mut r = image::ImageReader::new(std::io::BufReader::new(file))
+        .with_guessed_format()
+        .map_err(|e| SceneError::io(path, e))?;
+    if r.format().is_none()
+        && let Ok(f) = image::ImageFormat::from_path(path)
+    {
+        r.set_format(f);
+    }
+    Ok(r)
+}
+
+/// The decoded image at `path`, after its header's size is checked ([`image_size`]).
+fn decode(path: &Path) -> Result<image::DynamicImage> {
+    image_size(path)?;
+    reader(path)?.decode().map_err(|source| SceneError::Image {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
 /// Reads only the headers, so checking a folder costs no decoding; a header claiming more
 /// than [`base::limits::MAX_IMAGE_PIXELS`] is refused.
 pub fn image_size(path: &Path) -> Result<(u32, u32)> {
-    let (w, h) = image::image_dimensions(path).map_err(|source| SceneError::Image {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let (w, h) = reader(path)?
+        .into_dimensions()
+        .map_err(|source| SceneError::Image {
+            path: path.to_path_buf(),
+            source,
+        })?;
     base::limits::check_image_pixels(w, h).map_err(|p| SceneError::invalid(path, p))?;
     Ok((w, h))
 }
@@ -129,11 +155,7 @@ pub fn common_size(paths: &[PathBuf]) -> Result<(u32, u32)> {
 }
 
 pub fn load_rgb(path: &Path) -> Result<Photo> {
-    image_size(path)?;
-    let decoded = image::open(path).map_err(|source| SceneError::Image {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let decoded = decode(path)?;
     let rgb = decoded.to_rgb32f();
     Ok(Photo {
         width: rgb.width(),
@@ -145,11 +167,7 @@ pub fn load_rgb(path: &Path) -> Result<Photo> {
 /// A grey image (a mask) as a [`Photo`] with three equal channels (a colour image's
 /// luminance).
 pub fn load_grey(path: &Path) -> Result<Photo> {
-    image_size(path)?;
-    let decoded = image::open(path).map_err(|source| SceneError::Image {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let decoded = decode(path)?;
     let grey = decoded.to_luma32f();
     Ok(Photo {
         width: grey.width(),
@@ -161,11 +179,7 @@ pub fn load_grey(path: &Path) -> Result<Photo> {
 /// The alpha channel of a photo as a [`Photo`] of three equal channels, None when the photo
 /// has no alpha.
 pub fn load_alpha(path: &Path) -> Result<Option<Photo>> {
-    image_size(path)?;
-    let decoded = image::open(path).map_err(|source| SceneError::Image {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let decoded = decode(path)?;
     if !decoded.color().has_alpha() {
         return Ok(None);
     }

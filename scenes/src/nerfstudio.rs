@@ -121,7 +121,7 @@ fn mask_path(root: &Path, file: &str, downsample: u32) -> std::result::Result<Pa
 pub fn read_transforms(root: &Path, downsample: u32) -> Result<Transforms> {
     let path = root.join(TRANSFORMS);
     SceneError::check_file_size(&path, base::limits::MAX_TEXT_FILE_BYTES)?;
-    let text = std::fs::read_to_string(&path).map_err(|e| SceneError::io(&path, e))?;
+    let text = base::input::read_to_string(&path).map_err(|e| SceneError::io(&path, e))?;
     let doc: Value = serde_json::from_str(&text)
         .map_err(|e| SceneError::invalid(&path, format!("not JSON: {e}")))?;
     let Some(frames) = doc["frames"].as_array().filter(|f| !f.is_empty()) else {
@@ -297,7 +297,7 @@ pub struct CameraPath {
 /// Reads a `camera_path.json`; errors name the file, the keyframe and the problem.
 pub fn read_camera_path(path: &Path) -> Result<CameraPath> {
     SceneError::check_file_size(path, base::limits::MAX_TEXT_FILE_BYTES)?;
-    let text = std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
+    let text = base::input::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
     let doc: Value = serde_json::from_str(&text)
         .map_err(|e| SceneError::invalid(path, format!("not JSON: {e}")))?;
     let bad = |problem: String| SceneError::invalid(path, problem);

@@ -56,7 +56,7 @@ fn sum(key: u64, body: &[u8]) -> String {
 
 /// The cached photo for `key`, when there is a whole one of `width` × `height`.
 pub fn get(dir: &Path, key: u64, width: u32, height: u32) -> Option<Photo> {
-    let bytes = std::fs::read(path(dir, key)).ok()?;
+    let bytes = base::input::read(&path(dir, key)).ok()?;
     let tensors = safetensors::SafeTensors::deserialize(&bytes).ok()?;
     let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).ok()?;
     let meta = meta.metadata().clone()?;

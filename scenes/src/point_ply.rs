@@ -47,7 +47,7 @@ fn number(p: &Property) -> Option<f64> {
 /// Reads the cloud at `path`; errors name the file and, for a bad point, its index.
 pub fn read_points_ply(path: &Path) -> Result<PointCloud> {
     SceneError::check_file_size(path, base::limits::MAX_MODEL_FILE_BYTES)?;
-    let bytes = std::fs::read(path).map_err(|e| SceneError::io(path, e))?;
+    let bytes = base::input::read(path).map_err(|e| SceneError::io(path, e))?;
     let bad = |problem: String| SceneError::invalid(path, problem);
     // No panic of the parser is known; one on a hostile file must still be an error.
     catch_unwind(AssertUnwindSafe(|| parse(&bytes, &bad)))

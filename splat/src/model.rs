@@ -228,6 +228,30 @@ impl Gaussians {
         Ok(g)
     }
 
+    /// Checks the values a file gave, as the PLY reader does vertex by vertex: every value
+    /// finite, and no log scale past [`MAX_LOG_SCALE`] (its scale would overflow). The
+    /// problem in words, naming the first splat.
+    pub fn check_values(&self) -> Result<(), String> {
+        if let Some(i) = (0..self.len()).find(|&i| {
+            !(self.means[i].is_finite()
+                && self.log_scales[i].is_finite()
+                && self.rotations[i].iter().all(|r| r.is_finite())
+                && self.logit_opacities[i].is_finite()
+                && self.sh_dc[i].is_finite()
+                && self.sh_rest_of(i).iter().all(|r| r.is_finite()))
+        }) {
+            return Err(format!("splat {i} has a value that is not finite"));
+        }
+        if let Some(i) = (0..self.len()).find(|&i| self.log_scales[i].max_element() > MAX_LOG_SCALE)
+        {
+            return Err(format!(
+                "splat {i} has log scale {}: its scale overflows (at most {MAX_LOG_SCALE})",
+                self.log_scales[i].max_element()
+            ));
+        }
+        Ok(())
+    }
+
     /// Checks that all arrays agree in length (fields are public, so this can be violated).
     pub fn validate(&self) -> Result<(), SplatError> {
         let n = self.len();
@@ -256,6 +280,10 @@ impl Gaussians {
         Ok(())
     }
 }
+
+/// Largest log scale read from a file: e^80 is far beyond any scene and still finite in f32
+/// (e^89 is not).
+pub const MAX_LOG_SCALE: f32 = 80.0;
 
 /// Logistic function, written so neither branch overflows for large |x|.
 #[inline]

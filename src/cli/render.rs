@@ -99,6 +99,9 @@ pub fn run(a: RenderArgs) -> Result<()> {
         .map(super::video::format_for)
         .transpose()?;
     inputs.refuse(flag, &target)?;
+    if let (Some(fps), None) = (a.fps, &video) {
+        bail!("--fps {fps}: only --video uses a frame rate; a folder of frames has none");
+    }
     if video.is_some() && target.is_dir() {
         bail!("--video {}: is a folder, not a file", target.display());
     }

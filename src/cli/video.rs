@@ -108,6 +108,15 @@ pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) ->
                     out.display()
                 );
             }
+            // A tool that says it succeeded but wrote nothing does not make a video.
+            let written = temp.as_file().metadata().map_or(0, |m| m.len());
+            if written == 0 {
+                bail!(
+                    "{} exited successfully but wrote nothing for {}; the frames were not kept",
+                    ffmpeg.display(),
+                    out.display()
+                );
+            }
             temp.persist(out)
                 .with_context(|| format!("cannot write {}", out.display()))?;
         }

@@ -358,7 +358,7 @@ impl Reader<'_> {
 /// without decoding the model: enough to refuse a resume with other settings before anything
 /// is written.
 pub fn load_config(path: &Path) -> Result<TrainConfig> {
-    let file = std::fs::read(path).map_err(|e| TrainError::io(path, e))?;
+    let file = base::input::read(path).map_err(|e| TrainError::io(path, e))?;
     if is_legacy(&file) {
         let (h, _) = header(path, &file)?;
         return Ok(h.config);
@@ -593,7 +593,7 @@ fn load_legacy(path: &Path, file: &[u8]) -> Result<(Header, Parts)> {
 }
 
 pub fn load(path: &Path) -> Result<State> {
-    let file = std::fs::read(path).map_err(|e| TrainError::io(path, e))?;
+    let file = base::input::read(path).map_err(|e| TrainError::io(path, e))?;
     let (h, parts) = if is_legacy(&file) {
         load_legacy(path, &file)?
     } else {
@@ -609,8 +609,26 @@ pub fn load(path: &Path) -> Result<State> {
         seen,
         psf,
     } = parts;
-    if !model.means.iter().all(|p| p.is_finite()) {
-        return Err(TrainError::file(path, "non-finite splat positions"));
+    // Values are checked as a PLY's are: a file whose checksum was made to match after an
+    // edit must still not train a model that overflows or is empty.
+    model
+        .check_values()
+        .map_err(|e| TrainError::file(path, format!("the checkpoint's splats: {e}")))?;
+    if !(m.is_finite() && v.is_finite()) {
+        return Err(TrainError::file(
+            path,
+            "the checkpoint's optimiser moments are not finite",
+        ));
+    }
+    let end = h.config.iters;
+    if h.step > end {
+        return Err(TrainError::file(
+            path,
+            format!(
+                "the checkpoint is at step {}, past the run's {end} steps",
+                h.step
+            ),
+        ));
     }
     let adam = Adam::from_state(h.adam_step, m, v)?;
     let densify = DensifyState {

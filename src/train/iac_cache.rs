@@ -161,7 +161,7 @@ pub fn get(dir: &Path, key: Key, pixels: usize) -> Option<Vec<Vec3>> {
 }
 
 fn get_entry(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
-    let bytes = std::fs::read(path(dir, key)).ok()?;
+    let bytes = base::input::read(&path(dir, key)).ok()?;
     let tensors = safetensors::SafeTensors::deserialize(&bytes).ok()?;
     let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).ok()?;
     let meta = meta.metadata().clone()?;
@@ -177,7 +177,7 @@ fn get_entry(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
 }
 
 fn get_legacy(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
-    let bytes = std::fs::read(legacy_path(dir, key)).ok()?;
+    let bytes = base::input::read(&legacy_path(dir, key)).ok()?;
     let payload = bytes.len().checked_sub(MAGIC.len() + 16)?;
     if !bytes.starts_with(MAGIC) || payload != 12 * pixels {
         return None;

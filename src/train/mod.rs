@@ -161,10 +161,15 @@ pub fn config_differences(a: &TrainConfig, b: &TrainConfig) -> Vec<String> {
             _ => {}
         }
     }
-    // An extended run is the same run as the one it extends: only its length differs.
+    // An extended run is the same run as the one it extends: only its length differs. When
+    // the splats are kept, checkpointed and evaluated changes no splat: a resume may change
+    // them.
     let same_length = |c: &TrainConfig| TrainConfig {
         iters: c.schedule_iters.unwrap_or(c.iters),
         schedule_iters: None,
+        save_at: Vec::new(),
+        checkpoint_every: 0,
+        eval_every: 0,
         ..c.clone()
     };
     let (a, b) = (same_length(a), same_length(b));
@@ -578,6 +583,12 @@ impl<'a> Run<'a> {
         }
         let (mut model, mut adam) = t.into_host()?;
         let final_pruned = self.densify.finish(&mut p.densify, &mut model, &mut adam)?;
+        if model.is_empty() {
+            return Err(TrainError::Invalid(format!(
+                "training ended at step {} with no splat left: every one became invisible or was removed (a start far from the scene, or a checkpoint whose values are wrong, is the likely cause)",
+                p.step
+            )));
+        }
         let step = p.step;
         for event in self.sh.finish(
             &mut p.sh,

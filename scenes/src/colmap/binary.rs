@@ -95,7 +95,7 @@ fn read_all(path: &Path) -> Result<Vec<u8>> {
     if path.is_file() {
         SceneError::check_file_size(path, base::limits::MAX_MODEL_FILE_BYTES)?;
     }
-    std::fs::read(path).map_err(|e| match e.kind() {
+    base::input::read(path).map_err(|e| match e.kind() {
         std::io::ErrorKind::NotFound => SceneError::NotFound {
             path: path.to_path_buf(),
             what: "COLMAP model file".into(),

@@ -19,7 +19,7 @@ fn read_lines(path: &Path) -> Result<Vec<(usize, String)>> {
     if path.is_file() {
         SceneError::check_file_size(path, base::limits::MAX_MODEL_FILE_BYTES)?;
     }
-    let text = std::fs::read_to_string(path).map_err(|e| match e.kind() {
+    let text = base::input::read_to_string(path).map_err(|e| match e.kind() {
         std::io::ErrorKind::NotFound => SceneError::NotFound {
             path: path.to_path_buf(),
             what: "COLMAP model file".into(),

@@ -29,7 +29,6 @@
 //!   becomes an error (no malformed input is known to make `ply-rs-bw` panic; the fuzzing is
 //!   described in splat/README.md).
 
-use std::fs::File;
 use std::io::{self, BufRead, BufReader, Read};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
@@ -52,8 +51,7 @@ const REQUIRED: [&str; 14] = [
 ];
 /// Slot of `f_rest_0`; `f_rest_k` is slot `REST0 + k`.
 const REST0: usize = REQUIRED.len();
-/// Largest log scale read: e^80 is far beyond any scene and still finite in f32 (e^89 is not).
-const MAX_LOG_SCALE: f32 = 80.0;
+use crate::model::MAX_LOG_SCALE;
 const MAX_REST: usize = 3 * sh_rest_count(MAX_SH_DEGREE);
 const SLOTS: usize = REST0 + MAX_REST;
 
@@ -277,7 +275,7 @@ pub fn read_ply_reporting(
         path: path.to_path_buf(),
         source,
     };
-    let file = File::open(path).map_err(io)?;
+    let file = base::input::open(path).map_err(io)?;
     let meta = file.metadata().map_err(io)?;
     if meta.is_dir() {
         return Err(io(io::ErrorKind::IsADirectory.into()));

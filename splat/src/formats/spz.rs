@@ -139,7 +139,7 @@ pub fn write_spz(path: impl AsRef<Path>, g: &Gaussians) -> Result<(), SplatError
 
 pub fn read_spz(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|source| SplatError::Io {
+    let bytes = base::input::read(path).map_err(|source| SplatError::Io {
         path: path.to_path_buf(),
         source,
     })?;

@@ -278,7 +278,7 @@ pub fn read_gltf(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
         path: path.to_path_buf(),
         problem,
     };
-    let bytes = std::fs::read(path).map_err(|source| SplatError::Io {
+    let bytes = base::input::read(path).map_err(|source| SplatError::Io {
         path: path.to_path_buf(),
         source,
     })?;
@@ -313,7 +313,7 @@ pub fn write_glb(path: impl AsRef<Path>, g: &Gaussians) -> Result<(), SplatError
 /// Reads a GLB file with a `KHR_gaussian_splatting` primitive.
 pub fn read_glb(path: impl AsRef<Path>) -> Result<Gaussians, SplatError> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|source| SplatError::Io {
+    let bytes = base::input::read(path).map_err(|source| SplatError::Io {
         path: path.to_path_buf(),
         source,
     })?;
