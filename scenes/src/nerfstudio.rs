@@ -316,6 +316,17 @@ pub fn read_camera_path(path: &Path) -> Result<CameraPath> {
             .filter(|f| (0.1..=1000.0).contains(f))
             .ok_or_else(|| bad(format!("fps is {v}, not a rate from 0.1 to 1000")))?,
     };
+    // The renderer draws pinhole frames: a path made for another camera would be drawn as
+    // something it is not.
+    match &doc["camera_type"] {
+        Value::Null => {}
+        Value::String(t) if t == "perspective" => {}
+        v => {
+            return Err(bad(format!(
+                "camera_type is {v}: only \"perspective\" paths can be rendered (fisheye and equirectangular cameras are not drawn)"
+            )));
+        }
+    }
     let Some(keys) = doc["camera_path"].as_array().filter(|k| !k.is_empty()) else {
         return Err(bad("no camera_path keyframes".into()));
     };
@@ -326,13 +337,21 @@ pub fn read_camera_path(path: &Path) -> Result<CameraPath> {
             .as_array()
             .filter(|m| m.len() == 16)
             .ok_or_else(|| at("camera_to_world is not 16 numbers".into()))?;
-        let mut rows = [[0.0f64; 4]; 3];
-        for (k, v) in m.iter().take(12).enumerate() {
+        let mut rows = [[0.0f64; 4]; 4];
+        for (k, v) in m.iter().enumerate() {
             rows[k / 4][k % 4] = v
                 .as_f64()
                 .filter(|v| v.is_finite())
                 .ok_or_else(|| at(format!("camera_to_world[{k}] is not a finite number")))?;
         }
+        // A rigid pose's last row is 0 0 0 1; another would be a projective map, not a camera.
+        if rows[3] != [0.0, 0.0, 0.0, 1.0] {
+            return Err(at(format!(
+                "camera_to_world's last row is {:?}, not 0 0 0 1 (a rigid pose)",
+                rows[3]
+            )));
+        }
+        let rows = [rows[0], rows[1], rows[2]];
         let (rotation, centre) = opengl_to_ours(&rows).map_err(at)?;
         let fov = key["fov"]
             .as_f64()

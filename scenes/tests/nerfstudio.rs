@@ -394,6 +394,25 @@ fn a_camera_path_reads_back_as_its_cameras() {
     );
     let e = refused(json!({"render_width": 4, "render_height": 60, "camera_path": keys}));
     assert!(e.contains("render_width"), "{e}");
+    // A projective last row, and cameras the renderer does not draw: refused, not drawn as
+    // perspective frames.
+    let mut projective = keys.clone();
+    projective[0]["camera_to_world"][14] = json!(0.5);
+    let e = refused(json!({"render_width": 80, "render_height": 60, "camera_path": projective}));
+    assert!(
+        e.contains("camera_path[0]") && e.contains("last row"),
+        "{e}"
+    );
+    for kind in ["fisheye", "equirectangular"] {
+        let e = refused(
+            json!({"render_width": 80, "render_height": 60, "camera_type": kind, "camera_path": keys}),
+        );
+        assert!(e.contains("camera_type") && e.contains(kind), "{e}");
+    }
+    write(
+        json!({"render_width": 80, "render_height": 60, "camera_type": "perspective", "camera_path": keys}),
+    );
+    assert!(scenes::nerfstudio::read_camera_path(&path).is_ok());
     let e = refused(json!({"render_width": 80, "render_height": 60, "camera_path": []}));
     assert!(
         e.contains("camera_path.json") && e.contains("no camera_path"),

@@ -102,6 +102,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
     if let (Some(fps), None) = (a.fps, &video) {
         bail!("--fps {fps}: only --video uses a frame rate; a folder of frames has none");
     }
+
     if video.is_some() && target.is_dir() {
         bail!("--video {}: is a folder, not a file", target.display());
     }
@@ -113,6 +114,14 @@ pub fn run(a: RenderArgs) -> Result<()> {
         .as_deref()
         .map(scenes::nerfstudio::read_camera_path)
         .transpose()?;
+    // A rate the format cannot show is refused before any frame is rendered.
+    let fps = a
+        .fps
+        .or(camera_path.as_ref().map(|p| p.fps))
+        .unwrap_or(30.0);
+    if let Some(format) = &video {
+        super::video::written_fps(format, fps)?;
+    }
     let capture = match &a.scene {
         Some(dir) => {
             let capture = super::open_scene(dir, super::downsample_for(dir, a.downsample), false)?;
@@ -219,11 +228,8 @@ pub fn run(a: RenderArgs) -> Result<()> {
     };
     let staged = render_named(&model, &settings, &cameras, &frames_dir, &device)?;
     if let Some(format) = &video {
-        let fps = a
-            .fps
-            .or(camera_path.as_ref().map(|p| p.fps))
-            .unwrap_or(30.0);
         super::video::encode(format, &staged, fps, &target)?;
+        let fps = super::video::written_fps(format, fps)?;
         println!(
             "{} splats (SH degree {}) rendered to {} frames {}x{} and written as {} at {fps} frames per second{} in {:.2} s",
             model.len(),

@@ -35,6 +35,29 @@ pub fn format_for(path: &Path) -> Result<VideoFormat> {
     }
 }
 
+/// The most frames per second a GIF shows: its frame time is a whole number of hundredths of
+/// a second, and players show a frame of less than 2/100 s for 1/10 s.
+pub const GIF_MAX_FPS: f64 = 50.0;
+
+/// A GIF frame's time at `fps`, in hundredths of a second (the nearest it can hold); more
+/// than [`GIF_MAX_FPS`] is refused naming the flag.
+pub fn gif_centiseconds(fps: f64) -> Result<u32> {
+    if !(fps.is_finite() && fps > 0.0) || fps > GIF_MAX_FPS {
+        bail!(
+            "--fps {fps}: a .gif shows at most {GIF_MAX_FPS} frames per second (its frame time is in hundredths of a second, and players slow shorter frames to 1/10 s); write an .mp4 for more"
+        );
+    }
+    Ok((100.0 / fps).round().clamp(2.0, 65535.0) as u32)
+}
+
+/// The rate a video is written at for `fps` asked: a GIF's nearest.
+pub fn written_fps(format: &VideoFormat, fps: f64) -> Result<f64> {
+    Ok(match format {
+        VideoFormat::Gif => 100.0 / gif_centiseconds(fps)? as f64,
+        VideoFormat::Ffmpeg(_) => fps,
+    })
+}
+
 /// The first executable file called `name` in the PATH's folders.
 fn on_path(name: &str) -> Option<PathBuf> {
     use std::os::unix::fs::PermissionsExt;
@@ -56,7 +79,7 @@ pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) ->
             {
                 let mut encoder = GifEncoder::new_with_speed(&mut bytes, 10);
                 encoder.set_repeat(Repeat::Infinite)?;
-                let delay = image::Delay::from_numer_denom_ms(1000, fps.round().max(1.0) as u32);
+                let delay = image::Delay::from_numer_denom_ms(10 * gif_centiseconds(fps)?, 1);
                 for f in frames {
                     let img = image::open(f)
                         .with_context(|| format!("cannot read the frame {}", f.display()))?
@@ -85,7 +108,7 @@ pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) ->
                 .tempfile_in(&dir)
                 .with_context(|| format!("cannot write in {}", dir.display()))?;
             let first = frames.first().context("no frames to encode")?;
-            let pattern = first.with_file_name("frame%05d.png");
+            let pattern = frame_pattern(first);
             let status = std::process::Command::new(ffmpeg)
                 .args(["-hide_banner", "-loglevel", "error", "-y", "-framerate"])
                 .arg(format!("{fps}"))
@@ -122,4 +145,39 @@ pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) ->
         }
     }
     Ok(())
+}
+
+/// ffmpeg's pattern for the frames beside `first` (`frame%05d.png`): a `%` in the folder's
+/// path is written `%%`, which ffmpeg reads as the character itself.
+fn frame_pattern(first: &Path) -> PathBuf {
+    use std::os::unix::ffi::{OsStrExt, OsStringExt};
+    let dir = first.parent().unwrap_or(Path::new("."));
+    let mut bytes = Vec::new();
+    for &b in dir.as_os_str().as_bytes() {
+        bytes.push(b);
+        if b == b'%' {
+            bytes.push(b'%');
+        }
+    }
+    PathBuf::from(std::ffi::OsString::from_vec(bytes)).join("frame%05d.png")
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_percent_in_the_frames_folder_reaches_ffmpeg_as_itself() {
+        let p = super::frame_pattern(std::path::Path::new("/out/50% scale/frame00000.png"));
+        assert_eq!(p, std::path::Path::new("/out/50%% scale/frame%05d.png"));
+    }
+
+    #[test]
+    fn a_gif_holds_the_nearest_frame_time_and_refuses_rates_it_cannot_show() {
+        let gif = super::VideoFormat::Gif;
+        assert_eq!(super::gif_centiseconds(30.0).unwrap(), 3);
+        assert_eq!(super::written_fps(&gif, 30.0).unwrap(), 100.0 / 3.0);
+        assert_eq!(super::gif_centiseconds(0.1).unwrap(), 1000);
+        assert_eq!(super::written_fps(&gif, 50.0).unwrap(), 50.0);
+        let e = super::gif_centiseconds(60.0).unwrap_err().to_string();
+        assert!(e.contains("--fps 60") && e.contains(".mp4"), "{e}");
+    }
 }
