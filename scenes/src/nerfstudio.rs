@@ -127,14 +127,21 @@ pub fn read_transforms(root: &Path, downsample: u32) -> Result<Transforms> {
     let Some(frames) = doc["frames"].as_array().filter(|f| !f.is_empty()) else {
         return Err(SceneError::invalid(&path, "no frames"));
     };
-    if let Some(model) = doc["camera_model"].as_str()
-        && model != "OPENCV"
-        && model != "PINHOLE"
-    {
-        return Err(SceneError::UnknownCameraModel {
-            path: path.clone(),
-            model: format!("{model} (camera_model; OPENCV and PINHOLE are read)"),
-        });
+    match &doc["camera_model"] {
+        Value::Null => {}
+        Value::String(m) if m == "OPENCV" || m == "PINHOLE" => {}
+        Value::String(m) => {
+            return Err(SceneError::UnknownCameraModel {
+                path: path.clone(),
+                model: format!("{m} (camera_model; OPENCV and PINHOLE are read)"),
+            });
+        }
+        v => {
+            return Err(SceneError::invalid(
+                &path,
+                format!("camera_model is {v}, not a model's name (OPENCV or PINHOLE)"),
+            ));
+        }
     }
     let ply_file = match &doc["ply_file_path"] {
         Value::Null => None,
@@ -188,13 +195,21 @@ pub fn read_transforms(root: &Path, downsample: u32) -> Result<Transforms> {
         limits::check_intrinsics(w, h, fx, fy, cx, cy).map_err(bad)?;
         let k =
             |key: &str| Ok::<_, SceneError>(number(frame, &doc, key).map_err(&bad)?.unwrap_or(0.0));
+        // nerfstudio's radial factor is 1 + k1 r² + k2 r⁴ + k3 r⁶ + k4 r⁸: k3 is the r⁶ term
+        // FULL_OPENCV's numerator holds; an r⁸ term has no place in the model.
+        let k4 = k("k4")?;
+        if k4 != 0.0 {
+            return Err(bad(format!(
+                "k4 is {k4}: the r⁸ radial term is not modelled (k1, k2, k3, p1 and p2 are); undistort the photos first"
+            )));
+        }
         let distortion = Distortion {
             model: CameraModel::OpenCv,
             k1: k("k1")?,
             k2: k("k2")?,
             p1: k("p1")?,
             p2: k("p2")?,
-            rational: [0.0; 4],
+            rational: [k("k3")?, 0.0, 0.0, 0.0],
         };
         limits::check_distortion(&distortion).map_err(bad)?;
         let m = frame["transform_matrix"]

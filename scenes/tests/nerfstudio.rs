@@ -175,11 +175,20 @@ fn transforms_json_that_lies_is_refused_naming_the_frame() {
         e.contains("transforms.json") && e.contains("frame 2") && e.contains("photo of frame 0"),
         "{e}"
     );
-    // Distortion is kept, for reporting, as COLMAP's is.
+    // An r⁸ radial term, and a model that is not a name: refused, not ignored.
+    let e = case("k4", &|d| d["k4"] = json!(0.01));
+    assert!(e.contains("k4") && e.contains("not modelled"), "{e}");
+    let e = case("model number", &|d| d["camera_model"] = json!(5));
+    assert!(e.contains("camera_model is 5"), "{e}");
+    // Distortion is kept, for reporting, as COLMAP's is; k3 is the r⁶ radial term.
     let dir = tmp.path().join("distorted");
-    write_capture(&dir, &cameras, json!({"k1": 0.02}));
+    write_capture(&dir, &cameras, json!({"k1": 0.02, "k3": 0.003}));
     let c = open(&dir, 1).unwrap();
     assert_eq!(c.cameras[0].distortion.unwrap().k1, 0.02);
+    assert_eq!(
+        c.cameras[0].distortion.unwrap().rational,
+        [0.003, 0.0, 0.0, 0.0]
+    );
     assert!(c.distortion_source.unwrap().ends_with("transforms.json"));
 }
 
