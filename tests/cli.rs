@@ -4,14 +4,7 @@ mod common;
 
 use std::path::Path;
 
-use common::cli::{fails, ok, procedural, s};
-
-/// `psf simulate` of the small test lens into `out`.
-fn small_psf(out: &Path) {
-    let mut args = vec!["psf", "simulate", "--out", s(out)];
-    args.extend_from_slice(SMALL_LENS);
-    ok(&args);
-}
+use common::cli::{SMALL_LENS, fails, ok, procedural, s, small_psf};
 
 /// `scene aberrate` of `clean` through `psf` into `out`, at full resolution.
 fn aberrate(clean: &Path, psf: &Path, out: &Path) {
@@ -28,22 +21,6 @@ fn aberrate(clean: &Path, psf: &Path, out: &Path) {
         "1",
     ]);
 }
-
-/// A small lens (same f-number as the paper's) so simulation takes well under a second.
-const SMALL_LENS: &[&str] = &[
-    "--grid",
-    "3",
-    "--size",
-    "21",
-    "--aperture-um",
-    "100",
-    "--focal-um",
-    "200",
-    "--fft-size",
-    "700",
-    "--max-field-deg",
-    "10",
-];
 
 #[test]
 fn simulate_show_aberrate_and_deconvolve() {

@@ -110,6 +110,22 @@ fn turntable(dest: &Path, masks: bool) -> (PathBuf, Vec<ObjectAlone>) {
     (writer.finish().unwrap(), objects)
 }
 
+/// A small simulated lens's imaging model at the turntable's size.
+fn small_lens() -> aberration::ImagingModel {
+    let (psf, _) =
+        aberration::optics::simulate_grid(&aberration::optics::SimConfig::small(21), &|_, _| {})
+            .unwrap();
+    aberration::ImagingModel::new(
+        &psf,
+        SIDE as usize,
+        SIDE as usize,
+        aberration::BlurMode::Tiled,
+        None,
+        Default::default(),
+    )
+    .unwrap()
+}
+
 fn settings(iters: u64, mask_mode: MaskChoice) -> TrainSettings {
     TrainSettings {
         mode: Mode::Plain,
@@ -217,18 +233,7 @@ fn object_mode_without_masks_is_refused() {
 fn through_the_lens_the_target_is_the_blur_of_the_composite() {
     let dir = tempfile::tempdir().unwrap();
     let (masked, objects) = turntable(&dir.path().join("masked"), true);
-    let (psf, _) =
-        aberration::optics::simulate_grid(&aberration::optics::SimConfig::small(21), &|_, _| {})
-            .unwrap();
-    let imaging = aberration::ImagingModel::new(
-        &psf,
-        SIDE as usize,
-        SIDE as usize,
-        aberration::BlurMode::Tiled,
-        None,
-        Default::default(),
-    )
-    .unwrap();
+    let imaging = small_lens();
     let data = data::load(&masked, Mode::Plain, &options()).unwrap();
     let view0 = &data.train[0];
     let i = data.capture.split.train[0];
@@ -310,18 +315,7 @@ fn through_the_lens_the_target_is_the_blur_of_the_composite() {
 fn outside_the_mask_the_render_is_pulled_to_the_background() {
     let dir = tempfile::tempdir().unwrap();
     let (masked, _) = turntable(&dir.path().join("masked"), true);
-    let (psf, _) =
-        aberration::optics::simulate_grid(&aberration::optics::SimConfig::small(21), &|_, _| {})
-            .unwrap();
-    let imaging = aberration::ImagingModel::new(
-        &psf,
-        SIDE as usize,
-        SIDE as usize,
-        aberration::BlurMode::Tiled,
-        None,
-        Default::default(),
-    )
-    .unwrap();
+    let imaging = small_lens();
     let data = data::load(&masked, Mode::Plain, &options()).unwrap();
     let view = &data.train[0];
     let m = view.mask.clone().unwrap();

@@ -9,7 +9,7 @@ use std::path::Path;
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use common::cli::{metasplat, ok, procedural, s};
+use common::cli::{metasplat, ok, procedural, s, small_psf};
 
 /// Runs the binary, which must fail within a time limit, without a panic, naming `named`.
 fn refused_quickly(args: &[&str], named: &Path) {
@@ -70,24 +70,7 @@ fn special_files_given_as_inputs_are_refused_at_once() {
         "cpu",
     ]);
     let psf = d.join("psf.npy");
-    ok(&[
-        "psf",
-        "simulate",
-        "--out",
-        s(&psf),
-        "--grid",
-        "3",
-        "--size",
-        "21",
-        "--aperture-um",
-        "100",
-        "--focal-um",
-        "200",
-        "--fft-size",
-        "700",
-        "--max-field-deg",
-        "10",
-    ]);
+    small_psf(&psf);
     let photo = d.join("photo.png");
     std::fs::copy(
         std::fs::read_dir(scene.join("images"))

@@ -57,3 +57,26 @@ pub fn procedural(out: &Path, width: u32, height: u32, views: u32) {
         &v,
     ]);
 }
+
+/// A small lens (same f-number as the paper's) so simulation takes well under a second.
+pub const SMALL_LENS: &[&str] = &[
+    "--grid",
+    "3",
+    "--size",
+    "21",
+    "--aperture-um",
+    "100",
+    "--focal-um",
+    "200",
+    "--fft-size",
+    "700",
+    "--max-field-deg",
+    "10",
+];
+
+/// `psf simulate` of the small lens ([`SMALL_LENS`]) into `out`.
+pub fn small_psf(out: &Path) {
+    let mut args = vec!["psf", "simulate", "--out", s(out)];
+    args.extend_from_slice(SMALL_LENS);
+    ok(&args);
+}
