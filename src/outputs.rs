@@ -267,20 +267,18 @@ pub fn write_run(
                 let clean = v.clean.as_deref().ok_or_else(|| {
                     TrainError::Invalid(format!("held-out view {} has no clean image", v.name))
                 })?;
-                let eval::Scored {
-                    image: observed,
-                    reference: clean,
-                    mask,
-                } = eval::scored(
+                let sc = eval::scored(
                     &v.observed,
                     clean,
                     v.mask.as_deref(),
                     masks,
                     outcome.settings.background,
                 );
-                sum += base::psnr_rgb(&observed, &clean)?;
+                sum += sc.compare(v.camera.width, v.camera.height)?.0;
                 in_mask.extend(
-                    mask.and_then(|m| crate::train::object::psnr_in_mask(&observed, &clean, m)),
+                    sc.mask.and_then(|m| {
+                        crate::train::object::psnr_in_mask(&sc.image, &sc.reference, m)
+                    }),
                 );
             }
             Some((

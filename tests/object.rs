@@ -393,7 +393,7 @@ fn outside_the_mask_the_render_is_pulled_to_the_background() {
 
 /// Held-out views of an object run are scored on the object: the reference composited over
 /// the background outside each mask, the render as drawn (`object`) or composited the same
-/// way (`loss`), and PSNR inside the mask beside it.
+/// way (`loss`), and PSNR inside the mask beside it; other masks score the pixels they keep.
 #[test]
 fn held_out_views_are_scored_on_the_object() {
     let dir = tempfile::tempdir().unwrap();
@@ -432,10 +432,24 @@ fn held_out_views_are_scored_on_the_object() {
             assert!(vm.psnr_in_mask.is_some());
         }
     }
-    let whole = eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu, None)
+    // Masks that are not an object's (undistortion's border, alpha) score the pixels they
+    // keep: the reference has nothing elsewhere.
+    let sourced = eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu, None)
         .unwrap()
         .unwrap();
-    assert!(whole.on_object.is_none());
+    assert!(sourced.on_object.is_none() && sourced.sourced_pixels);
+    for (v, vm) in data.test.iter().zip(&sourced.views) {
+        let render = splat::render(&out.model, &v.camera, &out.settings)
+            .unwrap()
+            .color;
+        let clamped: Vec<Vec3> = render
+            .iter()
+            .map(|p| p.clamp(Vec3::ZERO, Vec3::ONE))
+            .collect();
+        let mask = v.mask.as_deref().unwrap();
+        let want = metasplat::train::object::psnr_in_mask(&clamped, &v.observed, mask).unwrap();
+        assert!((want - vm.psnr).abs() < 1e-9, "{want} against {}", vm.psnr);
+    }
 }
 
 /// `experiment llff` on a masked capture scores every row on the object (the aberrated input

@@ -15,21 +15,65 @@ pub const TINY: &[u8] = include_bytes!("../weights/tiny.bin");
 /// The name the shipped weights go by in messages.
 pub const TINY_NAME: &str = "restore/weights/tiny.bin (shipped)";
 
-/// The shipped network's header.
-pub fn header() -> Result<Header> {
-    Ok(weights::parse(TINY, Path::new(TINY_NAME))?.0)
+/// The `tiny` network fine-tuned over the lens family around the default one, at PSFs of
+/// 15-140 px (`restore/weights/README.md`): `auto`'s choice where [`TINY`] does not serve.
+pub const FAMILY: &[u8] = include_bytes!("../weights/family_tiny_1.bin");
+
+/// The name the general weights go by in messages.
+pub const FAMILY_NAME: &str = "restore/weights/family_tiny_1.bin (shipped)";
+
+/// Weights shipped inside the binary.
+#[derive(Clone, Copy, Debug)]
+pub struct Shipped {
+    pub bytes: &'static [u8],
+    pub name: &'static str,
 }
 
-/// What `auto` makes of a capture: the shipped network and why it serves, or why not.
+/// What `auto` tries, in order: the network trained on the default lens at the scale it was
+/// made for, then the one trained over the lens family at every scale (on the default lens
+/// at 57 px they are within 0.1 dB; the family one is 1-4 dB above the Wiener image where the
+/// first declines: RESULTS.md).
+pub const SHIPPED: [Shipped; 2] = [
+    Shipped {
+        bytes: TINY,
+        name: TINY_NAME,
+    },
+    Shipped {
+        bytes: FAMILY,
+        name: FAMILY_NAME,
+    },
+];
+
+/// The general network `--any-grid` measures outside what every shipped one covers.
+pub const GENERAL: Shipped = SHIPPED[1];
+
+/// The first shipped network's header ([`TINY`]).
+pub fn header() -> Result<Header> {
+    header_of(SHIPPED[0])
+}
+
+/// A shipped network's header.
+pub fn header_of(s: Shipped) -> Result<Header> {
+    Ok(weights::parse(s.bytes, Path::new(s.name))?.0)
+}
+
+/// What `auto` makes of a capture: a shipped network, why it serves and its name, or why
+/// none does.
 pub enum Choice {
-    Network(Box<Restorer>, String),
+    Network(Box<Restorer>, String, &'static str),
     Declined(String),
 }
 
 /// Whether the shipped network serves a capture whose native grid is `native` and whose PSFs
 /// are `psf_px` wide at its images' size (None: any size), and why.
 pub fn verdict(header: &Header, native: &PsfGrid, psf_px: Option<usize>) -> (bool, String) {
-    let name = format!("the shipped restorer ('{}')", header.config.name);
+    let name = match header.family {
+        Some(_) => format!(
+            "the shipped general restorer ('{}', a lens family)",
+            header.config.name
+        ),
+        None => format!("the shipped restorer ('{}')", header.config.name),
+    };
     let lens = match header.serves(native) {
         Ok(why) => why,
         Err(why) => return (false, format!("{name} does not serve this lens: {why}")),
@@ -61,20 +105,24 @@ pub fn for_capture(native: &PsfGrid, psf_px: Option<usize>) -> Result<Choice> {
     for_capture_on(native, psf_px, burn::tensor::Device::flex())
 }
 
-/// The shipped restorer for a capture, on a device, or why it does not serve it.
+/// The first of the [`SHIPPED`] restorers that serves a capture, on a device, or why none
+/// does.
 pub fn for_capture_on(
     native: &PsfGrid,
     psf_px: Option<usize>,
     device: burn::tensor::Device,
 ) -> Result<Choice> {
-    let header = header()?;
-    Ok(match verdict(&header, native, psf_px) {
-        (true, why) => {
-            let r = Restorer::from_bytes_on(TINY, Path::new(TINY_NAME), native, device)?;
-            Choice::Network(Box::new(r), why)
+    let mut declined = Vec::new();
+    for s in SHIPPED {
+        match verdict(&header_of(s)?, native, psf_px) {
+            (true, why) => {
+                let r = Restorer::from_bytes_on(s.bytes, Path::new(s.name), native, device)?;
+                return Ok(Choice::Network(Box::new(r), why, s.name));
+            }
+            (false, why) => declined.push(why),
         }
-        (false, why) => Choice::Declined(why),
-    })
+    }
+    Ok(Choice::Declined(declined.join("; ")))
 }
 
 /// The shipped restorer when it serves the lens of `native` (any blur scale); `Ok(None)` for
@@ -86,7 +134,7 @@ pub fn for_psf(native: &PsfGrid) -> Result<Option<Restorer>> {
 /// [`for_psf`] on a given device.
 pub fn for_psf_on(native: &PsfGrid, device: burn::tensor::Device) -> Result<Option<Restorer>> {
     Ok(match for_capture_on(native, None, device)? {
-        Choice::Network(r, _) => Some(*r),
+        Choice::Network(r, ..) => Some(*r),
         Choice::Declined(_) => None,
     })
 }

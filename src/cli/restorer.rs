@@ -133,7 +133,8 @@ impl Tiling {
 #[derive(Args)]
 pub struct Inference {
     /// Restorer weights; without it, the network shipped in the binary
-    /// (`restore/weights/tiny.bin`), when it was trained for this PSF grid.
+    /// (`restore/weights/tiny.bin`, else the general `family_tiny_1.bin`), when one serves this
+    /// PSF grid.
     #[arg(long)]
     pub weights: Option<PathBuf>,
     /// PSF grid (`.npy`, from `psf simulate`) the images were aberrated with.
@@ -151,10 +152,13 @@ pub struct Inference {
 }
 
 impl Inference {
-    /// The native PSF grid and the restorer loaded on the chosen backend with its tiling.
-    fn load(&self) -> Result<(PsfGrid, Restorer)> {
+    /// The native PSF grid and the restorer loaded on the chosen backend with its tiling;
+    /// without --weights, the shipped one that serves the grid with PSFs `psf_px` wide at the
+    /// images' size (None: at any size).
+    fn load(&self, psf_px: impl FnOnce(&PsfGrid) -> Option<usize>) -> Result<(PsfGrid, Restorer)> {
         let native = PsfGrid::load_npy(&self.psf)
             .with_context(|| format!("cannot read {}", self.psf.display()))?;
+        let psf_px = psf_px(&native);
         let device = self.backend.device().context("--backend")?;
         let net = match (&self.weights, self.any_grid) {
             (Some(w), false) => Restorer::load_on(w, &native, device)
@@ -162,18 +166,20 @@ impl Inference {
             (Some(w), true) => Restorer::load_any_grid_on(w, device)
                 .with_context(|| format!("--weights {}", w.display()))?,
             (None, any_grid) => {
-                match restore::shipped::for_capture_on(&native, None, device.clone())? {
-                    restore::shipped::Choice::Network(net, why) => {
+                match restore::shipped::for_capture_on(&native, psf_px, device.clone())? {
+                    restore::shipped::Choice::Network(net, why, _) => {
                         println!("Using {why}.");
                         *net
                     }
                     restore::shipped::Choice::Declined(why) if any_grid => {
+                        let general = restore::shipped::GENERAL;
                         println!(
-                            "Using the shipped restorer outside what it covers (--any-grid): {why}."
+                            "Using {} outside what it covers (--any-grid): {why}.",
+                            general.name
                         );
                         Restorer::from_bytes_any_grid_on(
-                            restore::shipped::TINY,
-                            Path::new(restore::shipped::TINY_NAME),
+                            general.bytes,
+                            Path::new(general.name),
                             device,
                         )?
                     }
@@ -757,7 +763,8 @@ fn run_eval(a: EvalArgs) -> Result<()> {
         metasplat::guard::refuse_overwrite("--out", out, &inputs)?;
         metasplat::guard::refuse_file_as_folder("--out", out)?;
     }
-    let (native, restorer) = a.net.load()?;
+    // Blurred to one scale, the photos are restored by the shipped network for it.
+    let (native, restorer) = a.net.load(|_| a.psf_px.map(|p| p as usize | 1))?;
     let photos = load_folder(&a.val, 1)?;
     let noise = NoiseModel::default();
     let ks = bank_constants();
@@ -904,9 +911,11 @@ pub fn run_restore(a: RestoreArgs) -> Result<()> {
     }
     metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
     metasplat::guard::refuse_unwritable_image("--out", &a.out)?;
-    let (native, restorer) = a.net.load()?;
     let blurred =
         Image::load(&a.input).with_context(|| format!("cannot read {}", a.input.display()))?;
+    let (native, restorer) = a
+        .net
+        .load(|n| Some(n.mapped_size(blurred.width, blurred.height, a.sensor_px)))?;
     let psf = native
         .for_image(blurred.width, blurred.height, a.sensor_px)
         .with_context(|| super::sensor_flag(a.sensor_px, &a.net.psf))?;

@@ -208,7 +208,7 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
                 data.train.len()
             ),
             None => println!(
-                "masks: {masked} of {} training views leave pixels out of the loss (held-out views are scored whole)",
+                "masks: {masked} of {} training views leave pixels out of the loss (held-out views are scored on the pixels their masks keep)",
                 data.train.len()
             ),
         }
@@ -364,6 +364,10 @@ fn print_summary(dir: &Path, s: &RunSummary, outcome: &train::Outcome) {
                         }
                     )
                 }
+                None if m.sourced_pixels => println!(
+                    "(rendered test views vs {}, PSNR over the pixels their masks keep: undistortion's border and transparent pixels have no reference)",
+                    m.against
+                ),
                 None => println!("(rendered test views vs {})", m.against),
             }
             if let Some(o) = s.observed_psnr {

@@ -65,6 +65,10 @@ pub struct Metrics {
     /// Scored on the object (a capture with object masks); None: on the whole images.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub on_object: Option<OnObject>,
+    /// PSNR over the pixels the held-out views' loss masks keep (undistortion's border, the
+    /// photos' alpha), which alone their references hold.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub sourced_pixels: bool,
 }
 
 /// What a held-out view is scored on ([`scored`]).
@@ -73,10 +77,33 @@ pub struct Scored<'v> {
     pub reference: Cow<'v, [Vec3]>,
     /// The object's mask, for PSNR inside it; None: scored whole.
     pub mask: Option<&'v [f32]>,
+    /// Without object masks, the view's loss mask (the pixels undistortion left a source for,
+    /// the photo's alpha): its PSNR is over those pixels alone, which the reference holds.
+    pub sourced: Option<&'v [f32]>,
+}
+
+impl Scored<'_> {
+    /// PSNR and SSIM ([`compare`]); where [`Self::sourced`] says, PSNR over the pixels it
+    /// keeps, and SSIM of both composited over black outside them (equal there).
+    pub fn compare(&self, width: u32, height: u32) -> Result<(f64, f64)> {
+        let Some(m) = self.sourced else {
+            return compare(&self.image, &self.reference, width, height);
+        };
+        let (p, s) = compare(
+            &over(&self.image, m, Vec3::ZERO),
+            &over(&self.reference, m, Vec3::ZERO),
+            width,
+            height,
+        )?;
+        let p = psnr_in_mask(&clamp01(&self.image), &self.reference, m).unwrap_or(p);
+        Ok((p, s))
+    }
 }
 
 /// What a held-out view is scored on: the image and reference composited over `background`
-/// outside an object's mask as [`OnObject`] says (unchanged without object masks or a mask).
+/// outside an object's mask as [`OnObject`] says; without object masks, a view's loss mask
+/// composites both alike and its PSNR counts only the pixels it keeps (a reference has
+/// nothing where undistortion left no source); unchanged without a mask.
 pub fn scored<'v>(
     image: &'v [Vec3],
     reference: &'v [Vec3],
@@ -92,11 +119,19 @@ pub fn scored<'v>(
             },
             reference: Cow::Owned(over(reference, m, background)),
             mask: Some(m),
+            sourced: None,
+        },
+        (None, Some(m)) => Scored {
+            image: Cow::Borrowed(image),
+            reference: Cow::Borrowed(reference),
+            mask: None,
+            sourced: Some(m),
         },
         _ => Scored {
             image: Cow::Borrowed(image),
             reference: Cow::Borrowed(reference),
             mask: None,
+            sourced: None,
         },
     }
 }
@@ -155,23 +190,21 @@ pub fn evaluate(
                 })?,
                 Against::Photos => &v.observed,
             };
-            let Scored {
-                image,
-                reference: target,
-                mask,
-            } = scored(
+            let sc = scored(
                 &image,
                 target,
                 v.mask.as_deref(),
                 masks,
                 settings.background,
             );
-            let (p, s) = compare(&image, &target, v.camera.width, v.camera.height)?;
+            let (p, s) = sc.compare(v.camera.width, v.camera.height)?;
             Ok(ViewMetrics {
                 name: v.name.clone(),
                 psnr: p,
                 ssim: s,
-                psnr_in_mask: mask.and_then(|m| psnr_in_mask(&clamp01(&image), &target, m)),
+                psnr_in_mask: sc
+                    .mask
+                    .and_then(|m| psnr_in_mask(&clamp01(&sc.image), &sc.reference, m)),
             })
         })
         .collect::<Result<Vec<_>>>()?;
@@ -183,6 +216,7 @@ pub fn evaluate(
         mean_psnr_in_mask: in_mask.iter().sum::<f64>() / in_mask.len() as f64,
     });
     Ok(Some(Metrics {
+        sourced_pixels: masks.is_none() && views.iter().any(|v| v.mask.is_some()),
         on_object,
         mean_psnr: per_view.iter().map(|v| v.psnr).sum::<f64>() / n,
         mean_ssim: per_view.iter().map(|v| v.ssim).sum::<f64>() / n,

@@ -83,8 +83,8 @@ pub(crate) fn open_restorer(
     Ok(match choice {
         RestorerChoice::Wiener => (None, None),
         RestorerChoice::Auto => match restore::shipped::for_capture(native, Some(psf_px))? {
-            restore::shipped::Choice::Network(r, why) => (
-                Some((*r, restore::shipped::TINY_NAME.to_string())),
+            restore::shipped::Choice::Network(r, why, name) => (
+                Some((*r, name.to_string())),
                 Some(format!("--restorer auto: using {why}")),
             ),
             restore::shipped::Choice::Declined(why) => (
