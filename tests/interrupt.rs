@@ -446,6 +446,86 @@ fn ctrl_c_during_a_render_or_an_aberration_leaves_nothing_behind() {
     assert!(staging_in(&out).is_empty(), "{:?}", staging_in(&out));
 }
 
+/// A video tool that hangs: the first Ctrl-C ends it and the render, and nothing is left (no
+/// video, no temporary file, no staging folder, no lock).
+#[test]
+fn ctrl_c_ends_a_hung_video_tool_and_leaves_nothing_behind() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("scene");
+    procedural(&scene, 32, 24, 5);
+    let run = d.join("run");
+    let mut train = train_args(&scene, &run, &[]);
+    let at = train.iter().position(|x| x == "--iters").unwrap();
+    train[at + 1] = "20".into();
+    run_ok(&train);
+    let bin = d.join("bin");
+    std::fs::create_dir_all(&bin).unwrap();
+    let started = d.join("started");
+    let fake = bin.join("ffmpeg");
+    std::fs::write(
+        &fake,
+        format!(
+            "#!/bin/sh\n: > '{}'\nexec /bin/sleep 600\n",
+            started.display()
+        ),
+    )
+    .unwrap();
+    std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let out = d.join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    let video = out.join("v.mp4");
+    let mut child = metasplat()
+        .env("PATH", &bin)
+        .args([
+            "render",
+            "--in",
+            &s(&run.join("point_cloud.ply")),
+            "--video",
+            &s(&video),
+            "--orbit",
+            "3",
+            "--width",
+            "32",
+            "--height",
+            "24",
+            "--device",
+            "cpu",
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while !started.exists() {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the render ended early"
+        );
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "the tool never ran"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    ctrl_c(child.id());
+    let stopped = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if stopped.elapsed() > Duration::from_secs(30) {
+            let _ = child.kill();
+            panic!("the first Ctrl-C did not end the render while its video tool hung");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let out_ = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out_.stderr);
+    assert_eq!(out_.status.code(), Some(130), "{err}");
+    assert!(err.contains("encoded the video"), "{err}");
+    assert!(!video.exists(), "a video was left");
+    assert!(staging_in(&out).is_empty(), "{:?}", staging_in(&out));
+}
+
 #[test]
 fn ctrl_c_while_i_ac_is_made_keeps_the_views_restored_so_far() {
     let dir = tempfile::tempdir().unwrap();

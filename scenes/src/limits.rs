@@ -116,6 +116,42 @@ pub fn check_distortion(d: &Distortion) -> Result<(), String> {
     }
 }
 
+/// Checks that the lens map does not fold the image back on itself: the distorted radius
+/// `r·radial(r)` must grow with `r` out to the farthest corner of a `w × h` image with these
+/// intrinsics (in normalised coordinates). Coefficients inside [`check_distortion`]'s bounds can
+/// still turn the radius back before the corner, and undistorting then trains on mirrored
+/// content.
+pub fn check_distortion_folds(
+    d: &Distortion,
+    w: f64,
+    h: f64,
+    fx: f64,
+    fy: f64,
+    cx: f64,
+    cy: f64,
+) -> Result<(), String> {
+    let corner = [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h)]
+        .iter()
+        .map(|(u, v)| (((u - cx) / fx).powi(2) + ((v - cy) / fy).powi(2)).sqrt())
+        .fold(0.0, f64::max);
+    const SAMPLES: usize = 1024;
+    let mut last = 0.0;
+    for i in 1..=SAMPLES {
+        let r = corner * i as f64 / SAMPLES as f64;
+        // Along a ray the tangential terms are second order; the radial map decides.
+        let (x, _) = d.distort(r, 0.0);
+        let radial = x - d.p2 * 3.0 * r * r;
+        if !(radial > last) {
+            return Err(format!(
+                "distortion {d} folds the image: the distorted radius stops growing at {:.3} of the way to the farthest corner (normalised radius {r:.4} of {corner:.4}), so undistorting would repeat mirrored content",
+                i as f64 / SAMPLES as f64
+            ));
+        }
+        last = radial;
+    }
+    Ok(())
+}
+
 /// Checks a point position against [`MAX_COORDINATE`].
 pub fn check_point(xyz: [f64; 3]) -> Result<(), String> {
     if xyz
@@ -196,6 +232,13 @@ mod tests {
             rational: [0.0; 4],
         };
         assert!(check_distortion(&d(-0.3)).is_ok());
+        // k1 = -0.3 folds past r = 1/sqrt(0.9) ≈ 1.054: inside a wide image, not a narrow one.
+        assert!(check_distortion_folds(&d(-0.3), 640.0, 480.0, 500.0, 500.0, 320.0, 240.0).is_ok());
+        let wide = check_distortion_folds(&d(-0.3), 640.0, 480.0, 250.0, 250.0, 320.0, 240.0);
+        assert!(
+            wide.as_ref().is_err_and(|e| e.contains("folds")),
+            "{wide:?}"
+        );
         assert!(check_distortion(&d(1e6)).is_err());
         assert!(check_distortion(&d(f64::NAN)).is_err());
         assert!(check_point([1.0, -2.0, 3.0]).is_ok());

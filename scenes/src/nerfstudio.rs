@@ -212,6 +212,7 @@ pub fn read_transforms(root: &Path, downsample: u32) -> Result<Transforms> {
             rational: [k("k3")?, 0.0, 0.0, 0.0],
         };
         limits::check_distortion(&distortion).map_err(bad)?;
+        limits::check_distortion_folds(&distortion, w, h, fx, fy, cx, cy).map_err(bad)?;
         let m = frame["transform_matrix"]
             .as_array()
             .filter(|rows| rows.len() >= 3)

@@ -178,6 +178,10 @@ fn transforms_json_that_lies_is_refused_naming_the_frame() {
     // An r⁸ radial term, and a model that is not a name: refused, not ignored.
     let e = case("k4", &|d| d["k4"] = json!(0.01));
     assert!(e.contains("k4") && e.contains("not modelled"), "{e}");
+    // Coefficients in bounds that fold the image before its corners: refused, not undistorted
+    // into mirrored content.
+    let e = case("folds", &|d| d["k1"] = json!(-4.0));
+    assert!(e.contains("frame 0") && e.contains("folds the image"), "{e}");
     let e = case("model number", &|d| d["camera_model"] = json!(5));
     assert!(e.contains("camera_model is 5"), "{e}");
     // Distortion is kept, for reporting, as COLMAP's is; k3 is the r⁶ radial term.

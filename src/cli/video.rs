@@ -109,7 +109,7 @@ pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) ->
                 .with_context(|| format!("cannot write in {}", dir.display()))?;
             let first = frames.first().context("no frames to encode")?;
             let pattern = frame_pattern(first);
-            let status = std::process::Command::new(ffmpeg)
+            let child = std::process::Command::new(ffmpeg)
                 .args(["-hide_banner", "-loglevel", "error", "-y", "-framerate"])
                 .arg(format!("{fps}"))
                 .arg("-i")
@@ -122,8 +122,11 @@ pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) ->
                     "yuv420p",
                 ])
                 .arg(temp.path())
-                .status()
+                // Its own input would be the terminal's: a tool waiting on it never ends.
+                .stdin(std::process::Stdio::null())
+                .spawn()
                 .with_context(|| format!("cannot run {}", ffmpeg.display()))?;
+            let status = wait_or_stop(child, ffmpeg)?;
             if !status.success() {
                 bail!(
                     "{} could not encode {} ({status}); the frames were not kept",
@@ -145,6 +148,30 @@ pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) ->
         }
     }
     Ok(())
+}
+
+/// Waits for `child`, polling so that the first Ctrl-C, SIGTERM or SIGHUP ends it (a hung
+/// tool would otherwise hold the process until a second signal killed it with the frames,
+/// lock and temporary video still on disk); the caller's cleanup then runs as usual.
+fn wait_or_stop(mut child: std::process::Child, tool: &Path) -> Result<std::process::ExitStatus> {
+    loop {
+        if let Some(status) = child
+            .try_wait()
+            .with_context(|| format!("cannot wait for {}", tool.display()))?
+        {
+            return Ok(status);
+        }
+        if base::interrupt::requested() {
+            let _ = child.kill();
+            let _ = child.wait();
+            return Err(metasplat::TrainError::Interrupted(format!(
+                "stopped while {} encoded the video; nothing was written",
+                tool.display()
+            ))
+            .into());
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
 }
 
 /// ffmpeg's pattern for the frames beside `first` (`frame%05d.png`): a `%` in the folder's

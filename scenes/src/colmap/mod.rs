@@ -106,7 +106,10 @@ fn check_camera(c: &ColmapCamera) -> std::result::Result<(), String> {
     let k = c.intrinsics();
     limits::check_intrinsics(w, h, k.fx, k.fy, k.cx, k.cy)?;
     match &k.distortion {
-        Some(d) => limits::check_distortion(d),
+        Some(d) => {
+            limits::check_distortion(d)?;
+            limits::check_distortion_folds(d, w, h, k.fx, k.fy, k.cx, k.cy)
+        }
         None => Ok(()),
     }
 }
