@@ -141,7 +141,7 @@ pub fn check_distortion_folds(
         // Along a ray the tangential terms are second order; the radial map decides.
         let (x, _) = d.distort(r, 0.0);
         let radial = x - d.p2 * 3.0 * r * r;
-        if !(radial > last) {
+        if radial.is_nan() || radial <= last {
             return Err(format!(
                 "distortion {d} folds the image: the distorted radius stops growing at {:.3} of the way to the farthest corner (normalised radius {r:.4} of {corner:.4}), so undistorting would repeat mirrored content",
                 i as f64 / SAMPLES as f64
