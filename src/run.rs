@@ -349,7 +349,15 @@ impl PreparedRun {
             &self.device,
         )
         .and_then(|s| outputs::plot_log(out, &outcome.log, s.observed_psnr).map(|_| s))
-        .map_err(|e| e.context(format!("cannot write the run folder {}", out.display())))?;
+        .map_err(|e| match e {
+            // Stopped while the outputs were written: the trained splats are in the last
+            // checkpoint, and a resume only writes the files.
+            TrainError::Interrupted(why) if ckpt.is_file() => TrainError::Interrupted(format!(
+                "{why}: training had finished, and {} holds it; the same command with --resume writes the run's files",
+                ckpt.display()
+            )),
+            e => e.context(format!("cannot write the run folder {}", out.display())),
+        })?;
         if let Some(e) = snapshot_failure {
             return Err(e.context("cannot keep the splats --save-at asked for"));
         }

@@ -526,6 +526,32 @@ fn ctrl_c_ends_a_hung_video_tool_and_leaves_nothing_behind() {
     assert!(staging_in(&out).is_empty(), "{:?}", staging_in(&out));
 }
 
+/// Ctrl-C while a finished run writes its frames: it says that `--resume` writes them, and
+/// the resume does, from the final checkpoint, without training again.
+#[test]
+fn ctrl_c_during_the_final_frames_says_resume_writes_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("scene");
+    procedural(&scene, 32, 24, 5);
+    let run = d.join("run");
+    let mut args = train_args(&scene, &run, &[]);
+    for (flag, value) in [("--iters", "20"), ("--spiral", "3000")] {
+        let at = args.iter().position(|x| x == flag).unwrap();
+        args[at + 1] = value.into();
+    }
+    let writing = || run.join("point_cloud.ply").exists() && !staging_in(&run).is_empty();
+    let Some((code, err)) = interrupt_when(&args, &writing) else {
+        panic!("the run wrote its frames before it could be interrupted");
+    };
+    assert_eq!(code, Some(130), "{err}");
+    assert!(err.contains("--resume writes the run's files"), "{err}");
+    let mut resume = args.clone();
+    resume.push("--resume".into());
+    run_ok(&resume);
+    assert!(run.join("spiral").join("spiral2999.png").exists());
+}
+
 #[test]
 fn ctrl_c_while_i_ac_is_made_keeps_the_views_restored_so_far() {
     let dir = tempfile::tempdir().unwrap();
