@@ -2096,3 +2096,70 @@ fn iters_auto_stops_when_training_stops_paying_and_says_so() {
         "{err}"
     );
 }
+
+/// `restore --in DIR` restores every frame of a folder into `--out` (a folder), each exactly as
+/// `restore` makes it alone; a second run is refused unless `--resume`, which restores only
+/// the frames missing.
+#[test]
+fn restore_a_folder_of_frames_as_each_alone_and_resume_the_rest() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("scene");
+    procedural(&scene, 48, 32, 3);
+    let frames = scene.join("images");
+    let psf = d.join("psf.npy");
+    small_psf(&psf);
+    let out = d.join("restored");
+    let folder = |extra: &[&str]| {
+        let mut args = vec![
+            "restore",
+            "--psf",
+            s(&psf),
+            "--in",
+            s(&frames),
+            "--out",
+            s(&out),
+            "--any-grid",
+        ];
+        args.extend_from_slice(extra);
+        args.iter().map(|a| a.to_string()).collect::<Vec<_>>()
+    };
+    let text = ok(&folder(&[]));
+    assert!(text.contains("restored 3 frames 48x32"), "{text}");
+    for f in std::fs::read_dir(&frames).unwrap() {
+        let f = f.unwrap().path();
+        let alone = d.join("alone.png");
+        ok(&[
+            "restore",
+            "--psf",
+            s(&psf),
+            "--in",
+            s(&f),
+            "--out",
+            s(&alone),
+            "--any-grid",
+        ]);
+        let name = f.file_stem().unwrap().to_str().unwrap().to_string() + ".png";
+        assert_eq!(
+            std::fs::read(&alone).unwrap(),
+            std::fs::read(out.join(&name)).unwrap(),
+            "{name}"
+        );
+        std::fs::remove_file(&alone).unwrap();
+    }
+    let err = fails(&folder(&[]));
+    assert!(err.contains("exists") && err.contains("--resume"), "{err}");
+    let first = std::fs::read_dir(&out)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    std::fs::remove_file(&first).unwrap();
+    let text = ok(&folder(&["--resume"]));
+    assert!(
+        text.contains("2 of 3 frames were restored before") && text.contains("restored 1 frames"),
+        "{text}"
+    );
+    assert!(first.exists());
+}

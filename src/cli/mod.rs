@@ -158,6 +158,7 @@ impl Cli {
                 | Command::Demo(_)
                 | Command::Scene(scene::SceneCommand::Aberrate(_))
                 | Command::Restorer(restorer::RestorerCommand::Train(_))
+                | Command::Restore(_)
         )
     }
 }

@@ -223,12 +223,17 @@ pub struct EvalArgs {
 pub struct RestoreArgs {
     #[command(flatten)]
     pub net: Inference,
-    /// The aberrated photo (PNG or JPEG).
+    /// The aberrated photo (PNG or JPEG), or a folder of them (the frames of a video, all of
+    /// one size): each is restored into --out, a folder, under its own name as PNG.
     #[arg(long = "in")]
     pub input: PathBuf,
-    /// Where the restored photo goes (PNG).
+    /// Where the restored photo goes (PNG), or the folder the restored frames go to.
     #[arg(long)]
     pub out: PathBuf,
+    /// With a folder: keep the frames --out already holds and restore the others (after a
+    /// stop).
+    #[arg(long)]
+    pub resume: bool,
     /// Sensor size (px) the grid was made for; default G·K.
     #[arg(long, value_parser = metasplat::flags::sensor_px)]
     pub sensor_px: Option<usize>,
@@ -904,6 +909,15 @@ fn strip(images: &[&Image]) -> Image {
 }
 
 pub fn run_restore(a: RestoreArgs) -> Result<()> {
+    if a.input.is_dir() {
+        return run_restore_folder(a);
+    }
+    if a.resume {
+        bail!(
+            "--resume: only a folder of frames (--in DIR) is restored in parts; {} is one photo",
+            a.input.display()
+        );
+    }
     let mut inputs = a.net.inputs();
     inputs.push(("--in", a.input.as_path()));
     if let Some(r) = &a.reference {
@@ -955,5 +969,95 @@ pub fn run_restore(a: RestoreArgs) -> Result<()> {
         print!("; PSNR {p0:.2} -> {p1:.2} dB, SSIM {s0:.4} -> {s1:.4}");
     }
     println!();
+    Ok(())
+}
+
+/// `restore --in DIR`: every photo of a folder (a video's frames), through the restorer the
+/// grid and the frames' size call for, into the folder `--out` under the same names as PNG.
+/// Each frame is written whole as it is done; a stop (Ctrl-C) keeps the frames done, and
+/// `--resume` restores the others.
+fn run_restore_folder(a: RestoreArgs) -> Result<()> {
+    if a.reference.is_some() {
+        bail!("--reference: a folder of frames is restored without one (score a frame alone)");
+    }
+    let frames = scenes::images::list_images(&a.input)
+        .with_context(|| format!("--in {}", a.input.display()))?;
+    if a.out.is_file() {
+        bail!(
+            "--out {}: is a file; a folder of frames is restored into a folder",
+            a.out.display()
+        );
+    }
+    let size = scenes::images::common_size(&frames)
+        .context("--in: the frames of a video are of one size")?;
+    let target = |f: &Path| -> PathBuf {
+        let stem = f.file_stem().unwrap_or_default();
+        a.out.join(Path::new(stem).with_extension("png"))
+    };
+    // Every check before any work: no input overwritten, nothing there unless resuming.
+    for f in &frames {
+        let t = target(f);
+        if t.exists() && !a.resume {
+            bail!(
+                "--out {}: {} exists; --resume keeps the frames done and restores the others",
+                a.out.display(),
+                t.display()
+            );
+        }
+    }
+    let mut inputs = a.net.inputs();
+    inputs.push(("--in", a.input.as_path()));
+    for f in &frames {
+        metasplat::guard::refuse_overwrite("--out", &target(f), &inputs)?;
+    }
+    let (w, h) = (size.0 as usize, size.1 as usize);
+    let (native, restorer) = a.net.load(|n| Some(n.mapped_size(w, h, a.sensor_px)))?;
+    let psf = native
+        .for_image(w, h, a.sensor_px)
+        .with_context(|| super::sensor_flag(a.sensor_px, &a.net.psf))?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("cannot make {}", a.out.display()))?;
+    let todo: Vec<&PathBuf> = frames.iter().filter(|f| !target(f).exists()).collect();
+    let kept = frames.len() - todo.len();
+    if kept > 0 {
+        println!(
+            "--resume: {kept} of {} frames were restored before; restoring the other {}.",
+            frames.len(),
+            todo.len()
+        );
+    }
+    let start = std::time::Instant::now();
+    for (done, f) in todo.iter().enumerate() {
+        if base::interrupt::requested() {
+            return Err(metasplat::TrainError::Interrupted(format!(
+                "restoring stopped after {} of {} frames; they are kept in {}: the same command with --resume restores the others",
+                kept + done,
+                frames.len(),
+                a.out.display()
+            ))
+            .into());
+        }
+        let blurred = Image::load(f).with_context(|| format!("cannot read {}", f.display()))?;
+        let restored = restorer.restore(&blurred, &psf)?;
+        restored
+            .save_png(&target(f))
+            .with_context(|| format!("cannot write {}", target(f).display()))?;
+        let spent = start.elapsed().as_secs_f64();
+        let left = spent / (done + 1) as f64 * (todo.len() - done - 1) as f64;
+        println!(
+            "frame {} of {} ({}) restored; about {left:.0} s left",
+            kept + done + 1,
+            frames.len(),
+            f.file_name().unwrap_or_default().to_string_lossy()
+        );
+    }
+    println!(
+        "restored {} frames {}x{} with '{}' in {:.1} s -> {}",
+        todo.len(),
+        size.0,
+        size.1,
+        restorer.config().name,
+        start.elapsed().as_secs_f64(),
+        a.out.display()
+    );
     Ok(())
 }
