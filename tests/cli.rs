@@ -2162,4 +2162,41 @@ fn restore_a_folder_of_frames_as_each_alone_and_resume_the_rest() {
         "{text}"
     );
     assert!(first.exists());
+    // The restored clip scored against the clean one: a row per frame, and flicker 0 for the
+    // clean clip against itself.
+    let text = ok(&[
+        "restorer",
+        "eval-video",
+        "--restored",
+        s(&out),
+        "--clean",
+        s(&frames),
+    ]);
+    assert_eq!(
+        text.lines().filter(|l| l.starts_with("| view")).count(),
+        3,
+        "{text}"
+    );
+    assert!(
+        text.contains("| mean |") && text.contains("flicker:"),
+        "{text}"
+    );
+    let text = ok(&[
+        "restorer",
+        "eval-video",
+        "--restored",
+        s(&frames),
+        "--clean",
+        s(&frames),
+    ]);
+    assert!(text.contains("differ by 0.00000 more"), "{text}");
+    let err = fails(&[
+        "restorer",
+        "eval-video",
+        "--restored",
+        s(&out),
+        "--clean",
+        s(&scene.join("sparse")),
+    ]);
+    assert!(err.contains("--clean"), "{err}");
 }

@@ -20,6 +20,7 @@ pub mod speed;
 pub mod tiles;
 pub mod train;
 pub mod train_state;
+pub mod video;
 pub mod weights;
 
 pub use compute::Compute;

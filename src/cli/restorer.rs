@@ -20,6 +20,19 @@ pub enum RestorerCommand {
     Train(TrainRestorerArgs),
     /// Validation table: best single-K Wiener, median MAFG image, the network.
     Eval(EvalArgs),
+    /// Score a restored clip (a folder of frames) against its clean one: per-frame PSNR and
+    /// SSIM, and its flicker (how much more consecutive frames differ than the clean ones do).
+    EvalVideo(EvalVideoArgs),
+}
+
+#[derive(Args)]
+pub struct EvalVideoArgs {
+    /// The restored clip: a folder of frames, in name order.
+    #[arg(long)]
+    pub restored: PathBuf,
+    /// The clean clip: as many frames of the same size, in name order.
+    #[arg(long)]
+    pub clean: PathBuf,
 }
 
 #[derive(Args)]
@@ -246,6 +259,7 @@ pub fn run(c: RestorerCommand) -> Result<()> {
     match c {
         RestorerCommand::Train(a) => run_train(a),
         RestorerCommand::Eval(a) => run_eval(a),
+        RestorerCommand::EvalVideo(a) => run_eval_video(a),
     }
 }
 
@@ -1058,6 +1072,42 @@ fn run_restore_folder(a: RestoreArgs) -> Result<()> {
         restorer.config().name,
         start.elapsed().as_secs_f64(),
         a.out.display()
+    );
+    Ok(())
+}
+
+fn run_eval_video(a: EvalVideoArgs) -> Result<()> {
+    let read = |flag: &str, dir: &Path| -> Result<(Vec<PathBuf>, Vec<Image>)> {
+        let paths = scenes::images::list_images(dir)
+            .with_context(|| format!("{flag} {}", dir.display()))?;
+        let frames = paths
+            .iter()
+            .map(|p| Image::load(p).with_context(|| format!("{flag}: cannot read {}", p.display())))
+            .collect::<Result<Vec<_>>>()?;
+        Ok((paths, frames))
+    };
+    let (names, restored) = read("--restored", &a.restored)?;
+    let (_, clean) = read("--clean", &a.clean)?;
+    let flicker =
+        restore::video::flicker(&restored, &clean).context("--restored against --clean")?;
+    println!("| frame | PSNR (dB) | SSIM |");
+    println!("|---|---:|---:|");
+    let (mut p_sum, mut s_sum) = (0.0, 0.0);
+    for ((name, r), c) in names.iter().zip(&restored).zip(&clean) {
+        let (p, s) = metric(r, c)?;
+        p_sum += p;
+        s_sum += s;
+        println!(
+            "| {} | {p:.2} | {s:.4} |",
+            name.file_name().unwrap_or_default().to_string_lossy()
+        );
+    }
+    let n = restored.len() as f64;
+    println!("| mean | {:.2} | {:.4} |", p_sum / n, s_sum / n);
+    println!(
+        "flicker: consecutive restored frames differ by {:.5} more (mean absolute difference, [0, 1] units) than the clean ones ({:.5}); 0 is as steady as the clean clip",
+        flicker,
+        restore::video::frame_to_frame(&clean)
     );
     Ok(())
 }
