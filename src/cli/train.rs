@@ -193,14 +193,19 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
         match config.masks {
             _ if masked == 0 => {}
             Some(MaskUse::Object) => println!(
-                "Masks ({}): the object alone{}: {masked} of {} training views are composited over the background ({r:.3},{g:.3},{b:.3}) outside their masks, so everything outside the object is learnt as empty and the splats hold the object only; held-out views are scored on the object over the same background, and inside the masks. --mask-mode loss leaves those pixels out of the loss instead.",
+                "Masks ({}): the object alone{}: {masked} of {} training views are composited over {} outside their masks, so everything outside the object is learnt as empty and the splats hold the object only; held-out views are scored on the object over {r:.3},{g:.3},{b:.3}, and inside the masks. --mask-mode loss leaves those pixels out of the loss instead.",
                 data.capture.mask_source(),
                 if t.mask_mode == MaskChoice::Auto {
                     " (the default for object masks)"
                 } else {
                     ""
                 },
-                data.train.len()
+                data.train.len(),
+                if config.random_background {
+                    "each step's random background".to_string()
+                } else {
+                    format!("the background ({r:.3},{g:.3},{b:.3})")
+                }
             ),
             Some(MaskUse::Loss) => println!(
                 "Masks ({}): {masked} of {} training views leave the pixels outside their masks out of the loss (--mask-mode loss); held-out views are scored on the object over the background, and inside the masks.",
