@@ -2200,3 +2200,105 @@ fn restore_a_folder_of_frames_as_each_alone_and_resume_the_rest() {
     ]);
     assert!(err.contains("--clean"), "{err}");
 }
+
+/// `restore --in clip.gif --out restored.gif` restores every frame of an animated GIF, keeps
+/// its frame times, and each frame is the restoration of that frame alone through the GIF's
+/// palette.
+#[test]
+fn restore_an_animated_gif_frame_by_frame() {
+    use image::AnimationDecoder;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("scene");
+    procedural(&scene, 48, 32, 3);
+    let psf = d.join("psf.npy");
+    small_psf(&psf);
+    let decode = |p: &Path| {
+        image::codecs::gif::GifDecoder::new(std::io::BufReader::new(
+            std::fs::File::open(p).unwrap(),
+        ))
+        .unwrap()
+        .into_frames()
+        .collect_frames()
+        .unwrap()
+    };
+    // A three-frame clip of the scene's views, a tenth of a second each.
+    let clip = d.join("clip.gif");
+    {
+        let mut bytes = Vec::new();
+        let mut encoder = image::codecs::gif::GifEncoder::new(&mut bytes);
+        let delay = image::Delay::from_numer_denom_ms(100, 1);
+        for k in 0..3 {
+            let f = image::open(scene.join("images").join(format!("view{k:03}.png")))
+                .unwrap()
+                .to_rgba8();
+            encoder
+                .encode_frame(image::Frame::from_parts(f, 0, 0, delay))
+                .unwrap();
+        }
+        drop(encoder);
+        std::fs::write(&clip, bytes).unwrap();
+    }
+    let restored = d.join("restored.gif");
+    let text = ok(&[
+        "restore",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&clip),
+        "--out",
+        s(&restored),
+        "--any-grid",
+    ]);
+    assert!(text.contains("restored 3 frames 48x32"), "{text}");
+    let (input, output) = (decode(&clip), decode(&restored));
+    assert_eq!(output.len(), 3);
+    for (k, (i, o)) in input.iter().zip(&output).enumerate() {
+        assert_eq!(i.delay(), o.delay(), "frame {k}");
+        // The frame alone, through the same restorer.
+        let frame = d.join(format!("frame{k}.png"));
+        image::DynamicImage::ImageRgba8(i.buffer().clone())
+            .to_rgb8()
+            .save(&frame)
+            .unwrap();
+        let alone = d.join(format!("alone{k}.png"));
+        ok(&[
+            "restore",
+            "--psf",
+            s(&psf),
+            "--in",
+            s(&frame),
+            "--out",
+            s(&alone),
+            "--any-grid",
+        ]);
+        // The frame restored alone, through the GIF's palette (what any GIF of it holds): the
+        // same pixels as the clip's frame.
+        let a = image::open(&alone).unwrap().to_rgba8();
+        let mut bytes = Vec::new();
+        {
+            let mut e = image::codecs::gif::GifEncoder::new_with_speed(&mut bytes, 10);
+            e.encode_frame(image::Frame::new(a)).unwrap();
+        }
+        let through_palette = image::codecs::gif::GifDecoder::new(std::io::Cursor::new(bytes))
+            .unwrap()
+            .into_frames()
+            .collect_frames()
+            .unwrap();
+        assert!(
+            through_palette[0].buffer() == o.buffer(),
+            "frame {k} differs from the frame restored alone"
+        );
+    }
+    let err = fails(&[
+        "restore",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&clip),
+        "--out",
+        s(&d.join("r.png")),
+        "--any-grid",
+    ]);
+    assert!(err.contains(".gif"), "{err}");
+}

@@ -926,6 +926,9 @@ pub fn run_restore(a: RestoreArgs) -> Result<()> {
     if a.input.is_dir() {
         return run_restore_folder(a);
     }
+    if is_gif(&a.input) {
+        return run_restore_gif(a);
+    }
     if a.resume {
         bail!(
             "--resume: only a folder of frames (--in DIR) is restored in parts; {} is one photo",
@@ -1108,6 +1111,98 @@ fn run_eval_video(a: EvalVideoArgs) -> Result<()> {
         "flicker: consecutive restored frames differ by {:.5} more (mean absolute difference, [0, 1] units) than the clean ones ({:.5}); 0 is as steady as the clean clip",
         flicker,
         restore::video::frame_to_frame(&clean)
+    );
+    Ok(())
+}
+
+fn is_gif(p: &Path) -> bool {
+    p.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("gif"))
+}
+
+/// `restore --in clip.gif --out restored.gif`: every frame of an animated GIF through the
+/// restorer its size calls for, written as one GIF with the input's frame times (without
+/// ffmpeg). A stop (Ctrl-C) between frames writes nothing.
+fn run_restore_gif(a: RestoreArgs) -> Result<()> {
+    use image::AnimationDecoder;
+    if a.resume || a.reference.is_some() {
+        bail!("--resume and --reference: a GIF is restored whole, without either");
+    }
+    if !is_gif(&a.out) {
+        bail!(
+            "--out {}: a GIF is restored into a .gif (restore its frames as a folder with --in DIR for PNG frames)",
+            a.out.display()
+        );
+    }
+    let mut inputs = a.net.inputs();
+    inputs.push(("--in", a.input.as_path()));
+    metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
+    let file =
+        base::input::open(&a.input).with_context(|| format!("--in {}", a.input.display()))?;
+    let decoder = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(file))
+        .with_context(|| format!("--in {}: not a GIF", a.input.display()))?;
+    let frames = decoder
+        .into_frames()
+        .collect_frames()
+        .with_context(|| format!("--in {}: cannot decode its frames", a.input.display()))?;
+    let Some(first) = frames.first() else {
+        bail!("--in {}: the GIF has no frames", a.input.display());
+    };
+    let (w, h) = (
+        first.buffer().width() as usize,
+        first.buffer().height() as usize,
+    );
+    base::limits::check_image_pixels(w as u32, h as u32)
+        .map_err(|p| anyhow::anyhow!("--in {}: {p}", a.input.display()))?;
+    let (native, restorer) = a.net.load(|n| Some(n.mapped_size(w, h, a.sensor_px)))?;
+    let psf = native
+        .for_image(w, h, a.sensor_px)
+        .with_context(|| super::sensor_flag(a.sensor_px, &a.net.psf))?;
+    let start = std::time::Instant::now();
+    let mut out = Vec::with_capacity(frames.len());
+    for (i, f) in frames.iter().enumerate() {
+        if base::interrupt::requested() {
+            return Err(metasplat::TrainError::Interrupted(format!(
+                "restoring stopped after {i} of {} frames; nothing was written",
+                frames.len()
+            ))
+            .into());
+        }
+        let rgba = f.buffer();
+        let blurred = Image::from_fn(w, h, |x, y| {
+            let p = rgba.get_pixel(x as u32, y as u32).0;
+            [p[0], p[1], p[2]].map(|v| v as f32 / 255.0)
+        });
+        let restored = restorer.restore(&blurred, &psf)?;
+        let rgb = restored.to_rgb8();
+        let rgba = image::RgbaImage::from_fn(w as u32, h as u32, |x, y| {
+            let p = rgb.get_pixel(x, y).0;
+            image::Rgba([p[0], p[1], p[2], 255])
+        });
+        out.push(image::Frame::from_parts(rgba, 0, 0, f.delay()));
+        let spent = start.elapsed().as_secs_f64();
+        println!(
+            "frame {} of {} restored; about {:.0} s left",
+            i + 1,
+            frames.len(),
+            spent / (i + 1) as f64 * (frames.len() - i - 1) as f64
+        );
+    }
+    let mut bytes = Vec::new();
+    {
+        let mut encoder = image::codecs::gif::GifEncoder::new_with_speed(&mut bytes, 10);
+        encoder.set_repeat(image::codecs::gif::Repeat::Infinite)?;
+        encoder.encode_frames(out)?;
+    }
+    base::write_bytes_atomically(&a.out, &bytes)
+        .with_context(|| format!("cannot write {}", a.out.display()))?;
+    println!(
+        "restored {} frames {w}x{h} with '{}' in {:.1} s -> {}",
+        frames.len(),
+        restorer.config().name,
+        start.elapsed().as_secs_f64(),
+        a.out.display()
     );
     Ok(())
 }
