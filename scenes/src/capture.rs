@@ -656,6 +656,13 @@ fn open_transforms(root: &Path, options: &OpenOptions) -> Result<Capture> {
     // a downsample reads images_N/, or images/ shrunk, as the other layouts do.
     let (folder, shrink) = match options.resolution {
         Resolution::Downsample(1) => (1, 1),
+        // Photos in another folder than images/ (and no images_N/): read as named, shrunk.
+        Resolution::Downsample(n)
+            if !root.join(llff::image_folder_name(n)).is_dir()
+                && !root.join("images").is_dir() =>
+        {
+            (1, n)
+        }
         resolution => {
             let (dir, shrink) = image_source(root, resolution)?;
             (folder_downsample(&dir).unwrap_or(1), shrink)

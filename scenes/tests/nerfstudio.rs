@@ -181,7 +181,10 @@ fn transforms_json_that_lies_is_refused_naming_the_frame() {
     // Coefficients in bounds that fold the image before its corners: refused, not undistorted
     // into mirrored content.
     let e = case("folds", &|d| d["k1"] = json!(-4.0));
-    assert!(e.contains("frame 0") && e.contains("folds the image"), "{e}");
+    assert!(
+        e.contains("frame 0") && e.contains("folds the image"),
+        "{e}"
+    );
     let e = case("model number", &|d| d["camera_model"] = json!(5));
     assert!(e.contains("camera_model is 5"), "{e}");
     // Distortion is kept, for reporting, as COLMAP's is; k3 is the r⁶ radial term.
@@ -542,4 +545,24 @@ fn a_copys_record_says_when_its_masks_are_only_the_undistortion_border() {
             "the copy carries its masks"
         );
     }
+}
+
+/// Frames whose photos are in another folder than `images/`, with no `images_N/` copies: a
+/// downsample reads them as named and shrinks them at load, as for `images/`.
+#[test]
+fn frames_in_another_folder_are_shrunk_at_a_downsample() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("ns");
+    let (cameras, _) = common::arc_cameras(3, 80, 60, 3);
+    write_capture(&dir, &cameras, json!({}));
+    std::fs::remove_dir_all(dir.join("images_2")).unwrap();
+    std::fs::rename(dir.join("images"), dir.join("frames")).unwrap();
+    let path = dir.join("transforms.json");
+    let text = std::fs::read_to_string(&path).unwrap().replace("images/", "frames/");
+    std::fs::write(&path, text).unwrap();
+    let c = open(&dir, 2).unwrap();
+    assert_eq!(c.len(), 3);
+    assert_eq!((c.cameras[0].width, c.cameras[0].height), (40, 30));
+    let photo = c.load_image(0).unwrap();
+    assert_eq!((photo.width, photo.height), (40, 30));
 }
