@@ -2302,3 +2302,80 @@ fn restore_an_animated_gif_frame_by_frame() {
     ]);
     assert!(err.contains(".gif"), "{err}");
 }
+
+/// `restore --in clip.mp4 --out restored.mp4`: the frames come out through ffmpeg (a stand-in
+/// here that hands out a procedural scene's views and says "12 fps"), are restored as a folder
+/// would be, and go back in at the clip's rate; the parts folder goes when the video is
+/// written. Without ffmpeg the request is refused, naming the .gif and folder ways.
+#[test]
+fn restore_a_video_through_ffmpeg_at_its_rate() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("scene");
+    procedural(&scene, 48, 32, 3);
+    let psf = d.join("psf.npy");
+    small_psf(&psf);
+    let clip = d.join("clip.mp4");
+    std::fs::write(&clip, b"not decoded by the stand-in").unwrap();
+    let restored = d.join("restored.mp4");
+    let args = [
+        "restore",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&clip),
+        "--out",
+        s(&restored),
+        "--any-grid",
+    ];
+    // No ffmpeg on the PATH.
+    let empty = d.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let out = common::cli::metasplat()
+        .env("PATH", &empty)
+        .args(args)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success()
+            && err.contains("ffmpeg")
+            && err.contains(".gif")
+            && err.contains("folder"),
+        "{err}"
+    );
+    let bin = d.join("bin");
+    std::fs::create_dir_all(&bin).unwrap();
+    let fake = bin.join("ffmpeg");
+    std::fs::write(
+        &fake,
+        format!(
+            "#!/bin/sh\nfor last; do :; done\ncase \"$last\" in\n  *%05d.png) i=1; for f in '{frames}'/*.png; do /bin/cp \"$f\" \"${{last%/*}}/$(printf 'frame%05d.png' $i)\"; i=$((i+1)); done ;;\n  *.mp4) if [ \"$last\" = '{clip}' ]; then echo '  Stream #0:0: Video: h264, yuv420p, 48x32, 12 fps, 12 tbr' >&2; exit 1; fi; echo \"$@\" > '{args}'; echo video > \"$last\" ;;\nesac\n",
+            frames = scene.join("images").display(),
+            clip = clip.display(),
+            args = d.join("args").display()
+        ),
+    )
+    .unwrap();
+    std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let out = common::cli::metasplat()
+        .env("PATH", &bin)
+        .args(args)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("restored 3 frames 48x32"), "{text}");
+    assert_eq!(std::fs::read_to_string(&restored).unwrap(), "video\n");
+    let encoded = std::fs::read_to_string(d.join("args")).unwrap();
+    assert!(encoded.contains("-framerate 12"), "{encoded}");
+    assert!(
+        !d.join("restored.mp4.parts").exists(),
+        "the parts folder was left"
+    );
+}

@@ -929,6 +929,9 @@ pub fn run_restore(a: RestoreArgs) -> Result<()> {
     if is_gif(&a.input) {
         return run_restore_gif(a);
     }
+    if super::video::is_ffmpeg_video(&a.input) {
+        return run_restore_video(a);
+    }
     if a.resume {
         bail!(
             "--resume: only a folder of frames (--in DIR) is restored in parts; {} is one photo",
@@ -1203,6 +1206,74 @@ fn run_restore_gif(a: RestoreArgs) -> Result<()> {
         restorer.config().name,
         start.elapsed().as_secs_f64(),
         a.out.display()
+    );
+    Ok(())
+}
+
+/// `restore --in clip.mp4 --out restored.mp4` (or `.gif`): the clip's frames through ffmpeg
+/// into `OUT.parts/input/`, restored into `OUT.parts/restored/` ([`run_restore_folder`]), and
+/// encoded at the clip's rate into `--out`; the parts folder goes when the video is written.
+/// A stop keeps the frames done there, and `--resume` continues.
+fn run_restore_video(a: RestoreArgs) -> Result<()> {
+    if a.reference.is_some() {
+        bail!("--reference: a video is restored without one (score it with restorer eval-video)");
+    }
+    let Some(ffmpeg) = super::video::on_path("ffmpeg") else {
+        bail!(
+            "--in {}: reading a video needs ffmpeg, which is not on the PATH; install it, or restore the clip as a .gif or as a folder of frames (--in DIR --out DIR)",
+            a.input.display()
+        );
+    };
+    let format = super::video::format_for_flag("--out", &a.out)?;
+    let mut inputs = a.net.inputs();
+    inputs.push(("--in", a.input.as_path()));
+    metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
+    let parts = PathBuf::from(format!("{}.parts", a.out.display()));
+    if parts.exists() && !a.resume {
+        bail!(
+            "--out {}: {} holds the frames of an earlier run; --resume continues it",
+            a.out.display(),
+            parts.display()
+        );
+    }
+    let (input_dir, restored_dir) = (parts.join("input"), parts.join("restored"));
+    for d in [&input_dir, &restored_dir] {
+        std::fs::create_dir_all(d).with_context(|| format!("cannot make {}", d.display()))?;
+    }
+    let rate_file = parts.join("fps");
+    let fps = match std::fs::read_to_string(&rate_file)
+        .ok()
+        .and_then(|t| t.trim().parse::<f64>().ok())
+    {
+        Some(fps) if scenes::images::list_images(&input_dir).is_ok() => fps,
+        _ => {
+            println!(
+                "Reading the frames of {} with {}.",
+                a.input.display(),
+                ffmpeg.display()
+            );
+            let fps = super::video::decode(&ffmpeg, &a.input, &input_dir)?;
+            base::write_bytes_atomically(&rate_file, fps.to_string().as_bytes())
+                .with_context(|| format!("cannot write {}", rate_file.display()))?;
+            fps
+        }
+    };
+    let out = a.out.clone();
+    run_restore_folder(RestoreArgs {
+        input: input_dir,
+        out: restored_dir.clone(),
+        resume: true,
+        reference: None,
+        ..a
+    })?;
+    let frames = scenes::images::list_images(&restored_dir)?;
+    super::video::encode(&format, &frames, fps, &out)?;
+    std::fs::remove_dir_all(&parts)
+        .with_context(|| format!("cannot remove {}", parts.display()))?;
+    println!(
+        "wrote {} ({} frames at {fps} frames per second)",
+        out.display(),
+        frames.len()
     );
     Ok(())
 }

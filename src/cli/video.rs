@@ -15,6 +15,53 @@ pub enum VideoFormat {
 
 /// How `path` is written; refused before any work when it cannot be.
 pub fn format_for(path: &Path) -> Result<VideoFormat> {
+    format_for_flag("--video", path)
+}
+
+/// Whether `path` names a video ffmpeg reads and writes (not a GIF).
+pub fn is_ffmpeg_video(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .is_some_and(|e| matches!(e.as_str(), "mp4" | "mov" | "webm" | "mkv"))
+}
+
+/// The frames of the video `input` as `dir/frame%05d.png` (from 1), through `ffmpeg`, and its
+/// frame rate (30 when ffmpeg does not say). The first Ctrl-C ends the tool.
+pub fn decode(ffmpeg: &Path, input: &Path, dir: &Path) -> Result<f64> {
+    // ffmpeg describes the input on stderr when asked for nothing else (and exits 1).
+    let probe = std::process::Command::new(ffmpeg)
+        .args(["-hide_banner", "-i"])
+        .arg(input)
+        .stdin(std::process::Stdio::null())
+        .output()
+        .with_context(|| format!("cannot run {}", ffmpeg.display()))?;
+    let fps = String::from_utf8_lossy(&probe.stderr)
+        .split(',')
+        .find_map(|part| part.trim().strip_suffix(" fps")?.trim().parse::<f64>().ok())
+        .filter(|f| f.is_finite() && *f > 0.0)
+        .unwrap_or(30.0);
+    let child = std::process::Command::new(ffmpeg)
+        .args(["-hide_banner", "-loglevel", "error", "-i"])
+        .arg(input)
+        .args(["-vsync", "0"])
+        .arg(frame_pattern(&dir.join("frame00000.png")))
+        .stdin(std::process::Stdio::null())
+        .spawn()
+        .with_context(|| format!("cannot run {}", ffmpeg.display()))?;
+    let status = wait_or_stop(child, ffmpeg)?;
+    if !status.success() {
+        bail!(
+            "{} could not read the frames of {} ({status})",
+            ffmpeg.display(),
+            input.display()
+        );
+    }
+    Ok(fps)
+}
+
+/// [`format_for`], naming `flag` in its refusals.
+pub fn format_for_flag(flag: &str, path: &Path) -> Result<VideoFormat> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -24,12 +71,12 @@ pub fn format_for(path: &Path) -> Result<VideoFormat> {
         Some("mp4" | "mov" | "webm" | "mkv") => match on_path("ffmpeg") {
             Some(ffmpeg) => Ok(VideoFormat::Ffmpeg(ffmpeg)),
             None => bail!(
-                "--video {}: writing this format needs ffmpeg, which is not on the PATH; install it, or give a .gif file (written without it)",
+                "{flag} {}: writing this format needs ffmpeg, which is not on the PATH; install it, or give a .gif file (written without it)",
                 path.display()
             ),
         },
         _ => bail!(
-            "--video {}: a video is written as .mp4, .mov, .webm or .mkv (through ffmpeg) or as .gif",
+            "{flag} {}: a video is written as .mp4, .mov, .webm or .mkv (through ffmpeg) or as .gif",
             path.display()
         ),
     }
@@ -59,7 +106,7 @@ pub fn written_fps(format: &VideoFormat, fps: f64) -> Result<f64> {
 }
 
 /// The first executable file called `name` in the PATH's folders.
-fn on_path(name: &str) -> Option<PathBuf> {
+pub fn on_path(name: &str) -> Option<PathBuf> {
     use std::os::unix::fs::PermissionsExt;
     std::env::split_paths(&std::env::var_os("PATH")?)
         .map(|d| d.join(name))
@@ -153,7 +200,10 @@ pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) ->
 /// Waits for `child`, polling so that the first Ctrl-C, SIGTERM or SIGHUP ends it (a hung
 /// tool would otherwise hold the process until a second signal killed it with the frames,
 /// lock and temporary video still on disk); the caller's cleanup then runs as usual.
-fn wait_or_stop(mut child: std::process::Child, tool: &Path) -> Result<std::process::ExitStatus> {
+pub fn wait_or_stop(
+    mut child: std::process::Child,
+    tool: &Path,
+) -> Result<std::process::ExitStatus> {
     loop {
         if let Some(status) = child
             .try_wait()
