@@ -2379,3 +2379,81 @@ fn restore_a_video_through_ffmpeg_at_its_rate() {
         "the parts folder was left"
     );
 }
+
+/// `aberrate --in DIR --out DIR` makes a clip's aberrated twin: frame `i` as `aberrate` makes
+/// it alone with the seed `mix64(seed ^ i)` (noise of its own per frame); the twin restores
+/// and scores as a clip.
+#[test]
+fn aberrate_a_folder_of_frames_with_noise_of_their_own() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("scene");
+    procedural(&scene, 48, 32, 3);
+    let frames = scene.join("images");
+    let psf = d.join("psf.npy");
+    small_psf(&psf);
+    let abr = d.join("abr");
+    let text = ok(&[
+        "aberrate",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&frames),
+        "--out",
+        s(&abr),
+        "--seed",
+        "4",
+    ]);
+    assert!(text.contains("3 frames 48x32"), "{text}");
+    for k in 0..3u64 {
+        let alone = d.join(format!("alone{k}.png"));
+        let seed = base::mix64(4 ^ k).to_string();
+        ok(&[
+            "aberrate",
+            "--psf",
+            s(&psf),
+            "--in",
+            s(&frames.join(format!("view{k:03}.png"))),
+            "--out",
+            s(&alone),
+            "--seed",
+            &seed,
+        ]);
+        assert_eq!(
+            std::fs::read(&alone).unwrap(),
+            std::fs::read(abr.join(format!("view{k:03}.png"))).unwrap(),
+            "frame {k}"
+        );
+    }
+    let restored = d.join("restored");
+    ok(&[
+        "restore",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&abr),
+        "--out",
+        s(&restored),
+        "--any-grid",
+    ]);
+    let text = ok(&[
+        "restorer",
+        "eval-video",
+        "--restored",
+        s(&restored),
+        "--clean",
+        s(&frames),
+    ]);
+    assert!(text.contains("flicker:"), "{text}");
+    // An existing frame is not overwritten.
+    let err = fails(&[
+        "aberrate",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&frames),
+        "--out",
+        s(&abr),
+    ]);
+    assert!(err.contains("exists"), "{err}");
+}
