@@ -146,7 +146,7 @@ impl Tiling {
 #[derive(Args)]
 pub struct Inference {
     /// Restorer weights; without it, the network shipped in the binary
-    /// (`restore/weights/tiny.bin`, else the general `family_tiny_1.bin`), when one serves this
+    /// (`restore/weights/tiny.bin`, else the general `family_tiny_2.bin`), when one serves this
     /// PSF grid.
     #[arg(long)]
     pub weights: Option<PathBuf>,
