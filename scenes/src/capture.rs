@@ -658,8 +658,7 @@ fn open_transforms(root: &Path, options: &OpenOptions) -> Result<Capture> {
         Resolution::Downsample(1) => (1, 1),
         // Photos in another folder than images/ (and no images_N/): read as named, shrunk.
         Resolution::Downsample(n)
-            if !root.join(llff::image_folder_name(n)).is_dir()
-                && !root.join("images").is_dir() =>
+            if !root.join(llff::image_folder_name(n)).is_dir() && !root.join("images").is_dir() =>
         {
             (1, n)
         }

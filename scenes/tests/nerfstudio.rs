@@ -558,7 +558,9 @@ fn frames_in_another_folder_are_shrunk_at_a_downsample() {
     std::fs::remove_dir_all(dir.join("images_2")).unwrap();
     std::fs::rename(dir.join("images"), dir.join("frames")).unwrap();
     let path = dir.join("transforms.json");
-    let text = std::fs::read_to_string(&path).unwrap().replace("images/", "frames/");
+    let text = std::fs::read_to_string(&path)
+        .unwrap()
+        .replace("images/", "frames/");
     std::fs::write(&path, text).unwrap();
     let c = open(&dir, 2).unwrap();
     assert_eq!(c.len(), 3);
