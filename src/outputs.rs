@@ -275,16 +275,9 @@ pub fn write_run(
                     outcome.settings.background,
                 );
                 sum += sc.compare(v.camera.width, v.camera.height)?.0;
-                in_mask.extend(
-                    sc.mask.and_then(|m| {
-                        crate::train::object::psnr_in_mask(&sc.image, &sc.reference, m)
-                    }),
-                );
+                in_mask.extend(sc.psnr_in_mask());
             }
-            Some((
-                sum / data.test.len() as f64,
-                (!in_mask.is_empty()).then(|| in_mask.iter().sum::<f64>() / in_mask.len() as f64),
-            ))
+            Some((sum / data.test.len() as f64, eval::mean(&in_mask)))
         }
         _ => None,
     };

@@ -100,31 +100,13 @@ pub fn run(a: AberrateArgs) -> Result<()> {
 /// with the sensor noise of seed `mix(seed, i)` (a video's noise changes from frame to frame),
 /// so a clean clip (`render --out`) gives its aberrated twin to restore and score.
 fn run_folder(a: AberrateArgs) -> Result<()> {
-    let frames = scenes::images::list_images(&a.input)
-        .with_context(|| format!("--in {}", a.input.display()))?;
-    let (w, h) = scenes::images::common_size(&frames)
-        .context("--in: the frames of a clip are of one size")?;
-    if a.out.is_file() {
-        anyhow::bail!(
-            "--out {}: is a file; a folder of frames goes into a folder",
-            a.out.display()
-        );
-    }
-    let target = |f: &std::path::Path| {
-        a.out
-            .join(std::path::Path::new(f.file_stem().unwrap_or_default()).with_extension("png"))
-    };
-    for f in &frames {
-        let t = target(f);
-        if t.exists() {
-            anyhow::bail!(
-                "--out {}: {} exists; give an empty or new folder",
-                a.out.display(),
-                t.display()
-            );
-        }
-        metasplat::guard::refuse_overwrite("--out", &t, &[("--in", f), ("--psf", &a.psf)])?;
-    }
+    let io = super::frames::FrameFolders::check(
+        &a.input,
+        &a.out,
+        Some("give an empty or new folder"),
+        &[("--psf", &a.psf)],
+    )?;
+    let (w, h) = io.size;
     let psf = PsfGrid::load_npy(&a.psf)?;
     let im = &a.imaging;
     let model = ImagingModel::new(
@@ -142,20 +124,20 @@ fn run_folder(a: AberrateArgs) -> Result<()> {
             super::sensor_flag(im.sensor_px, &a.psf)
         )
     })?;
-    std::fs::create_dir_all(&a.out).with_context(|| format!("cannot make {}", a.out.display()))?;
+    io.make_out()?;
     let mut sum = 0.0;
-    for (i, f) in frames.iter().enumerate() {
+    for (i, f) in io.frames.iter().enumerate() {
         let clean = Image::load(f)?;
         let out = model.capture(&clean, base::mix64(im.seed ^ i as u64))?;
-        out.save_png(&target(f))?;
+        out.save_png(&io.target(f))?;
         sum += psnr(&out, &clean)?;
     }
     println!(
         "{} frames {w}x{h} through {} px PSFs ({} mode), noise seeded per frame: mean PSNR {:.2} dB vs input; wrote {}",
-        frames.len(),
+        io.frames.len(),
         model.psf().size(),
         im.mode,
-        sum / frames.len() as f64,
+        sum / io.frames.len() as f64,
         a.out.display()
     );
     Ok(())

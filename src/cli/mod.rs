@@ -6,6 +6,7 @@ mod deconvolve;
 mod demo;
 mod experiment;
 mod export;
+mod frames;
 mod progress;
 mod psf;
 mod psf_mismatch;

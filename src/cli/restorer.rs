@@ -1000,43 +1000,20 @@ fn run_restore_folder(a: RestoreArgs) -> Result<()> {
     if a.reference.is_some() {
         bail!("--reference: a folder of frames is restored without one (score a frame alone)");
     }
-    let frames = scenes::images::list_images(&a.input)
-        .with_context(|| format!("--in {}", a.input.display()))?;
-    if a.out.is_file() {
-        bail!(
-            "--out {}: is a file; a folder of frames is restored into a folder",
-            a.out.display()
-        );
-    }
-    let size = scenes::images::common_size(&frames)
-        .context("--in: the frames of a video are of one size")?;
-    let target = |f: &Path| -> PathBuf {
-        let stem = f.file_stem().unwrap_or_default();
-        a.out.join(Path::new(stem).with_extension("png"))
-    };
-    // Every check before any work: no input overwritten, nothing there unless resuming.
-    for f in &frames {
-        let t = target(f);
-        if t.exists() && !a.resume {
-            bail!(
-                "--out {}: {} exists; --resume keeps the frames done and restores the others",
-                a.out.display(),
-                t.display()
-            );
-        }
-    }
-    let mut inputs = a.net.inputs();
-    inputs.push(("--in", a.input.as_path()));
-    for f in &frames {
-        metasplat::guard::refuse_overwrite("--out", &target(f), &inputs)?;
-    }
+    let io = super::frames::FrameFolders::check(
+        &a.input,
+        &a.out,
+        (!a.resume).then_some("--resume keeps the frames done and restores the others"),
+        &a.net.inputs(),
+    )?;
+    let (frames, size) = (&io.frames, io.size);
     let (w, h) = (size.0 as usize, size.1 as usize);
     let (native, restorer) = a.net.load(|n| Some(n.mapped_size(w, h, a.sensor_px)))?;
     let psf = native
         .for_image(w, h, a.sensor_px)
         .with_context(|| super::sensor_flag(a.sensor_px, &a.net.psf))?;
-    std::fs::create_dir_all(&a.out).with_context(|| format!("cannot make {}", a.out.display()))?;
-    let todo: Vec<&PathBuf> = frames.iter().filter(|f| !target(f).exists()).collect();
+    io.make_out()?;
+    let todo: Vec<&PathBuf> = frames.iter().filter(|f| !io.target(f).exists()).collect();
     let kept = frames.len() - todo.len();
     if kept > 0 {
         println!(
@@ -1058,16 +1035,16 @@ fn run_restore_folder(a: RestoreArgs) -> Result<()> {
         }
         let blurred = Image::load(f).with_context(|| format!("cannot read {}", f.display()))?;
         let restored = restorer.restore(&blurred, &psf)?;
+        let target = io.target(f);
         restored
-            .save_png(&target(f))
-            .with_context(|| format!("cannot write {}", target(f).display()))?;
-        let spent = start.elapsed().as_secs_f64();
-        let left = spent / (done + 1) as f64 * (todo.len() - done - 1) as f64;
+            .save_png(&target)
+            .with_context(|| format!("cannot write {}", target.display()))?;
         println!(
-            "frame {} of {} ({}) restored; about {left:.0} s left",
+            "frame {} of {} ({}) restored; about {:.0} s left",
             kept + done + 1,
             frames.len(),
-            f.file_name().unwrap_or_default().to_string_lossy()
+            f.file_name().unwrap_or_default().to_string_lossy(),
+            super::frames::time_left(start.elapsed().as_secs_f64(), done + 1, todo.len())
         );
     }
     println!(
@@ -1184,12 +1161,11 @@ fn run_restore_gif(a: RestoreArgs) -> Result<()> {
             image::Rgba([p[0], p[1], p[2], 255])
         });
         out.push(image::Frame::from_parts(rgba, 0, 0, f.delay()));
-        let spent = start.elapsed().as_secs_f64();
         println!(
             "frame {} of {} restored; about {:.0} s left",
             i + 1,
             frames.len(),
-            spent / (i + 1) as f64 * (frames.len() - i - 1) as f64
+            super::frames::time_left(start.elapsed().as_secs_f64(), i + 1, frames.len())
         );
     }
     let mut bytes = Vec::new();

@@ -98,6 +98,17 @@ impl Scored<'_> {
         let p = psnr_in_mask(&clamp01(&self.image), &self.reference, m).unwrap_or(p);
         Ok((p, s))
     }
+
+    /// PSNR inside the object's mask ([`Self::mask`]); None without one, or when it keeps no
+    /// pixel.
+    pub fn psnr_in_mask(&self) -> Option<f64> {
+        psnr_in_mask(&clamp01(&self.image), &self.reference, self.mask?)
+    }
+}
+
+/// The mean of `values`; None without any.
+pub fn mean(values: &[f64]) -> Option<f64> {
+    (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64)
 }
 
 /// What a held-out view is scored on: the image and reference composited over `background`
@@ -202,18 +213,16 @@ pub fn evaluate(
                 name: v.name.clone(),
                 psnr: p,
                 ssim: s,
-                psnr_in_mask: sc
-                    .mask
-                    .and_then(|m| psnr_in_mask(&clamp01(&sc.image), &sc.reference, m)),
+                psnr_in_mask: sc.psnr_in_mask(),
             })
         })
         .collect::<Result<Vec<_>>>()?;
     let n = per_view.len() as f64;
     let in_mask: Vec<f64> = per_view.iter().filter_map(|v| v.psnr_in_mask).collect();
-    let on_object = masks.filter(|_| !in_mask.is_empty()).map(|masks| OnObject {
+    let on_object = masks.zip(mean(&in_mask)).map(|(masks, m)| OnObject {
         masks,
         background: settings.background.to_array(),
-        mean_psnr_in_mask: in_mask.iter().sum::<f64>() / in_mask.len() as f64,
+        mean_psnr_in_mask: m,
     });
     Ok(Some(Metrics {
         sourced_pixels: masks.is_none() && views.iter().any(|v| v.mask.is_some()),

@@ -36,7 +36,6 @@ use eval::Metrics;
 use object::ObjectTargets;
 use objective::{LossParts, Objective};
 use psf_refine::PsfRefinement;
-use rayon::prelude::*;
 use sh::{ShEvent, ShSchedule, ShState};
 
 /// One line of `train_log.csv`.
@@ -262,7 +261,7 @@ impl<'a> Run<'a> {
             }),
         };
         Ok(Run {
-            object: object_targets(config, data)?,
+            object: ObjectTargets::for_run(config, data)?,
             config,
             data,
             device,
@@ -601,47 +600,6 @@ impl<'a> Run<'a> {
         }
         Ok((model, p, sh_events, final_pruned))
     }
-}
-
-/// The object targets of an `object` run: `PSF ⊛ (1 − mask)` per training view where the targets
-/// need it ([`ObjectTargets::needs_spread`]); None for any other run.
-fn object_targets(config: &TrainConfig, data: &Dataset) -> Result<Option<ObjectTargets>> {
-    if config.masks != Some(object::MaskUse::Object) {
-        return Ok(None);
-    }
-    let through_lens = config.mode == crate::settings::Mode::Aware;
-    let composited_over = data.composited_over.map(Vec3::from_array);
-    let fixed = (!config.random_background).then(|| Vec3::from_array(config.background));
-    let (spread, blur_of_one) = match (
-        ObjectTargets::needs_spread(through_lens, composited_over, fixed),
-        data.imaging.as_ref(),
-    ) {
-        (true, Some(imaging)) => {
-            let spread = data
-                .train
-                .par_iter()
-                .map(|v| {
-                    v.mask
-                        .as_deref()
-                        .map(|m| {
-                            let outside: Vec<Vec3> =
-                                m.iter().map(|&k| Vec3::splat(1.0 - k)).collect();
-                            imaging.blur_pixels(&outside)
-                        })
-                        .transpose()
-                })
-                .collect::<std::result::Result<Vec<_>, _>>()?;
-            let n = (data.width * data.height) as usize;
-            (spread, imaging.blur_pixels(&vec![Vec3::ONE; n])?)
-        }
-        _ => (Vec::new(), Vec::new()),
-    };
-    Ok(Some(ObjectTargets {
-        through_lens,
-        composited_over,
-        spread,
-        blur_of_one,
-    }))
 }
 
 /// Trains on `data`. With `checkpoint_path`, saves there every `checkpoint_every` steps;

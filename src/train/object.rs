@@ -15,7 +15,11 @@ use std::borrow::Cow;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
-use crate::train::data::View;
+use rayon::prelude::*;
+
+use crate::error::Result;
+use crate::train::config::TrainConfig;
+use crate::train::data::{Dataset, View};
 
 /// What masks mean, as a run records it (`config.json`'s `masks`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -63,6 +67,47 @@ pub struct ObjectTargets {
 }
 
 impl ObjectTargets {
+    /// The object targets of an `object` run: `PSF ⊛ (1 − mask)` per training view where the targets
+    /// need it ([`Self::needs_spread`]); None for any other run.
+    pub fn for_run(config: &TrainConfig, data: &Dataset) -> Result<Option<Self>> {
+        if config.masks != Some(MaskUse::Object) {
+            return Ok(None);
+        }
+        let through_lens = config.mode == crate::settings::Mode::Aware;
+        let composited_over = data.composited_over.map(Vec3::from_array);
+        let fixed = (!config.random_background).then(|| Vec3::from_array(config.background));
+        let (spread, blur_of_one) = match (
+            Self::needs_spread(through_lens, composited_over, fixed),
+            data.imaging.as_ref(),
+        ) {
+            (true, Some(imaging)) => {
+                let spread = data
+                    .train
+                    .par_iter()
+                    .map(|v| {
+                        v.mask
+                            .as_deref()
+                            .map(|m| {
+                                let outside: Vec<Vec3> =
+                                    m.iter().map(|&k| Vec3::splat(1.0 - k)).collect();
+                                imaging.blur_pixels(&outside)
+                            })
+                            .transpose()
+                    })
+                    .collect::<std::result::Result<Vec<_>, _>>()?;
+                let n = (data.width * data.height) as usize;
+                (spread, imaging.blur_pixels(&vec![Vec3::ONE; n])?)
+            }
+            _ => (Vec::new(), Vec::new()),
+        };
+        Ok(Some(Self {
+            through_lens,
+            composited_over,
+            spread,
+            blur_of_one,
+        }))
+    }
+
     /// Whether training views' targets need [`Self::spread`] at the fixed background `fixed`
     /// (None: a random one each step).
     pub fn needs_spread(
