@@ -48,6 +48,10 @@ pub struct RestorerBenchArgs {
     /// Rounds: each times the reference kernels, then the fast ones; the median is reported.
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u64).range(1..=100))]
     pub rounds: u64,
+    /// Time only the fast kernels (e.g. under `perf record`, so that a profile holds one
+    /// path); the reference columns are left empty.
+    #[arg(long)]
+    pub fast_only: bool,
 }
 
 #[derive(Args)]
@@ -155,6 +159,9 @@ fn restorer(a: RestorerBenchArgs) -> Result<()> {
             let mut runs: [Vec<Sample>; 2] = [Vec::new(), Vec::new()];
             for round in 0..a.rounds {
                 for (i, kernels) in [Kernels::Reference, Kernels::Fast].into_iter().enumerate() {
+                    if a.fast_only && kernels == Kernels::Reference {
+                        continue;
+                    }
                     let s = time_workload(cfg, *workload, kernels, threads, 1, round)
                         .with_context(|| format!("timing {} {}", cfg.name, workload.describe()))?;
                     runs[i].extend(s);
@@ -162,7 +169,14 @@ fn restorer(a: RestorerBenchArgs) -> Result<()> {
             }
             let wall = |r: &[Sample]| median(r.iter().map(|s| s.wall_s).collect());
             let cpu = |r: &[Sample]| median(r.iter().map(|s| s.cpu_s).collect());
-            let (reference, fast) = (wall(&runs[0]), wall(&runs[1]));
+            let fast = wall(&runs[1]);
+            // With --fast-only the reference was not run: its columns say so.
+            let (reference, speed_up) = if runs[0].is_empty() {
+                ("-".to_string(), "-".to_string())
+            } else {
+                let r = wall(&runs[0]);
+                (format!("{r:.3}"), format!("{:.2}x", r / fast))
+            };
             let mp = workload.pixels() as f64 / 1e6;
             let passes = match workload {
                 Workload::Forward { .. } => 1.0,
@@ -170,13 +184,13 @@ fn restorer(a: RestorerBenchArgs) -> Result<()> {
             };
             let gflop = cfg.analytic_flops_per_pixel() * workload.pixels() as f64 * passes / 1e9;
             println!(
-                "{:<6} {:<20} {:>7} {:>12.3} {:>12.3} {:>7.2}x {:>12.3} {:>10.2} {:>10.2}",
+                "{:<6} {:<20} {:>7} {:>12} {:>12.3} {:>8} {:>12.3} {:>10.2} {:>10.2}",
                 cfg.name,
                 workload.describe(),
                 threads,
                 reference,
                 fast,
-                reference / fast,
+                speed_up,
                 cpu(&runs[1]),
                 fast / mp,
                 gflop / fast

@@ -6,7 +6,7 @@ use burn::nn::conv::Conv2d;
 use burn::tensor::activation::softmax;
 use burn::tensor::{Device, Tensor};
 
-use super::layers::{conv, depthwise3, enhance_query, pointwise};
+use super::layers::{conv, depthwise, depthwise3, enhance_query, pointwise};
 
 /// `x / max(‖x‖₂, ε)` along the last dimension.
 pub fn l2_normalise(x: Tensor<4>) -> Tensor<4> {
@@ -44,10 +44,7 @@ impl ChannelAttention {
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let [b, c, h, w] = x.dims();
-        let mut parts = self
-            .qkv_depthwise
-            .forward(pointwise(&self.qkv, x))
-            .chunk(3, 1);
+        let mut parts = depthwise(&self.qkv_depthwise, pointwise(&self.qkv, x)).chunk(3, 1);
         let v = parts.pop().expect("qkv");
         let k = parts.pop().expect("qkv");
         let q = enhance_query(parts.pop().expect("qkv"), self.qe);

@@ -5,6 +5,7 @@
 //! the hidden width); here each output plane is made from its two input planes while they
 //! are in cache. It has no gradient: training takes the tensor formulation.
 
+use super::depthwise::depthwise_row;
 use super::window_direct::exp_nonpositive;
 use rayon::prelude::*;
 
@@ -61,29 +62,6 @@ fn plane_body(dst: &mut [f32], a: Plane, g: Plane, h: usize, w: usize) {
         depthwise_row(&mut rg, g.0, g.1, y, h, w);
         for ((o, &u), &v) in dst[y * w..][..w].iter_mut().zip(&ra).zip(&rg) {
             *o = gelu(u) * v;
-        }
-    }
-}
-
-/// Row `y` of a 3×3 cross-correlation with zero padding (what burn's `conv2d` computes).
-#[inline(always)]
-fn depthwise_row(row: &mut [f32], src: &[f32], k: &[f32; 9], y: usize, h: usize, w: usize) {
-    row.fill(0.0);
-    for ky in 0..3 {
-        let Some(sy) = (y + ky).checked_sub(1).filter(|&sy| sy < h) else {
-            continue;
-        };
-        let s = &src[sy * w..][..w];
-        let (k0, k1, k2) = (k[ky * 3], k[ky * 3 + 1], k[ky * 3 + 2]);
-        // Interior columns as shifted slices, so the loop vectorises; the two edges apart.
-        if w >= 2 {
-            for (x, r) in row[1..w - 1].iter_mut().enumerate() {
-                *r += k0 * s[x] + k1 * s[x + 1] + k2 * s[x + 2];
-            }
-            row[0] += k1 * s[0] + k2 * s[1];
-            row[w - 1] += k0 * s[w - 2] + k1 * s[w - 1];
-        } else {
-            row[0] += k1 * s[0];
         }
     }
 }

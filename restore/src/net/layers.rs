@@ -41,6 +41,16 @@ pub fn pointwise(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     y.reshape([b, cout, h, w])
 }
 
+/// A depthwise 3×3 layer applied to `x`: in training on the CPU through the hand-written
+/// kernels of [`super::depthwise`] (burn's grouped-convolution weight gradient is slow), else
+/// burn's `Conv2d`.
+pub fn depthwise(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    if current() == Kernels::Fast && super::depthwise::trained_applies(&x) {
+        return super::depthwise::depthwise3(conv, x);
+    }
+    conv.forward(x)
+}
+
 /// Depthwise 3×3 convolution without bias.
 pub fn depthwise3(c: usize, device: &Device) -> Conv2d {
     Conv2dConfig::new([c, c], [3, 3])
@@ -103,7 +113,7 @@ impl Gdfn {
             let gated = Tensor::from_data(TensorData::new(gated, [b, c2 / 2, hh, w]), &device);
             return pointwise(&self.project_out, gated);
         }
-        let h = self.depthwise.forward(h);
+        let h = depthwise(&self.depthwise, h);
         let mut parts = h.chunk(2, 1);
         let x2 = parts.pop().expect("two halves");
         let x1 = parts.pop().expect("two halves");

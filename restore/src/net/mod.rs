@@ -2,6 +2,7 @@
 //! added to one Wiener image of the bank (`RestorerConfig::residual_base`).
 
 pub mod channel;
+pub mod depthwise;
 pub mod gate_direct;
 pub mod kernels;
 pub mod layers;

@@ -1,0 +1,291 @@
+//! Depthwise 3×3 convolution (zero padding, stride 1) with a hand-written backward, for
+//! training on the CPU.
+//!
+//! burn's generic weight gradient for a grouped convolution runs one convolution per
+//! channel, each with the whole output gradient as its kernel, after swapping and copying
+//! the maps: it was the largest single cost of a `tiny` training step (restore/README, "Where
+//! a training step's time goes"). Here the forward, the input gradient (the same correlation
+//! with the kernel turned half a turn) and the weight gradient (nine dot products per plane)
+//! are loops over one plane at a time, planes in parallel. Registered with burn as a backend
+//! extension, so autodiff records it as one node; it stands in only on burn's CPU backend
+//! under autodiff ([`trained_applies`]), and the reference path keeps burn's `Conv2d`.
+
+use burn::backend::autodiff::NodeId;
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::flex::FlexTensor;
+use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension, tensor::FloatTensor};
+use burn::nn::conv::Conv2d;
+use burn::tensor::{Device, Tensor, TensorData};
+use rayon::prelude::*;
+
+/// Whether [`depthwise3`] may stand in for burn's convolution: a tensor under autodiff on
+/// burn's CPU backend (the extension is registered for that backend only).
+pub fn trained_applies(t: &Tensor<4>) -> bool {
+    t.is_autodiff() && t.device() == Device::flex().autodiff()
+}
+
+/// `conv` (a depthwise 3×3 layer: `[c, 1, 3, 3]` weights, padding 1) applied to `x`
+/// `[b, c, h, w]` through the hand-written kernels; its bias, if any, added after.
+pub fn depthwise3(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    let y = Tensor::<4>::from_dispatch(<Dispatch as DepthwiseOps>::depthwise3(
+        x.into_dispatch(),
+        conv.weight.val().into_dispatch(),
+    ));
+    match &conv.bias {
+        Some(bias) => {
+            let c = bias.dims()[0];
+            y + bias.val().reshape([1, c, 1, 1])
+        }
+        None => y,
+    }
+}
+
+#[backend_extension(Flex, Autodiff)]
+pub trait DepthwiseOps: Backend {
+    /// `x: [b, c, h, w]`, `weight: [c, 1, 3, 3]` → `[b, c, h, w]`.
+    fn depthwise3(x: FloatTensor<Self>, weight: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// The input gradient from the output gradient `dy`.
+    fn depthwise3_x_grad(weight: FloatTensor<Self>, dy: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// The weight gradient `[c, 1, 3, 3]`.
+    fn depthwise3_w_grad(x: FloatTensor<Self>, dy: FloatTensor<Self>) -> FloatTensor<Self>;
+}
+
+fn dims4(t: &FlexTensor) -> [usize; 4] {
+    let s = t.layout().shape();
+    [s[0], s[1], s[2], s[3]]
+}
+
+/// A dense copy's values (no copy when the tensor is dense already).
+fn values(t: FlexTensor) -> (FlexTensor, [usize; 4]) {
+    let t = t.to_contiguous();
+    let d = dims4(&t);
+    (t, d)
+}
+
+fn slice(t: &FlexTensor) -> &[f32] {
+    t.as_slice::<f32>()
+        .expect("the restorer's maps are f32 on the CPU")
+}
+
+fn tensor(v: Vec<f32>, shape: [usize; 4]) -> FlexTensor {
+    FlexTensor::from_data(TensorData::new(v, shape))
+}
+
+impl DepthwiseOps for Flex {
+    fn depthwise3(x: FlexTensor, weight: FlexTensor) -> FlexTensor {
+        let (x, d) = values(x);
+        let (weight, _) = values(weight);
+        tensor(forward(slice(&x), slice(&weight), d), d)
+    }
+
+    fn depthwise3_x_grad(weight: FlexTensor, dy: FlexTensor) -> FlexTensor {
+        let (dy, d) = values(dy);
+        let (weight, _) = values(weight);
+        tensor(forward(slice(&dy), &half_turn(slice(&weight)), d), d)
+    }
+
+    fn depthwise3_w_grad(x: FlexTensor, dy: FlexTensor) -> FlexTensor {
+        let (x, d) = values(x);
+        let (dy, _) = values(dy);
+        tensor(weight_grad(slice(&x), slice(&dy), d), [d[1], 1, 3, 3])
+    }
+}
+
+#[derive(Debug)]
+struct DepthwiseBackward;
+
+impl<B: Backend + DepthwiseOps> Backward<B, 2> for DepthwiseBackward {
+    type State = (NodeId, NodeId);
+
+    fn backward(
+        self,
+        ops: Ops<Self::State, 2>,
+        grads: &mut Gradients,
+        checkpointer: &mut Checkpointer,
+    ) {
+        let [node_x, node_w] = ops.parents;
+        let dy = grads.consume::<B>(&ops.node);
+        let x: FloatTensor<B> = checkpointer.retrieve_node_output(ops.state.0);
+        let weight: FloatTensor<B> = checkpointer.retrieve_node_output(ops.state.1);
+        if let Some(node) = node_x {
+            grads.register::<B>(node.id, B::depthwise3_x_grad(weight, dy.clone()));
+        }
+        if let Some(node) = node_w {
+            grads.register::<B>(node.id, B::depthwise3_w_grad(x, dy));
+        }
+    }
+}
+
+impl<B: Backend + DepthwiseOps, C: CheckpointStrategy> DepthwiseOps for Autodiff<B, C> {
+    fn depthwise3(x: FloatTensor<Self>, weight: FloatTensor<Self>) -> FloatTensor<Self> {
+        match DepthwiseBackward
+            .prepare::<C>([x.node(), weight.node()])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(mut prep) => {
+                let state = (prep.checkpoint(&x), prep.checkpoint(&weight));
+                let y = B::depthwise3(x.into_primitive(), weight.into_primitive());
+                prep.finish(state, y)
+            }
+            OpsKind::UnTracked(prep) => {
+                prep.finish(B::depthwise3(x.into_primitive(), weight.into_primitive()))
+            }
+        }
+    }
+
+    // The gradients are computed on the inner backend inside `backward`; a gradient of a
+    // gradient is never asked for.
+    fn depthwise3_x_grad(_: FloatTensor<Self>, _: FloatTensor<Self>) -> FloatTensor<Self> {
+        unreachable!("the depthwise gradient is not differentiated")
+    }
+
+    fn depthwise3_w_grad(_: FloatTensor<Self>, _: FloatTensor<Self>) -> FloatTensor<Self> {
+        unreachable!("the depthwise gradient is not differentiated")
+    }
+}
+
+/// Each channel's 3×3 kernel turned by 180°: the input gradient of a cross-correlation is
+/// the cross-correlation of the output gradient with it.
+fn half_turn(weight: &[f32]) -> Vec<f32> {
+    weight
+        .chunks_exact(9)
+        .flat_map(|k| k.iter().rev().copied())
+        .collect()
+}
+
+/// `x: [b, c, h, w]` cross-correlated with each channel's 3×3 kernel (`weight: [c·9]`).
+pub fn forward(x: &[f32], weight: &[f32], [b, c, h, w]: [usize; 4]) -> Vec<f32> {
+    let plane = h * w;
+    let mut out = vec![0.0f32; b * c * plane];
+    if plane == 0 {
+        return out;
+    }
+    out.par_chunks_mut(plane).enumerate().for_each(|(i, dst)| {
+        let k: &[f32; 9] = weight[(i % c) * 9..][..9].try_into().unwrap();
+        let src = &x[i * plane..][..plane];
+        #[cfg(target_arch = "x86_64")]
+        if base::isa::Isa::chosen() != base::isa::Isa::Portable {
+            // SAFETY: `Isa::chosen` names a build the CPU has, and every build past the
+            // portable one has AVX2.
+            return unsafe { plane_forward_avx2(dst, src, k, h, w) };
+        }
+        plane_forward(dst, src, k, h, w)
+    });
+    out
+}
+
+/// The same code compiled for AVX2 (no multiply-add contracted: the portable build's bits).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn plane_forward_avx2(dst: &mut [f32], src: &[f32], k: &[f32; 9], h: usize, w: usize) {
+    plane_forward(dst, src, k, h, w)
+}
+
+#[inline(always)]
+fn plane_forward(dst: &mut [f32], src: &[f32], k: &[f32; 9], h: usize, w: usize) {
+    for (y, row) in dst.chunks_exact_mut(w).enumerate() {
+        depthwise_row(row, src, k, y, h, w);
+    }
+}
+
+/// `dL/dweight[c, ky, kx] = Σ_{b,y,x} dy[b,c,y,x] · x[b,c,y+ky−1,x+kx−1]` (zero outside):
+/// nine dot products per plane, planes in parallel, each plane's sums in f64 before the
+/// batch is added up.
+pub fn weight_grad(x: &[f32], dy: &[f32], [b, c, h, w]: [usize; 4]) -> Vec<f32> {
+    let plane = h * w;
+    let mut out = vec![0.0f64; c * 9];
+    if plane == 0 {
+        return vec![0.0; c * 9];
+    }
+    let per_plane: Vec<[f64; 9]> = (0..b * c)
+        .into_par_iter()
+        .map(|i| {
+            let (x, dy) = (&x[i * plane..][..plane], &dy[i * plane..][..plane]);
+            #[cfg(target_arch = "x86_64")]
+            if base::isa::Isa::chosen() != base::isa::Isa::Portable {
+                // SAFETY: as in `forward`.
+                return unsafe { plane_weight_grad_avx2(x, dy, h, w) };
+            }
+            plane_weight_grad(x, dy, h, w)
+        })
+        .collect();
+    for (i, sums) in per_plane.iter().enumerate() {
+        for (o, s) in out[(i % c) * 9..][..9].iter_mut().zip(sums) {
+            *o += s;
+        }
+    }
+    out.into_iter().map(|v| v as f32).collect()
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn plane_weight_grad_avx2(x: &[f32], dy: &[f32], h: usize, w: usize) -> [f64; 9] {
+    plane_weight_grad(x, dy, h, w)
+}
+
+#[inline(always)]
+fn plane_weight_grad(x: &[f32], dy: &[f32], h: usize, w: usize) -> [f64; 9] {
+    let mut sums = [0.0f64; 9];
+    for y in 0..h {
+        let g = &dy[y * w..][..w];
+        for ky in 0..3 {
+            let Some(sy) = (y + ky).checked_sub(1).filter(|&sy| sy < h) else {
+                continue;
+            };
+            let s = &x[sy * w..][..w];
+            // Column offset kx − 1: output column x reads input column x + kx − 1.
+            sums[ky * 3] += dot(&g[1..], &s[..w - 1]) as f64;
+            sums[ky * 3 + 1] += dot(g, s) as f64;
+            sums[ky * 3 + 2] += dot(&g[..w - 1], &s[1..]) as f64;
+        }
+    }
+    sums
+}
+
+/// A dot product in eight lanes, so the loop vectorises without reassociation by the
+/// compiler.
+#[inline(always)]
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let mut lanes = [0.0f32; 8];
+    let mut ca = a.chunks_exact(8);
+    let mut cb = b.chunks_exact(8);
+    for (u, v) in (&mut ca).zip(&mut cb) {
+        for l in 0..8 {
+            lanes[l] += u[l] * v[l];
+        }
+    }
+    let tail: f32 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
+        .map(|(u, v)| u * v)
+        .sum();
+    lanes.iter().sum::<f32>() + tail
+}
+
+/// Row `y` of a 3×3 cross-correlation with zero padding (what burn's `conv2d` computes).
+#[inline(always)]
+pub fn depthwise_row(row: &mut [f32], src: &[f32], k: &[f32; 9], y: usize, h: usize, w: usize) {
+    row.fill(0.0);
+    for ky in 0..3 {
+        let Some(sy) = (y + ky).checked_sub(1).filter(|&sy| sy < h) else {
+            continue;
+        };
+        let s = &src[sy * w..][..w];
+        let (k0, k1, k2) = (k[ky * 3], k[ky * 3 + 1], k[ky * 3 + 2]);
+        // Interior columns as shifted slices, so the loop vectorises; the two edges apart.
+        if w >= 2 {
+            for (x, r) in row[1..w - 1].iter_mut().enumerate() {
+                *r += k0 * s[x] + k1 * s[x + 1] + k2 * s[x + 2];
+            }
+            row[0] += k1 * s[0] + k2 * s[1];
+            row[w - 1] += k0 * s[w - 2] + k1 * s[w - 1];
+        } else {
+            row[0] += k1 * s[0];
+        }
+    }
+}
