@@ -110,7 +110,7 @@ fn training_memory(_: &mut Criterion) {
         };
         reset_peak_rss();
         let base = peak_rss_mb();
-        time_workload(&cfg, workload, Kernels::Fast, 2, 1, 0).unwrap();
+        time_workload(&cfg, workload, Kernels::Fast, 2, 1, 0, &Device::flex()).unwrap();
         println!(
             "{:>5}: {}: peak RSS +{:.0} MB (estimate {:.0} MB)",
             cfg.name,

@@ -1,7 +1,9 @@
-//! Where the network runs: burn's `flex` CPU backend (always built) or a GPU through burn's
-//! Vulkan backend (cargo feature `vulkan`, off by default so CI builds burn once, for the CPU).
-//! Not CUDA: burn 0.22's CUDA backend downloads an LLVM bundle while it builds, which an
-//! offline machine cannot do.
+//! Where the network runs: burn's `flex` CPU backend (always built), a GPU through burn's
+//! Vulkan backend (cargo feature `vulkan`), or libtorch's CPU kernels through burn's `tch`
+//! backend (cargo feature `libtorch`, to measure against flex: it links a libtorch the user
+//! provides, see restore/README "Backends"). Both features are off by default so CI builds
+//! burn once, for the CPU. Not CUDA, nor burn's CubeCL `cpu` backend: their builds download
+//! an LLVM bundle (`tracel-llvm-bundler`), which an offline machine cannot do.
 
 use crate::error::{RestoreError, Result};
 use burn::tensor::Device;
@@ -14,6 +16,9 @@ pub enum Compute {
     /// burn's wgpu backend pinned to Vulkan, on the best adapter (`CUBECL_WGPU_DEFAULT_DEVICE`
     /// overrides); needs a build with `--features vulkan`.
     Vulkan,
+    /// libtorch's CPU kernels through burn's `tch` backend; needs a build with `--features
+    /// libtorch`.
+    Libtorch,
 }
 
 impl std::str::FromStr for Compute {
@@ -22,7 +27,8 @@ impl std::str::FromStr for Compute {
         match s {
             "cpu" => Ok(Self::Cpu),
             "vulkan" | "gpu" => Ok(Self::Vulkan),
-            _ => Err(format!("unknown backend '{s}' (cpu, vulkan)")),
+            "libtorch" => Ok(Self::Libtorch),
+            _ => Err(format!("unknown backend '{s}' (cpu, vulkan, libtorch)")),
         }
     }
 }
@@ -32,6 +38,7 @@ impl std::fmt::Display for Compute {
         match self {
             Self::Cpu => f.write_str("cpu"),
             Self::Vulkan => f.write_str("vulkan"),
+            Self::Libtorch => f.write_str("libtorch"),
         }
     }
 }
@@ -46,8 +53,21 @@ impl Compute {
         match self {
             Self::Cpu => Ok(Device::flex()),
             Self::Vulkan => vulkan(),
+            Self::Libtorch => libtorch(),
         }
     }
+}
+
+#[cfg(feature = "libtorch")]
+fn libtorch() -> Result<Device> {
+    Ok(Device::libtorch())
+}
+
+#[cfg(not(feature = "libtorch"))]
+fn libtorch() -> Result<Device> {
+    Err(RestoreError::BadInput(
+        "this build has no libtorch backend: build with `cargo build --release --features libtorch` and a libtorch in LIBTORCH (see restore/README.md)".into(),
+    ))
 }
 
 /// burn's wgpu runtime panics when no adapter exists, so ask wgpu first.
@@ -105,6 +125,11 @@ mod tests {
         if !VULKAN_BUILT {
             let e = Compute::Vulkan.device().unwrap_err().to_string();
             assert!(e.contains("--features vulkan"), "{e}");
+        }
+        assert_eq!("libtorch".parse(), Ok(Compute::Libtorch));
+        if !cfg!(feature = "libtorch") {
+            let e = Compute::Libtorch.device().unwrap_err().to_string();
+            assert!(e.contains("--features libtorch"), "{e}");
         }
     }
 }

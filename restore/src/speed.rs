@@ -86,6 +86,7 @@ pub fn time_workload(
     threads: usize,
     reps: usize,
     seed: u64,
+    device: &Device,
 ) -> Result<Vec<Sample>> {
     let m = config.multiple();
     let side = match workload {
@@ -103,9 +104,9 @@ pub fn time_workload(
         .map_err(|e| RestoreError::BadInput(format!("cannot start {threads} threads: {e}")))?;
     pool.install(|| {
         with_kernels(kernels, || match workload {
-            Workload::Forward { side } => Ok(time_forward(config, side, reps, seed)),
+            Workload::Forward { side } => Ok(time_forward(config, side, reps, seed, device)),
             Workload::TrainStep { batch, side } => {
-                Ok(time_train_step(config, batch, side, reps, seed))
+                Ok(time_train_step(config, batch, side, reps, seed, device))
             }
         })
     })
@@ -121,8 +122,14 @@ fn timed(f: impl FnOnce()) -> Sample {
     }
 }
 
-fn time_forward(config: &RestorerConfig, side: usize, reps: usize, seed: u64) -> Vec<Sample> {
-    let device = Device::flex();
+fn time_forward(
+    config: &RestorerConfig,
+    side: usize,
+    reps: usize,
+    seed: u64,
+    device: &Device,
+) -> Vec<Sample> {
+    let device = device.clone();
     device.seed(seed);
     let net = RestorerNet::new(config, &device);
     let x = planes(3 * BANK_SIZE, side, side, seed);
@@ -142,8 +149,9 @@ fn time_train_step(
     side: usize,
     reps: usize,
     seed: u64,
+    device: &Device,
 ) -> Vec<Sample> {
-    let device = Device::flex().autodiff();
+    let device = device.clone().autodiff();
     device.seed(seed);
     let mut net = RestorerNet::new(config, &device);
     let mut optim = AdamWConfig::new().init();

@@ -7,9 +7,9 @@ use burn::module::Module;
 use burn::tensor::{Device, Distribution, Tensor, TensorData};
 use restore::data::bank_images;
 use restore::infer::{bank_planes, run_tile};
-use restore::net::depthwise::trained_applies;
+use restore::net::conv_train::trained_applies;
 use restore::net::kernels::{Kernels, with_kernels};
-use restore::net::layers::{conv, depthwise, depthwise3, enhance_query, pointwise};
+use restore::net::layers::{conv, conv3, depthwise, depthwise3, enhance_query, pointwise};
 use restore::{RestorerConfig, RestorerNet, shipped};
 
 fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
@@ -108,10 +108,71 @@ fn pointwise_convolution_as_a_matrix_product_equals_the_convolution() {
     }
 }
 
+/// A layer's output and its input, weight and bias gradients with the fast kernels against
+/// burn's `Conv2d` (the reference path), under autodiff on the CPU, where `apply` takes the
+/// hand-written kernels. A weighted sum is the loss, so each output's gradient differs.
+fn agrees_with_burns_convolution(
+    mut layer: burn::nn::conv::Conv2d,
+    dims: [usize; 4],
+    bias: bool,
+    apply: fn(&burn::nn::conv::Conv2d, Tensor<4>) -> Tensor<4>,
+) {
+    let device = Device::flex().autodiff();
+    let cout = layer.weight.dims()[0];
+    if bias {
+        layer.bias = Some(burn::module::Param::from_tensor(Tensor::random(
+            [cout],
+            Distribution::Normal(0.0, 1.0),
+            &device,
+        )));
+    }
+    let x = Tensor::<4>::random(dims, Distribution::Normal(0.0, 1.0), &device).require_grad();
+    assert!(
+        trained_applies(&x),
+        "the fast path must apply to autodiff CPU maps"
+    );
+    let [b, _, h, w] = dims;
+    let wts = Tensor::<4>::random([b, cout, h, w], Distribution::Normal(0.0, 1.0), &device);
+    let run = |kernels| {
+        with_kernels(kernels, || {
+            let y = apply(&layer, x.clone());
+            let loss = (y.clone() * wts.clone()).sum();
+            let g = loss.backward();
+            let mut out = vec![
+                values(y),
+                values(x.grad(&g).expect("input gradient")),
+                values(layer.weight.val().grad(&g).expect("weight gradient")),
+            ];
+            if let Some(bias) = &layer.bias {
+                out.push(values(bias.val().grad(&g).expect("bias gradient")));
+            }
+            out
+        })
+    };
+    let (fast, reference) = (run(Kernels::Fast), run(Kernels::Reference));
+    assert_eq!(fast.len(), reference.len());
+    for (what, (a, r)) in [
+        "output",
+        "input gradient",
+        "weight gradient",
+        "bias gradient",
+    ]
+    .iter()
+    .zip(fast.iter().zip(&reference))
+    {
+        let scale = r.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
+        let err = max_abs_diff(a, r);
+        assert!(
+            err <= 1e-5 * scale * (b * h * w) as f32,
+            "{dims:?} {what}: max |fast - burn| {err:.2e} of {scale:.2e}"
+        );
+    }
+    assert_eq!(fast[2].len(), layer.weight.dims().iter().product::<usize>());
+}
+
 #[test]
 fn the_hand_written_depthwise_convolution_has_burns_values_and_gradients() {
-    // Under autodiff on the CPU, where `layers::depthwise` takes the hand-written kernels;
-    // burn's grouped `Conv2d` is the reference. Odd sizes, one- and two-pixel-wide maps.
+    // Odd sizes, one- and two-pixel-wide maps.
     let device = Device::flex().autodiff();
     device.seed(21);
     for (dims, bias) in [
@@ -120,57 +181,21 @@ fn the_hand_written_depthwise_convolution_has_burns_values_and_gradients() {
         ([3, 4, 5, 2], false),
         ([1, 2, 4, 1], true),
     ] {
-        let [b, c, h, w] = dims;
-        let mut layer = depthwise3(c, &device);
-        if bias {
-            layer.bias = Some(burn::module::Param::from_tensor(Tensor::random(
-                [c],
-                Distribution::Normal(0.0, 1.0),
-                &device,
-            )));
-        }
-        let x = Tensor::<4>::random(dims, Distribution::Normal(0.0, 1.0), &device).require_grad();
-        assert!(
-            trained_applies(&x),
-            "the fast path must apply to autodiff CPU maps"
-        );
-        // A weighted sum as the loss, so each output's gradient differs.
-        let wts = Tensor::<4>::random(dims, Distribution::Normal(0.0, 1.0), &device);
-        let run = |kernels| {
-            with_kernels(kernels, || {
-                let y = depthwise(&layer, x.clone());
-                let loss = (y.clone() * wts.clone()).sum();
-                let g = loss.backward();
-                let mut out = vec![
-                    values(y),
-                    values(x.grad(&g).expect("input gradient")),
-                    values(layer.weight.val().grad(&g).expect("weight gradient")),
-                ];
-                if let Some(bias) = &layer.bias {
-                    out.push(values(bias.val().grad(&g).expect("bias gradient")));
-                }
-                out
-            })
-        };
-        let (fast, reference) = (run(Kernels::Fast), run(Kernels::Reference));
-        assert_eq!(fast.len(), reference.len());
-        for (what, (a, r)) in [
-            "output",
-            "input gradient",
-            "weight gradient",
-            "bias gradient",
-        ]
-        .iter()
-        .zip(fast.iter().zip(&reference))
-        {
-            let scale = r.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
-            let err = max_abs_diff(a, r);
-            assert!(
-                err <= 1e-5 * scale * (b * h * w) as f32,
-                "{dims:?} {what}: max |fast - burn| {err:.2e} of {scale:.2e}"
-            );
-        }
-        assert_eq!(fast[2].len(), c * 9);
+        agrees_with_burns_convolution(depthwise3(dims[1], &device), dims, bias, depthwise);
+    }
+}
+
+#[test]
+fn the_dense_3x3_convolution_with_a_hand_written_backward_has_burns_values_and_gradients() {
+    let device = Device::flex().autodiff();
+    device.seed(22);
+    for (dims, cout, bias) in [
+        ([2, 5, 7, 9], 3, false),
+        ([1, 3, 1, 6], 4, true),
+        ([3, 4, 5, 2], 1, false),
+        ([1, 2, 4, 1], 6, true),
+    ] {
+        agrees_with_burns_convolution(conv(dims[1], cout, 3, bias, &device), dims, bias, conv3);
     }
 }
 

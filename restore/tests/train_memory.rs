@@ -2,6 +2,7 @@
 //! before it allocates, bounds what a step holds from above without overstating it wildly:
 //! measured with a counting allocator over every thread.
 
+use burn::tensor::Device;
 use restore::config::RestorerConfig;
 use restore::net::kernels::Kernels;
 use restore::speed::{Workload, time_workload};
@@ -18,7 +19,7 @@ fn the_training_memory_estimate_bounds_a_step_from_above() {
     ] {
         let workload = Workload::TrainStep { batch, side };
         let (timed, held) = base::alloc_watch::across_threads(|| {
-            time_workload(&cfg, workload, Kernels::Fast, 2, 1, 0)
+            time_workload(&cfg, workload, Kernels::Fast, 2, 1, 0, &Device::flex())
         });
         timed.unwrap();
         let estimate = cfg.training_bytes(batch, side) as usize;

@@ -39,6 +39,10 @@ pub struct RestorerBenchArgs {
     /// Crops per training step (of each config's training crop size); 0 leaves training out.
     #[arg(long, default_value_t = 4)]
     pub batch: usize,
+    /// Side of the training crops, in px (a multiple of each config's padding unit); default:
+    /// each config's training crop.
+    #[arg(long)]
+    pub crop: Option<usize>,
     /// Time training steps only, no forward passes.
     #[arg(long, conflicts_with = "sides")]
     pub train_only: bool,
@@ -48,6 +52,10 @@ pub struct RestorerBenchArgs {
     /// Rounds: each times the reference kernels, then the fast ones; the median is reported.
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u64).range(1..=100))]
     pub rounds: u64,
+    /// Where to run: `cpu` (burn flex), or `libtorch` / `vulkan` in a build with that
+    /// feature (libtorch's threads: `OMP_NUM_THREADS`, not --threads).
+    #[arg(long, default_value = "cpu")]
+    pub backend: restore::Compute,
     /// Time only the fast kernels (e.g. under `perf record`, so that a profile holds one
     /// path); the reference columns are left empty.
     #[arg(long)]
@@ -108,6 +116,7 @@ fn restorer(a: RestorerBenchArgs) -> Result<()> {
         .iter()
         .map(|&p| RestorerConfig::preset(p))
         .collect();
+    let device = a.backend.device().context("--backend")?;
     if a.train_only && a.batch == 0 {
         bail!("--train-only with --batch 0 leaves nothing to time");
     }
@@ -128,9 +137,17 @@ fn restorer(a: RestorerBenchArgs) -> Result<()> {
             }
         }
         if a.batch > 0 {
+            let side = a.crop.unwrap_or(cfg.crop);
+            if side == 0 || !side.is_multiple_of(cfg.multiple()) {
+                bail!(
+                    "--crop: {side} px is not a positive multiple of {} px, the padding unit of '{}'",
+                    cfg.multiple(),
+                    cfg.name
+                );
+            }
             let w = Workload::TrainStep {
                 batch: a.batch,
-                side: cfg.crop,
+                side,
             };
             cases.push((cfg.clone(), w));
         }
@@ -162,7 +179,7 @@ fn restorer(a: RestorerBenchArgs) -> Result<()> {
                     if a.fast_only && kernels == Kernels::Reference {
                         continue;
                     }
-                    let s = time_workload(cfg, *workload, kernels, threads, 1, round)
+                    let s = time_workload(cfg, *workload, kernels, threads, 1, round, &device)
                         .with_context(|| format!("timing {} {}", cfg.name, workload.describe()))?;
                     runs[i].extend(s);
                 }

@@ -5,7 +5,7 @@
 //! the hidden width); here each output plane is made from its two input planes while they
 //! are in cache. It has no gradient: training takes the tensor formulation.
 
-use super::depthwise::depthwise_row;
+use super::conv_train::depthwise_row;
 use super::window_direct::exp_nonpositive;
 use rayon::prelude::*;
 

@@ -12,6 +12,20 @@ use burn::tensor::{Device, Tensor, TensorData};
 use super::gate_direct::gated_depthwise;
 use super::kernels::{Kernels, current, direct_applies, host};
 
+/// A layer made by [`conv`] applied to `x`: a dense 3×3 one in training on the CPU through the hand-written backward of [`super::conv_train`] (burn's
+/// weight gradient is slow), else burn's `Conv2d`.
+pub fn conv3(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    let same3 = conv.kernel_size == [3, 3]
+        && conv.stride == [1, 1]
+        && conv.dilation == [1, 1]
+        && conv.groups == 1
+        && conv.padding == PaddingConfig2d::Explicit(1, 1, 1, 1);
+    if current() == Kernels::Fast && same3 && super::conv_train::trained_applies(&x) {
+        return super::conv_train::dense3(conv, x);
+    }
+    conv.forward(x)
+}
+
 /// `k × k` convolution with same-size output.
 pub fn conv(cin: usize, cout: usize, k: usize, bias: bool, device: &Device) -> Conv2d {
     Conv2dConfig::new([cin, cout], [k, k])
@@ -45,8 +59,8 @@ pub fn pointwise(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
 /// kernels of [`super::depthwise`] (burn's grouped-convolution weight gradient is slow), else
 /// burn's `Conv2d`.
 pub fn depthwise(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
-    if current() == Kernels::Fast && super::depthwise::trained_applies(&x) {
-        return super::depthwise::depthwise3(conv, x);
+    if current() == Kernels::Fast && super::conv_train::trained_applies(&x) {
+        return super::conv_train::depthwise3(conv, x);
     }
     conv.forward(x)
 }

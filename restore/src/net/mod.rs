@@ -2,7 +2,7 @@
 //! added to one Wiener image of the bank (`RestorerConfig::residual_base`).
 
 pub mod channel;
-pub mod depthwise;
+pub mod conv_train;
 pub mod gate_direct;
 pub mod kernels;
 pub mod layers;
@@ -17,7 +17,7 @@ use burn::module::Module;
 use burn::nn::conv::Conv2d;
 use burn::nn::{PixelShuffle, PixelShuffleConfig, PixelUnshuffle, PixelUnshuffleConfig};
 use burn::tensor::{Device, Tensor};
-use layers::{conv, pointwise};
+use layers::{conv, conv3, pointwise};
 use mafg::CrossAttentionGuide;
 use staf::{BlockSpec, Gate, StafBlock};
 
@@ -43,7 +43,7 @@ impl Down {
         }
     }
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        self.unshuffle.forward(self.conv.forward(x))
+        self.unshuffle.forward(conv3(&self.conv, x))
     }
 }
 
@@ -55,7 +55,7 @@ impl Up {
         }
     }
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        self.shuffle.forward(self.conv.forward(x))
+        self.shuffle.forward(conv3(&self.conv, x))
     }
 }
 
@@ -238,7 +238,7 @@ impl RestorerNet {
             (None, true) => bank.narrow(1, 3 * BANK_MEDIAN, 3),
             (None, false) => bank,
         };
-        let x = self.embed.forward(guided);
+        let x = conv3(&self.embed, guided);
         let mut skips = Vec::with_capacity(3);
         let mut x = x;
         for (enc, down) in self.encoders.iter().zip(&self.downs) {
@@ -256,6 +256,6 @@ impl RestorerNet {
             x = dec.forward(x);
         }
         let x = self.refinement.forward(x);
-        self.output.forward(x) + base
+        conv3(&self.output, x) + base
     }
 }

@@ -1,14 +1,20 @@
-//! Depthwise 3×3 convolution (zero padding, stride 1) with a hand-written backward, for
-//! training on the CPU.
+//! 3×3 convolutions (zero padding, stride 1) with hand-written backward passes, for training
+//! on the CPU.
 //!
-//! burn's generic weight gradient for a grouped convolution runs one convolution per
-//! channel, each with the whole output gradient as its kernel, after swapping and copying
-//! the maps: it was the largest single cost of a `tiny` training step (restore/README, "Where
-//! a training step's time goes"). Here the forward, the input gradient (the same correlation
-//! with the kernel turned half a turn) and the weight gradient (nine dot products per plane)
-//! are loops over one plane at a time, planes in parallel. Registered with burn as a backend
-//! extension, so autodiff records it as one node; it stands in only on burn's CPU backend
-//! under autodiff ([`trained_applies`]), and the reference path keeps burn's `Conv2d`.
+//! burn's generic weight gradient for a convolution runs a convolution whose kernel is the
+//! whole output gradient, after swapping and copying the maps, and for a grouped one it does
+//! so once per channel: together the largest cost of a `tiny` training step (restore/README,
+//! "Where a training step's time goes"). Here:
+//! - depthwise: the forward, the input gradient (the same correlation with each kernel turned
+//!   half a turn) and the weight gradient (nine dot products per plane) are loops over one
+//!   plane at a time, planes in parallel;
+//! - dense: the forward and the input gradient are burn's forward convolution (the latter with
+//!   the kernels transposed and turned half a turn), the weight gradient one matrix product of
+//!   the input's 3×3 neighbourhoods with the output gradient.
+//!
+//! Registered with burn as a backend extension, so autodiff records each as one node; they
+//! stand in only on burn's CPU backend under autodiff ([`trained_applies`]), and the reference
+//! path keeps burn's `Conv2d`.
 
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
@@ -16,13 +22,15 @@ use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
+use burn::backend::ops::{FloatTensorOps, ModuleOps};
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension, tensor::FloatTensor};
 use burn::nn::conv::Conv2d;
+use burn::tensor::ops::ConvOptions;
 use burn::tensor::{Device, Tensor, TensorData};
 use rayon::prelude::*;
 
-/// Whether [`depthwise3`] may stand in for burn's convolution: a tensor under autodiff on
-/// burn's CPU backend (the extension is registered for that backend only).
+/// Whether [`depthwise3`] and [`dense3`] may stand in for burn's convolution: a tensor under
+/// autodiff on burn's CPU backend (the extension is registered for that backend only).
 pub fn trained_applies(t: &Tensor<4>) -> bool {
     t.is_autodiff() && t.device() == Device::flex().autodiff()
 }
@@ -40,6 +48,188 @@ pub fn depthwise3(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
             y + bias.val().reshape([1, c, 1, 1])
         }
         None => y,
+    }
+}
+
+/// `conv` (a dense 3×3 layer: `[cout, cin, 3, 3]` weights, padding 1, stride 1, one group)
+/// applied to `x` `[b, cin, h, w]` through the hand-written backward; its bias, if any, added
+/// after.
+pub fn dense3(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    let y = Tensor::<4>::from_dispatch(<Dispatch as DenseOps>::dense3(
+        x.into_dispatch(),
+        conv.weight.val().into_dispatch(),
+    ));
+    match &conv.bias {
+        Some(bias) => {
+            let c = bias.dims()[0];
+            y + bias.val().reshape([1, c, 1, 1])
+        }
+        None => y,
+    }
+}
+
+#[backend_extension(Flex, Autodiff)]
+pub trait DenseOps: Backend {
+    /// `x: [b, cin, h, w]`, `weight: [cout, cin, 3, 3]` → `[b, cout, h, w]`.
+    fn dense3(x: FloatTensor<Self>, weight: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// The input gradient from the output gradient `dy`.
+    fn dense3_x_grad(weight: FloatTensor<Self>, dy: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// The weight gradient `[cout, cin, 3, 3]`.
+    fn dense3_w_grad(x: FloatTensor<Self>, dy: FloatTensor<Self>) -> FloatTensor<Self>;
+}
+
+fn same3() -> ConvOptions<2> {
+    ConvOptions::new([1, 1], [1, 1], [1, 1], 1)
+}
+
+impl DenseOps for Flex {
+    fn dense3(x: FlexTensor, weight: FlexTensor) -> FlexTensor {
+        <Flex as ModuleOps<Flex>>::conv2d(x, weight, None, same3())
+    }
+
+    fn dense3_x_grad(weight: FlexTensor, dy: FlexTensor) -> FlexTensor {
+        let (weight, [cout, cin, _, _]) = values(weight);
+        let turned = transposed_half_turn(slice(&weight), cout, cin);
+        <Flex as ModuleOps<Flex>>::conv2d(dy, tensor(turned, [cin, cout, 3, 3]), None, same3())
+    }
+
+    fn dense3_w_grad(x: FlexTensor, dy: FlexTensor) -> FlexTensor {
+        let (x, [b, cin, h, w]) = values(x);
+        let (dy, [_, cout, _, _]) = values(dy);
+        let n = b * h * w;
+        // [cin·9, n] · [n, cout] = [cin·9, cout], then reordered to [cout, cin, 3, 3].
+        let cols = tensor(
+            neighbourhoods(slice(&x), [b, cin, h, w]),
+            [1, 1, cin * 9, n],
+        );
+        let dyt = tensor(
+            pixels_by_channel(slice(&dy), [b, cout, h, w]),
+            [1, 1, n, cout],
+        );
+        let (g, _) = values(<Flex as FloatTensorOps<Flex>>::float_matmul(cols, dyt));
+        let g = slice(&g);
+        let mut out = vec![0.0f32; cout * cin * 9];
+        for (ck, row) in g.chunks_exact(cout).enumerate() {
+            for (co, &v) in row.iter().enumerate() {
+                out[co * cin * 9 + ck] = v;
+            }
+        }
+        tensor(out, [cout, cin, 3, 3])
+    }
+}
+
+/// `[cout, cin, 3, 3]` → `[cin, cout, 3, 3]` with each kernel turned half a turn: the
+/// kernels whose forward convolution of the output gradient is the input gradient.
+fn transposed_half_turn(weight: &[f32], cout: usize, cin: usize) -> Vec<f32> {
+    let mut out = vec![0.0f32; cout * cin * 9];
+    for co in 0..cout {
+        for ci in 0..cin {
+            let src = &weight[(co * cin + ci) * 9..][..9];
+            let dst = &mut out[(ci * cout + co) * 9..][..9];
+            for (d, s) in dst.iter_mut().zip(src.iter().rev()) {
+                *d = *s;
+            }
+        }
+    }
+    out
+}
+
+/// im2col: row `ci·9 + ky·3 + kx` holds, for every pixel of every image (`b·h·w` columns),
+/// the input at `(y + ky − 1, x + kx − 1)` of channel `ci`, zero outside.
+fn neighbourhoods(x: &[f32], [b, c, h, w]: [usize; 4]) -> Vec<f32> {
+    let (plane, n) = (h * w, b * h * w);
+    let mut out = vec![0.0f32; c * 9 * n];
+    if n == 0 {
+        return out;
+    }
+    out.par_chunks_mut(n).enumerate().for_each(|(row, dst)| {
+        let (ci, k) = (row / 9, row % 9);
+        let (dy, dx) = (k / 3, k % 3);
+        for n_img in 0..b {
+            let src = &x[(n_img * c + ci) * plane..][..plane];
+            let dst = &mut dst[n_img * plane..][..plane];
+            for y in 0..h {
+                let Some(sy) = (y + dy).checked_sub(1).filter(|&sy| sy < h) else {
+                    continue;
+                };
+                let s = &src[sy * w..][..w];
+                let d = &mut dst[y * w..][..w];
+                // Output column x reads input column x + dx − 1.
+                match dx {
+                    0 => d[1..].copy_from_slice(&s[..w - 1]),
+                    1 => d.copy_from_slice(s),
+                    _ => d[..w - 1].copy_from_slice(&s[1..]),
+                }
+            }
+        }
+    });
+    out
+}
+
+/// `[b, c, h, w]` → `[b·h·w, c]`: each pixel's channels side by side.
+fn pixels_by_channel(x: &[f32], [b, c, h, w]: [usize; 4]) -> Vec<f32> {
+    let plane = h * w;
+    let mut out = vec![0.0f32; b * plane * c];
+    for n_img in 0..b {
+        for ch in 0..c {
+            let src = &x[(n_img * c + ch) * plane..][..plane];
+            for (p, &v) in src.iter().enumerate() {
+                out[(n_img * plane + p) * c + ch] = v;
+            }
+        }
+    }
+    out
+}
+
+#[derive(Debug)]
+struct DenseBackward;
+
+impl<B: Backend + DenseOps> Backward<B, 2> for DenseBackward {
+    type State = (NodeId, NodeId);
+
+    fn backward(
+        self,
+        ops: Ops<Self::State, 2>,
+        grads: &mut Gradients,
+        checkpointer: &mut Checkpointer,
+    ) {
+        let [node_x, node_w] = ops.parents;
+        let dy = grads.consume::<B>(&ops.node);
+        let x: FloatTensor<B> = checkpointer.retrieve_node_output(ops.state.0);
+        let weight: FloatTensor<B> = checkpointer.retrieve_node_output(ops.state.1);
+        if let Some(node) = node_x {
+            grads.register::<B>(node.id, B::dense3_x_grad(weight, dy.clone()));
+        }
+        if let Some(node) = node_w {
+            grads.register::<B>(node.id, B::dense3_w_grad(x, dy));
+        }
+    }
+}
+
+impl<B: Backend + DenseOps, C: CheckpointStrategy> DenseOps for Autodiff<B, C> {
+    fn dense3(x: FloatTensor<Self>, weight: FloatTensor<Self>) -> FloatTensor<Self> {
+        match DenseBackward
+            .prepare::<C>([x.node(), weight.node()])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(mut prep) => {
+                let state = (prep.checkpoint(&x), prep.checkpoint(&weight));
+                let y = B::dense3(x.into_primitive(), weight.into_primitive());
+                prep.finish(state, y)
+            }
+            OpsKind::UnTracked(prep) => {
+                prep.finish(B::dense3(x.into_primitive(), weight.into_primitive()))
+            }
+        }
+    }
+
+    fn dense3_x_grad(_: FloatTensor<Self>, _: FloatTensor<Self>) -> FloatTensor<Self> {
+        unreachable!("the convolution's gradient is not differentiated")
+    }
+
+    fn dense3_w_grad(_: FloatTensor<Self>, _: FloatTensor<Self>) -> FloatTensor<Self> {
+        unreachable!("the convolution's gradient is not differentiated")
     }
 }
 
