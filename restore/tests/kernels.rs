@@ -73,15 +73,25 @@ fn the_shipped_weights_restore_a_crop_alike_with_fast_and_reference_kernels() {
 }
 
 #[test]
-fn separable_query_enhancement_equals_the_square_pool() {
-    let device = Device::flex();
-    device.seed(11);
-    let x = Tensor::<4>::random([2, 3, 19, 23], Distribution::Normal(0.0, 1.0), &device);
-    for k in [3, 7, 11, 15] {
-        let fast = with_kernels(Kernels::Fast, || values(enhance_query(x.clone(), k)));
-        let reference = with_kernels(Kernels::Reference, || values(enhance_query(x.clone(), k)));
-        let err = max_abs_diff(&fast, &reference);
-        assert!(err < 1e-5, "k {k}: {err:.2e}");
+fn query_enhancement_from_the_planes_and_separable_equals_the_square_pool() {
+    // Without gradients the direct box sums run, with them the two 1-D pools.
+    for device in [Device::flex(), Device::flex().autodiff()] {
+        device.seed(11);
+        // A box wider than the map, too.
+        for (k, h, w) in [
+            (3, 19, 23),
+            (7, 19, 23),
+            (11, 19, 23),
+            (15, 19, 23),
+            (7, 3, 2),
+        ] {
+            let x = Tensor::<4>::random([2, 3, h, w], Distribution::Normal(0.0, 1.0), &device);
+            let fast = with_kernels(Kernels::Fast, || values(enhance_query(x.clone(), k)));
+            let reference =
+                with_kernels(Kernels::Reference, || values(enhance_query(x.clone(), k)));
+            let err = max_abs_diff(&fast, &reference);
+            assert!(err < 1e-5, "k {k} on {h}x{w}: {err:.2e}");
+        }
     }
 }
 
@@ -352,4 +362,89 @@ fn the_direct_kernels_have_the_same_bits_in_every_build() {
     assert!(!chosen.is_empty());
     let differ = chosen.iter().zip(&portable).filter(|(a, b)| a != b).count();
     assert_eq!(differ, 0, "{differ} of {} outputs differ", chosen.len());
+}
+
+/// LayerNorm over channels in f64, written out: the independent reference.
+fn channel_norm_f64(x: &[f32], g: &[f32], b: &[f32], [n, c, h, w]: [usize; 4]) -> Vec<f32> {
+    let plane = h * w;
+    let mut out = vec![0.0f32; x.len()];
+    for i in 0..n {
+        for p in 0..plane {
+            let at = |ch: usize| (i * c + ch) * plane + p;
+            let mean = (0..c).map(|ch| x[at(ch)] as f64).sum::<f64>() / c as f64;
+            let var = (0..c)
+                .map(|ch| (x[at(ch)] as f64 - mean).powi(2))
+                .sum::<f64>()
+                / c as f64;
+            for ch in 0..c {
+                let v = (x[at(ch)] as f64 - mean) / (var + 1e-5).sqrt();
+                out[at(ch)] = (v * g[ch] as f64 + b[ch] as f64) as f32;
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn the_two_pass_channel_norm_equals_the_tensor_layernorm_and_an_f64_one() {
+    use restore::net::layers::ChannelNorm;
+    let device = Device::flex();
+    device.seed(21);
+    // Odd sizes, a plane longer than one strip and not a multiple of it, a batch of two,
+    // one channel (variance zero everywhere), a one-pixel map.
+    for (c, h, w) in [(5, 7, 9), (16, 17, 31), (1, 4, 4), (3, 1, 1)] {
+        let mut m = ChannelNorm::new(c, &device);
+        let g = Tensor::<1>::random([c], Distribution::Normal(1.0, 0.5), &device);
+        let b = Tensor::<1>::random([c], Distribution::Normal(0.0, 0.5), &device);
+        m.weight = burn::module::Param::from_tensor(g.clone());
+        m.bias = burn::module::Param::from_tensor(b.clone());
+        // An offset far above the spread: a one-pass variance would lose it.
+        let x = Tensor::<4>::random([2, c, h, w], Distribution::Normal(0.0, 2.0), &device)
+            .add_scalar(300.0);
+        let fast = with_kernels(Kernels::Fast, || values(m.forward(x.clone())));
+        let reference = with_kernels(Kernels::Reference, || values(m.forward(x.clone())));
+        let exact = channel_norm_f64(&values(x), &values(g), &values(b), [2, c, h, w]);
+        let scale = exact.iter().fold(1.0f32, |a, v| a.max(v.abs()));
+        let err = max_abs_diff(&fast, &exact) / scale;
+        let err_ref = max_abs_diff(&reference, &exact) / scale;
+        assert!(fast.iter().all(|v| v.is_finite()), "{c}x{h}x{w}");
+        assert!(err < 1e-4, "{c}x{h}x{w}: fast {err:.2e} of the scale");
+        assert!(
+            err_ref < 1e-4,
+            "{c}x{h}x{w}: reference {err_ref:.2e} of the scale"
+        );
+    }
+}
+
+#[test]
+fn the_fusion_gate_through_the_mean_equals_the_whole_fuse_out_map() {
+    use restore::net::staf::{BlockSpec, Gate, StafBlock};
+    let device = Device::flex();
+    device.seed(22);
+    let randomise =
+        |t: Tensor<4>| Tensor::<4>::random(t.dims(), Distribution::Normal(0.0, 0.4), &device);
+    for gate in [Gate::PerPixel, Gate::PerChannel] {
+        let spec = BlockSpec {
+            channels: 8,
+            channel_heads: 2,
+            window_heads: 2,
+            win: 4,
+            kwin: 8,
+            hidden: 12,
+            qe: 3,
+            gate,
+        };
+        let mut block = StafBlock::new(spec, &device);
+        // Biases and weights away from their initial values, so that a dropped term shows.
+        block.fuse_out.weight =
+            burn::module::Param::from_tensor(randomise(block.fuse_out.weight.val()));
+        let bias = Tensor::<1>::random([8], Distribution::Normal(0.0, 0.5), &device);
+        block.fuse_out.bias = Some(burn::module::Param::from_tensor(bias));
+        let x = Tensor::<4>::random([2, 8, 12, 16], Distribution::Normal(0.0, 1.0), &device);
+        let fast = with_kernels(Kernels::Fast, || values(block.forward(x.clone())));
+        let reference = with_kernels(Kernels::Reference, || values(block.forward(x.clone())));
+        let scale = reference.iter().fold(1.0f32, |a, v| a.max(v.abs()));
+        let err = max_abs_diff(&fast, &reference) / scale;
+        assert!(err < 1e-5, "{gate:?}: {err:.2e} of the scale");
+    }
 }

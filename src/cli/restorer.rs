@@ -8,6 +8,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use restore::data::{TrainSet, list_images, load_photo};
 use restore::family::LensFamily;
+use restore::net::kernels::{Kernels, with_kernels};
 use restore::provenance::Lineage;
 use restore::train::{Event, Schedule, Start, TrainOptions, TrainRun, ValSet, round_seed, train};
 use restore::{Guidance, Preset, Restorer, RestorerConfig, weights};
@@ -116,6 +117,10 @@ pub struct TrainRestorerArgs {
     /// Where to train: `cpu` (burn flex), or `vulkan` in a build with `--features vulkan`.
     #[arg(long, default_value = "cpu")]
     pub backend: restore::Compute,
+    /// The network's kernels: `fast`, or the `reference` ones they replaced (to check that
+    /// both train alike; slower).
+    #[arg(long, value_enum, default_value_t = Kernels::Fast)]
+    pub kernels: Kernels,
 }
 
 /// How large images are cut for the network.
@@ -719,33 +724,38 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
         out: &a.out,
         provenance: &provenance,
     };
-    let (_, last, reached) = train(&run, start, &mut |e| match e {
-        Event::Pairs {
-            round,
-            samples,
-            seconds,
-        } => say(
-            &pb,
-            format!("round {round}: {samples} training pairs ({seconds:.1} s)"),
-        ),
-        Event::Step { step, loss, lr } => {
-            let e = ema.map_or(loss, |m| 0.95 * m + 0.05 * loss);
-            ema = Some(e);
-            pb.set_position(step as u64);
-            pb.set_message(format!("L1 {e:.4} lr {lr:.1e}"));
-        }
-        Event::Val {
-            step,
-            psnr,
-            ssim,
-            seconds,
-        } => {
-            say(
+    let kernels = a.kernels;
+    let (_, last, reached) = with_kernels(kernels, || {
+        train(&run, start, &mut |e| match e {
+            Event::Pairs {
+                round,
+                samples,
+                seconds,
+            } => say(
                 &pb,
-                format!("step {step:>6}  {seconds:>7.0} s  val PSNR {psnr:.2} dB  SSIM {ssim:.4}"),
-            );
-            log.push((step, seconds, psnr, ssim));
-        }
+                format!("round {round}: {samples} training pairs ({seconds:.1} s)"),
+            ),
+            Event::Step { step, loss, lr } => {
+                let e = ema.map_or(loss, |m| 0.95 * m + 0.05 * loss);
+                ema = Some(e);
+                pb.set_position(step as u64);
+                pb.set_message(format!("L1 {e:.4} lr {lr:.1e}"));
+            }
+            Event::Val {
+                step,
+                psnr,
+                ssim,
+                seconds,
+            } => {
+                say(
+                    &pb,
+                    format!(
+                        "step {step:>6}  {seconds:>7.0} s  val PSNR {psnr:.2} dB  SSIM {ssim:.4}"
+                    ),
+                );
+                log.push((step, seconds, psnr, ssim));
+            }
+        })
     })?;
     pb.finish_and_clear();
     let secs = started.elapsed().as_secs_f64();

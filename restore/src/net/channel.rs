@@ -6,17 +6,18 @@ use burn::nn::conv::Conv2d;
 use burn::tensor::activation::softmax;
 use burn::tensor::{Device, Tensor};
 
+use super::kernels::{Kernels, current};
 use super::layers::{conv, depthwise, depthwise3, enhance_query, pointwise};
 
 /// `x / max(‖x‖₂, ε)` along the last dimension.
 pub fn l2_normalise(x: Tensor<4>) -> Tensor<4> {
-    let norm = x
-        .clone()
-        .powf_scalar(2.0)
-        .sum_dim(3)
-        .sqrt()
-        .clamp_min(1e-12);
+    let norm = l2_norm(x.clone());
     x / norm
+}
+
+/// `max(‖x‖₂, ε)` along the last dimension (kept, size 1).
+pub fn l2_norm(x: Tensor<4>) -> Tensor<4> {
+    x.powf_scalar(2.0).sum_dim(3).sqrt().clamp_min(1e-12)
 }
 
 #[derive(Module, Debug)]
@@ -50,9 +51,18 @@ impl ChannelAttention {
         let q = enhance_query(parts.pop().expect("qkv"), self.qe);
         let d = c / self.heads;
         let split = |t: Tensor<4>| t.reshape([b, self.heads, d, h * w]);
-        let (q, k, v) = (l2_normalise(split(q)), l2_normalise(split(k)), split(v));
         let t = self.temperature.val().reshape([1, self.heads, 1, 1]);
-        let attn = softmax(q.matmul(k.swap_dims(2, 3)) * t, 3);
+        let (q, k, v) = (split(q), split(k), split(v));
+        let logits = match current() {
+            Kernels::Reference => l2_normalise(q).matmul(l2_normalise(k).swap_dims(2, 3)),
+            // The same logits with the norms applied to the small `d × d` product instead of
+            // to the two maps: `q̂·k̂ᵀ = (q·kᵀ) / (‖q‖ ‖k‖ᵀ)`.
+            Kernels::Fast => {
+                let (nq, nk) = (l2_norm(q.clone()), l2_norm(k.clone()));
+                q.matmul(k.swap_dims(2, 3)) / nq.matmul(nk.swap_dims(2, 3))
+            }
+        };
+        let attn = softmax(logits * t, 3);
         pointwise(&self.proj, attn.matmul(v).reshape([b, c, h, w]))
     }
 }

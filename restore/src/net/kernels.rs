@@ -9,7 +9,7 @@
 use burn::tensor::{Device, Tensor};
 use std::cell::Cell;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Kernels {
     /// Attention as one fused op per window batch (no logits tensor for the whole tile, no
     /// materialised mask), query enhancement as two 1-D box passes, 1×1 convolutions as

@@ -74,7 +74,11 @@ pub fn depthwise3(c: usize, device: &Device) -> Conv2d {
         .init(device)
 }
 
-/// LayerNorm over the channels of every pixel, with bias (Restormer's "WithBias").
+/// The LayerNorm's ε (Restormer's).
+const NORM_EPS: f32 = 1e-5;
+
+/// LayerNorm over the channels of every pixel, with bias (Restormer's "WithBias"); in CPU
+/// inference in two passes ([`super::norm_direct`]).
 #[derive(Module, Debug)]
 pub struct ChannelNorm {
     pub weight: Param<Tensor<1>>,
@@ -90,11 +94,18 @@ impl ChannelNorm {
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        if current() == Kernels::Fast && direct_applies(&x) {
+            let dims = x.dims();
+            let device = x.device();
+            let (weight, bias) = (host(self.weight.val()), host(self.bias.val()));
+            let y = super::norm_direct::channel_norm(&host(x), &weight, &bias, NORM_EPS, dims);
+            return Tensor::from_data(TensorData::new(y, dims), &device);
+        }
         let c = x.dims()[1];
         let mean = x.clone().mean_dim(1);
         let centred = x - mean;
         let var = centred.clone().powf_scalar(2.0).mean_dim(1);
-        let normed = centred / var.add_scalar(1e-5).sqrt();
+        let normed = centred / var.add_scalar(NORM_EPS as f64).sqrt();
         normed * self.weight.val().reshape([1, c, 1, 1]) + self.bias.val().reshape([1, c, 1, 1])
     }
 }
@@ -139,10 +150,17 @@ impl Gdfn {
 /// the query stresses what differs from its neighbourhood. `k = 0` or `1` leaves `Q` alone.
 ///
 /// The box is separable: a `k × 1` pass then a `1 × k` pass add the same terms as one
-/// `k × k` pool (zero padding counted in both), with `2k` reads per pixel instead of `k²`.
+/// `k × k` pool (zero padding counted in both), with `2k` reads per pixel instead of `k²`;
+/// in CPU inference straight from the planes ([`super::box_direct`]).
 pub fn enhance_query(q: Tensor<4>, k: usize) -> Tensor<4> {
     if k <= 1 {
         return q;
+    }
+    if current() == Kernels::Fast && k % 2 == 1 && direct_applies(&q) {
+        let dims = q.dims();
+        let device = q.device();
+        let out = super::box_direct::enhance(&host(q), k, dims[2], dims[3]);
+        return Tensor::from_data(TensorData::new(out, dims), &device);
     }
     let pool = |x: Tensor<4>, kernel: [usize; 2]| {
         avg_pool2d(

@@ -4,7 +4,9 @@
 use burn::module::Module;
 use burn::nn::conv::Conv2d;
 use burn::tensor::activation::{gelu, sigmoid};
-use burn::tensor::{Device, Tensor};
+use burn::tensor::{Device, Tensor, TensorData};
+
+use super::kernels::{Kernels, current, direct_applies, host};
 
 use super::channel::ChannelAttention;
 use super::layers::{ChannelNorm, Gdfn, conv, pointwise};
@@ -71,6 +73,9 @@ impl StafBlock {
         let sa = sa.clone() + self.ffn_sa.forward(self.norm_sa_ffn.forward(sa));
         let ca = x.clone() + self.channel.forward(self.norm_ca.forward(x));
         let ca = ca.clone() + self.ffn_ca.forward(self.norm_ca_ffn.forward(ca));
+        if current() == Kernels::Fast {
+            return self.fuse_fast(sa, ca);
+        }
         let f = pointwise(
             &self.fuse_out,
             gelu(pointwise(
@@ -84,5 +89,47 @@ impl StafBlock {
             sigmoid(f.mean_dim(2).mean_dim(3))
         };
         sa * w.clone() + ca * (w.neg().add_scalar(1.0))
+    }
+
+    /// The fusion gate without `fuse_out`'s map: the gate reads only a mean of it, and a
+    /// mean of a 1×1 convolution is the convolution of the mean. Per pixel, the channel mean
+    /// of `W·g + b` is `mean_rows(W)·g + mean(b)` (one row instead of `C`); per channel, the
+    /// spatial mean is `W·mean(g) + b` (one pixel instead of all). Then `ca + (sa − ca)·w`,
+    /// on the CPU without gradients in one pass ([`super::fuse_direct`]).
+    fn fuse_fast(&self, sa: Tensor<4>, ca: Tensor<4>) -> Tensor<4> {
+        let [b, c, h, w] = sa.dims();
+        let g = gelu(pointwise(
+            &self.fuse_in,
+            Tensor::cat(vec![sa.clone(), ca.clone()], 1),
+        ));
+        let weight = self.fuse_out.weight.val().reshape([c, c]);
+        let bias = self
+            .fuse_out
+            .bias
+            .as_ref()
+            .map(|bias| bias.val())
+            .expect("the fusion's 1x1 convolutions have a bias");
+        let gate = if self.per_pixel {
+            let row = weight.mean_dim(0).reshape([1, 1, c]);
+            let f = row.matmul(g.reshape([b, c, h * w])) + bias.mean().reshape([1, 1, 1]);
+            sigmoid(f).reshape([b, 1, h, w])
+        } else {
+            let pooled = g.mean_dim(2).mean_dim(3).reshape([b, c, 1]);
+            let f = weight.reshape([1, c, c]).matmul(pooled) + bias.reshape([1, c, 1]);
+            sigmoid(f).reshape([b, c, 1, 1])
+        };
+        if direct_applies(&sa) {
+            let device = sa.device();
+            let gate_dims = gate.dims();
+            let out = super::fuse_direct::blend(
+                &host(sa),
+                &host(ca),
+                &host(gate),
+                [b, c, h, w],
+                gate_dims,
+            );
+            return Tensor::from_data(TensorData::new(out, [b, c, h, w]), &device);
+        }
+        ca.clone() + (sa - ca) * gate
     }
 }

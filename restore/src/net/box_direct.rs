@@ -1,0 +1,80 @@
+//! Query enhancement `Q − AvgPool_k(Q)` for CPU inference, straight from the planes.
+//!
+//! burn's average pool visits every output through generic index arithmetic (a quarter of a
+//! `tiny` 512² forward pass went there, two pools per enhanced block). Here each plane is
+//! summed along its rows, then down its columns, `k` shifted slice additions each, which
+//! vectorise; the sums are direct (no running sum), so no error builds up along a row.
+//! It has no gradient: training takes the tensor formulation.
+
+use rayon::prelude::*;
+
+/// `x`: planes of `h × w`, one after another; `k` odd → `x − AvgPool_k(x)` with stride 1 and
+/// zero padding counted in the mean (divided by `k²` everywhere), as
+/// [`super::layers::enhance_query`].
+pub fn enhance(x: &[f32], k: usize, h: usize, w: usize) -> Vec<f32> {
+    assert!(k % 2 == 1, "an odd box, not {k}");
+    let plane = h * w;
+    let mut out = vec![0.0f32; x.len()];
+    if plane == 0 {
+        return out;
+    }
+    assert_eq!(x.len() % plane, 0, "planes of {h}x{w}");
+    out.par_chunks_mut(plane)
+        .zip(x.par_chunks(plane))
+        .for_each(|(dst, src)| plane_task(dst, src, k, h, w));
+    out
+}
+
+fn plane_task(dst: &mut [f32], src: &[f32], k: usize, h: usize, w: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if base::isa::Isa::chosen() != base::isa::Isa::Portable {
+        // SAFETY: `Isa::chosen` names a build the CPU has, and every build past the
+        // portable one has AVX2.
+        return unsafe { plane_avx2(dst, src, k, h, w) };
+    }
+    plane_body(dst, src, k, h, w)
+}
+
+/// The same code compiled for AVX2 (no multiply-add contracted: the portable build's bits).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn plane_avx2(dst: &mut [f32], src: &[f32], k: usize, h: usize, w: usize) {
+    plane_body(dst, src, k, h, w)
+}
+
+#[inline(always)]
+fn plane_body(dst: &mut [f32], src: &[f32], k: usize, h: usize, w: usize) {
+    let r = (k / 2) as isize;
+    // Row sums of the whole plane, then column sums of those, row by row.
+    let mut rows = vec![0.0f32; h * w];
+    for (sum, row) in rows.chunks_exact_mut(w).zip(src.chunks_exact(w)) {
+        for d in -r..=r {
+            // sum[x] += row[x + d] where x + d is inside the row.
+            let lo = (-d).clamp(0, w as isize) as usize;
+            let hi = (w as isize - d).clamp(lo as isize, w as isize) as usize;
+            if hi == lo {
+                continue; // the shift is wider than the row
+            }
+            let shifted = &row[(lo as isize + d) as usize..][..hi - lo];
+            for (s, &v) in sum[lo..hi].iter_mut().zip(shifted) {
+                *s += v;
+            }
+        }
+    }
+    let inv = 1.0 / (k * k) as f32;
+    let mut acc = vec![0.0f32; w];
+    for y in 0..h {
+        acc.fill(0.0);
+        let top = (y as isize - r).max(0) as usize;
+        let bottom = ((y as isize + r) as usize).min(h - 1);
+        for sum in rows[top * w..(bottom + 1) * w].chunks_exact(w) {
+            for (a, &s) in acc.iter_mut().zip(sum) {
+                *a += s;
+            }
+        }
+        let q = &src[y * w..][..w];
+        for ((o, &v), &a) in dst[y * w..][..w].iter_mut().zip(q).zip(&acc) {
+            *o = v - a * inv;
+        }
+    }
+}
