@@ -73,8 +73,8 @@ fn the_shipped_weights_restore_a_crop_alike_with_fast_and_reference_kernels() {
 }
 
 #[test]
-fn query_enhancement_from_the_planes_and_separable_equals_the_square_pool() {
-    // Without gradients the direct box sums run, with them the two 1-D pools.
+fn query_enhancement_from_the_planes_equals_the_square_pool_with_its_gradient() {
+    // Without gradients and under autodiff, where the gradient is the same kernel again.
     for device in [Device::flex(), Device::flex().autodiff()] {
         device.seed(11);
         // A box wider than the map, too.
@@ -86,11 +86,24 @@ fn query_enhancement_from_the_planes_and_separable_equals_the_square_pool() {
             (7, 3, 2),
         ] {
             let x = Tensor::<4>::random([2, 3, h, w], Distribution::Normal(0.0, 1.0), &device);
-            let fast = with_kernels(Kernels::Fast, || values(enhance_query(x.clone(), k)));
-            let reference =
-                with_kernels(Kernels::Reference, || values(enhance_query(x.clone(), k)));
-            let err = max_abs_diff(&fast, &reference);
+            let x = if x.is_autodiff() { x.require_grad() } else { x };
+            let wts = Tensor::<4>::random([2, 3, h, w], Distribution::Normal(0.0, 1.0), &device);
+            let run = |kernels| {
+                with_kernels(kernels, || {
+                    let y = enhance_query(x.clone(), k);
+                    if !y.is_autodiff() {
+                        return (values(y), Vec::new());
+                    }
+                    let g = (y.clone() * wts.clone()).sum().backward();
+                    (values(y), values(x.grad(&g).expect("input gradient")))
+                })
+            };
+            let (fast, reference) = (run(Kernels::Fast), run(Kernels::Reference));
+            let err = max_abs_diff(&fast.0, &reference.0);
             assert!(err < 1e-5, "k {k} on {h}x{w}: {err:.2e}");
+            assert_eq!(fast.1.len(), reference.1.len());
+            let err = max_abs_diff(&fast.1, &reference.1);
+            assert!(err < 1e-5, "k {k} on {h}x{w}: gradient {err:.2e}");
         }
     }
 }
@@ -295,13 +308,33 @@ fn the_vectorised_gelu_matches_burns_erf_gelu() {
         TensorData::new(xs.clone(), [n]),
         &device,
     )));
-    let got: Vec<f32> = xs
-        .iter()
-        .map(|&x| restore::net::gate_direct::gelu(x))
-        .collect();
+    let got: Vec<f32> = xs.iter().map(|&x| restore::net::gelu::gelu(x)).collect();
     let err = max_abs_diff(&got, &want);
     assert!(err < 1e-6, "max abs difference {err:.2e}");
-    assert!(restore::net::gate_direct::gelu(f32::NAN).is_nan());
+    assert!(restore::net::gelu::gelu(f32::NAN).is_nan());
+}
+
+#[test]
+fn the_gelu_extension_has_burns_values_and_gradient() {
+    let device = Device::flex().autodiff();
+    // Past ±10 too, where the slope's Gaussian underflows.
+    let xs: Vec<f32> = (0..=6000).map(|i| -30.0 + i as f32 * 0.01).collect();
+    let n = xs.len();
+    let x = Tensor::<4>::from_data(TensorData::new(xs, [1, 1, 1, n]), &device).require_grad();
+    let wts = Tensor::<4>::random([1, 1, 1, n], Distribution::Normal(0.0, 1.0), &device);
+    let run = |kernels| {
+        with_kernels(kernels, || {
+            let y = restore::net::layers::gelu(x.clone());
+            let g = (y.clone() * wts.clone()).sum().backward();
+            (values(y), values(x.grad(&g).expect("input gradient")))
+        })
+    };
+    let ((y, dx), (y_ref, dx_ref)) = (run(Kernels::Fast), run(Kernels::Reference));
+    assert!(y.iter().chain(&dx).all(|v| v.is_finite()));
+    let err = max_abs_diff(&y, &y_ref);
+    assert!(err < 1e-5, "values: {err:.2e}");
+    let err = max_abs_diff(&dx, &dx_ref);
+    assert!(err < 1e-5, "gradient: {err:.2e}");
 }
 
 /// The direct kernels' output bits of a seeded `tiny` network on a small input, under the

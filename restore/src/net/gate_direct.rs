@@ -6,7 +6,7 @@
 //! are in cache. It has no gradient: training takes the tensor formulation.
 
 use super::conv_train::depthwise_row;
-use super::window_direct::exp_nonpositive;
+use super::gelu::gelu;
 use rayon::prelude::*;
 
 /// `x: [b, 2·hid, h, w]` (the GDFN's first projection), `weight: [2·hid, 1, 3, 3]` (its
@@ -64,18 +64,4 @@ fn plane_body(dst: &mut [f32], a: Plane, g: Plane, h: usize, w: usize) {
             *o = gelu(u) * v;
         }
     }
-}
-
-/// GELU with the exact (erf) form, `x/2 · (1 + erf(x/√2))`, with erf from Abramowitz and
-/// Stegun 7.1.26 (absolute error below 1.5e-7) so the loop vectorises.
-#[inline(always)]
-pub fn gelu(x: f32) -> f32 {
-    let z = (x * std::f32::consts::FRAC_1_SQRT_2).abs();
-    let t = 1.0 / (1.0 + 0.327_591_1 * z);
-    let poly = ((((1.061_405_4 * t - 1.453_152_1) * t + 1.421_413_8) * t - 0.284_496_74) * t
-        + 0.254_829_6)
-        * t;
-    let erf_abs = 1.0 - poly * exp_nonpositive(-z * z);
-    let erf = if x < 0.0 { -erf_abs } else { erf_abs };
-    0.5 * x * (1.0 + erf)
 }

@@ -4,7 +4,6 @@
 use burn::module::{Module, Param};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
-use burn::tensor::activation::gelu;
 use burn::tensor::module::avg_pool2d;
 use burn::tensor::ops::AvgPoolOptions;
 use burn::tensor::{Device, Tensor, TensorData};
@@ -24,6 +23,16 @@ pub fn conv3(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
         return super::conv_train::dense3(conv, x);
     }
     conv.forward(x)
+}
+
+/// GELU; on burn's CPU backend with the vectorised erf of [`super::gelu`] (forward and
+/// backward) when the fast kernels run.
+pub fn gelu(x: Tensor<4>) -> Tensor<4> {
+    if current() == Kernels::Fast && (direct_applies(&x) || super::conv_train::trained_applies(&x))
+    {
+        return super::gelu::gelu_tensor(x);
+    }
+    burn::tensor::activation::gelu(x)
 }
 
 /// `k × k` convolution with same-size output.
@@ -151,16 +160,16 @@ impl Gdfn {
 ///
 /// The box is separable: a `k × 1` pass then a `1 × k` pass add the same terms as one
 /// `k × k` pool (zero padding counted in both), with `2k` reads per pixel instead of `k²`;
-/// in CPU inference straight from the planes ([`super::box_direct`]).
+/// on the CPU straight from the planes ([`super::query_box`]).
 pub fn enhance_query(q: Tensor<4>, k: usize) -> Tensor<4> {
     if k <= 1 {
         return q;
     }
-    if current() == Kernels::Fast && k % 2 == 1 && direct_applies(&q) {
-        let dims = q.dims();
-        let device = q.device();
-        let out = super::box_direct::enhance(&host(q), k, dims[2], dims[3]);
-        return Tensor::from_data(TensorData::new(out, dims), &device);
+    if current() == Kernels::Fast
+        && k % 2 == 1
+        && (direct_applies(&q) || super::conv_train::trained_applies(&q))
+    {
+        return super::query_box::enhance_tensor(q, k);
     }
     let pool = |x: Tensor<4>, kernel: [usize; 2]| {
         avg_pool2d(

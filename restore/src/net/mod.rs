@@ -1,15 +1,16 @@
 //! The network: MAFG guidance, a U-shaped body of STAF blocks (Restormer layout), a residual
 //! added to one Wiener image of the bank (`RestorerConfig::residual_base`).
 
-pub mod box_direct;
 pub mod channel;
 pub mod conv_train;
 pub mod fuse_direct;
 pub mod gate_direct;
+pub mod gelu;
 pub mod kernels;
 pub mod layers;
 pub mod mafg;
 pub mod norm_direct;
+pub mod query_box;
 pub mod staf;
 pub mod window;
 pub mod window_direct;

@@ -3,13 +3,13 @@
 
 use burn::module::Module;
 use burn::nn::conv::Conv2d;
-use burn::tensor::activation::{gelu, sigmoid};
+use burn::tensor::activation::sigmoid;
 use burn::tensor::{Device, Tensor, TensorData};
 
 use super::kernels::{Kernels, current, direct_applies, host};
 
 use super::channel::ChannelAttention;
-use super::layers::{ChannelNorm, Gdfn, conv, pointwise};
+use super::layers::{ChannelNorm, Gdfn, conv, gelu, pointwise};
 use super::window::WindowAttention;
 
 /// Where the fusion gate varies.

@@ -1,11 +1,23 @@
-//! Query enhancement `Q − AvgPool_k(Q)` for CPU inference, straight from the planes.
+//! Query enhancement `Q − AvgPool_k(Q)` straight from the planes, on the CPU.
 //!
 //! burn's average pool visits every output through generic index arithmetic (a quarter of a
-//! `tiny` 512² forward pass went there, two pools per enhanced block). Here each plane is
-//! summed along its rows, then down its columns, `k` shifted slice additions each, which
-//! vectorise; the sums are direct (no running sum), so no error builds up along a row.
-//! It has no gradient: training takes the tensor formulation.
+//! `tiny` 512² forward pass went there, two pools per enhanced block, and their backward a
+//! good part of a training step). Here each plane is summed along its rows, then down its
+//! columns, `k` shifted slice additions each, which vectorise; the sums are direct (no
+//! running sum), so no error builds up along a row.
+//!
+//! The zero-padded box mean is a symmetric operator, so `x − box(x)` is its own adjoint: the
+//! input gradient is the same kernel applied to the output gradient. Registered with burn as
+//! a backend extension ([`EnhanceOps`]), autodiff records it as one node; it stands in only
+//! on burn's CPU backend, under autodiff or not.
 
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops};
+use burn::backend::flex::FlexTensor;
+use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension, tensor::FloatTensor};
+use burn::tensor::{Tensor, TensorData};
 use rayon::prelude::*;
 
 /// `x`: planes of `h × w`, one after another; `k` odd → `x − AvgPool_k(x)` with stride 1 and
@@ -76,5 +88,56 @@ fn plane_body(dst: &mut [f32], src: &[f32], k: usize, h: usize, w: usize) {
         for ((o, &v), &a) in dst[y * w..][..w].iter_mut().zip(q).zip(&acc) {
             *o = v - a * inv;
         }
+    }
+}
+
+/// `q − AvgPool_k(q)` through [`EnhanceOps`] (`k` odd; `q` on burn's CPU backend).
+pub fn enhance_tensor(q: Tensor<4>, k: usize) -> Tensor<4> {
+    Tensor::<4>::from_dispatch(<Dispatch as EnhanceOps>::enhance(q.into_dispatch(), k))
+}
+
+#[backend_extension(Flex, Autodiff)]
+pub trait EnhanceOps: Backend {
+    /// `x: [b, c, h, w]` → `x − AvgPool_k(x)`, the same shape.
+    fn enhance(x: FloatTensor<Self>, k: usize) -> FloatTensor<Self>;
+}
+
+impl EnhanceOps for Flex {
+    fn enhance(x: FlexTensor, k: usize) -> FlexTensor {
+        let x = x.to_contiguous();
+        let s = x.layout().shape();
+        let dims = [s[0], s[1], s[2], s[3]];
+        let values = x
+            .as_slice::<f32>()
+            .expect("the restorer's maps are f32 on the CPU");
+        FlexTensor::from_data(TensorData::new(enhance(values, k, dims[2], dims[3]), dims))
+    }
+}
+
+#[derive(Debug)]
+struct EnhanceBackward {
+    k: usize,
+}
+
+impl<B: Backend + EnhanceOps> Backward<B, 1> for EnhanceBackward {
+    type State = ();
+
+    fn backward(self, ops: Ops<(), 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [parent] = ops.parents;
+        let dy = grads.consume::<B>(&ops.node);
+        if let Some(node) = parent {
+            grads.register::<B>(node.id, B::enhance(dy, self.k));
+        }
+    }
+}
+
+impl<B: Backend + EnhanceOps, C: CheckpointStrategy> EnhanceOps for Autodiff<B, C> {
+    fn enhance(x: FloatTensor<Self>, k: usize) -> FloatTensor<Self> {
+        let node = x.node();
+        let y = B::enhance(x.into_primitive(), k);
+        EnhanceBackward { k }
+            .prepare::<C>([node])
+            .compute_bound()
+            .stateless(y)
     }
 }
