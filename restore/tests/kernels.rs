@@ -481,3 +481,86 @@ fn the_fusion_gate_through_the_mean_equals_the_whole_fuse_out_map() {
         assert!(err < 1e-5, "{gate:?}: {err:.2e} of the scale");
     }
 }
+
+#[test]
+fn gathered_key_windows_have_the_unfolded_ones_values_and_gradient() {
+    use restore::net::window::key_windows;
+    let device = Device::flex().autodiff();
+    device.seed(23);
+    // tiny's windows, wider overlaps, and a map of one window.
+    for (win, kwin, h, w) in [(4, 6, 12, 8), (4, 8, 8, 12), (2, 6, 6, 4), (4, 6, 4, 4)] {
+        let x = Tensor::<4>::random([2, 3, h, w], Distribution::Normal(0.0, 1.0), &device)
+            .require_grad();
+        let n = 2 * (h / win) * (w / win);
+        let wts = Tensor::<3>::random([n, kwin * kwin, 3], Distribution::Normal(0.0, 1.0), &device);
+        let run = |kernels| {
+            with_kernels(kernels, || {
+                let k = key_windows(x.clone(), win, kwin);
+                let g = (k.clone() * wts.clone()).sum().backward();
+                (values(k), values(x.grad(&g).expect("input gradient")))
+            })
+        };
+        let ((k, dx), (k_ref, dx_ref)) = (run(Kernels::Fast), run(Kernels::Reference));
+        assert_eq!(
+            max_abs_diff(&k, &k_ref),
+            0.0,
+            "{win}/{kwin} on {h}x{w}: a gather copies"
+        );
+        let err = max_abs_diff(&dx, &dx_ref);
+        assert!(err < 1e-5, "{win}/{kwin} on {h}x{w}: gradient {err:.2e}");
+    }
+}
+
+#[test]
+fn window_attention_trains_alike_through_the_hand_written_backward() {
+    use restore::net::window::WindowAttention;
+    let device = Device::flex().autodiff();
+    device.seed(24);
+    // tiny's windows with masked border keys, a wider overlap, 4 and 16 channels per head.
+    for (c, heads, win, kwin, qe, h, w) in [
+        (16, 2, 4, 6, 3, 12, 8),
+        (8, 2, 4, 8, 0, 8, 12),
+        (16, 1, 4, 6, 0, 4, 8),
+    ] {
+        let layer = WindowAttention::new(c, heads, win, kwin, qe, &device);
+        // Position logits away from their small initial values, so their gradient matters.
+        let mut layer = layer;
+        layer.relative = burn::module::Param::from_tensor(Tensor::random(
+            layer.relative.dims(),
+            Distribution::Normal(0.0, 1.0),
+            &device,
+        ));
+        let x = Tensor::<4>::random([2, c, h, w], Distribution::Normal(0.0, 1.0), &device)
+            .require_grad();
+        let wts = Tensor::<4>::random([2, c, h, w], Distribution::Normal(0.0, 1.0), &device);
+        let run = |kernels| {
+            with_kernels(kernels, || {
+                let y = layer.forward(x.clone());
+                let g = (y.clone() * wts.clone()).sum().backward();
+                vec![
+                    values(y),
+                    values(x.grad(&g).expect("input gradient")),
+                    values(layer.qkv.weight.val().grad(&g).expect("qkv gradient")),
+                    values(layer.relative.val().grad(&g).expect("position gradient")),
+                ]
+            })
+        };
+        let (fast, reference) = (run(Kernels::Fast), run(Kernels::Reference));
+        for (what, (a, r)) in [
+            "output",
+            "input gradient",
+            "qkv gradient",
+            "position gradient",
+        ]
+        .iter()
+        .zip(fast.iter().zip(&reference))
+        {
+            let scale = r.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
+            let err = max_abs_diff(a, r) / scale;
+            assert!(
+                err < 1e-4,
+                "{c}/{heads} {win}/{kwin} {h}x{w}: {what} {err:.2e} of the scale"
+            );
+        }
+    }
+}

@@ -7,6 +7,7 @@ pub mod fuse_direct;
 pub mod gate_direct;
 pub mod gelu;
 pub mod kernels;
+pub mod key_gather;
 pub mod layers;
 pub mod mafg;
 pub mod norm_direct;
@@ -14,6 +15,7 @@ pub mod query_box;
 pub mod staf;
 pub mod window;
 pub mod window_direct;
+pub mod window_train;
 
 use crate::config::{Guidance, RestorerConfig};
 use aberration::wiener::BANK_MEDIAN;

@@ -38,8 +38,13 @@ pub fn merge_windows(x: Tensor<3>, b: usize, h: usize, w: usize, win: usize) -> 
 /// `[b, c, h, w]` → `[b·n_windows, kwin², c]`: the key window around every query window
 /// (zero outside the image). Built from strided views of the zero-padded map (`unfold` per
 /// axis), not im2col: burn's padded `unfold4d` runs as a one-hot convolution, `C·kwin²`
-/// output channels, which dominated training time.
+/// output channels, which dominated training time. On the CPU with the fast kernels, a
+/// gather with a hand-written gradient ([`super::key_gather`]).
 pub fn key_windows(x: Tensor<4>, win: usize, kwin: usize) -> Tensor<3> {
+    if current() == Kernels::Fast && (direct_applies(&x) || super::conv_train::trained_applies(&x))
+    {
+        return super::key_gather::key_windows_tensor(x, win, kwin);
+    }
     let [b, c, h, w] = x.dims();
     let p = (kwin - win) / 2;
     let (nh, nw) = (h / win, w / win);
@@ -214,7 +219,8 @@ impl WindowAttention {
     }
 
     /// The attention's answer map `[b, c, h, w]` from the query, key and value maps, by the
-    /// kernels [`current`] names (the direct one where it applies).
+    /// kernels [`current`] names (the direct one where it applies, in training with its
+    /// hand-written backward).
     fn answers(&self, q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
         let [b, c, h, w] = q.dims();
         let device = q.device();
@@ -232,6 +238,13 @@ impl WindowAttention {
             let out = attend_maps(&host(q), &host(k), &host(v), [c, h, w], &spec)
                 .expect("a supported head width");
             return Tensor::from_data(TensorData::new(out, [b, c, h, w]), &device);
+        }
+        if current() == Kernels::Fast
+            && super::conv_train::trained_applies(&q)
+            && super::window_train::supported(c, self.heads)
+        {
+            let bias = self.position_bias();
+            return super::window_train::attend_tensor(q, k, v, bias, self.win, self.kwin);
         }
         let q = query_windows(q, self.win);
         let k = key_windows(k, self.win, self.kwin);
