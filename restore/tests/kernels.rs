@@ -564,3 +564,53 @@ fn window_attention_trains_alike_through_the_hand_written_backward() {
         }
     }
 }
+
+#[test]
+fn the_guide_trains_alike_through_the_hand_written_cross_attention_backward() {
+    use restore::net::mafg::CrossAttentionGuide;
+    let device = Device::flex().autodiff();
+    device.seed(25);
+    // tiny's guide (8 channels, one head), and two heads of 4 with a wider overlap.
+    for (embed, heads, head_dim, win, kwin, h, w) in [(8, 1, 8, 4, 6, 12, 8), (8, 2, 4, 4, 8, 8, 8)]
+    {
+        let mut guide = CrossAttentionGuide::new(embed, heads, head_dim, win, kwin, true, &device);
+        let bigger =
+            |t: Tensor<2>| Tensor::<2>::random(t.dims(), Distribution::Normal(0.0, 0.5), &device);
+        guide.pos_q = burn::module::Param::from_tensor(bigger(guide.pos_q.val()));
+        guide.pos_k = burn::module::Param::from_tensor(bigger(guide.pos_k.val()));
+        let x = Tensor::<4>::random([2, 39, h, w], Distribution::Normal(0.5, 0.3), &device)
+            .require_grad();
+        let wts = Tensor::<4>::random([2, 39, h, w], Distribution::Normal(0.0, 1.0), &device);
+        let run = |kernels| {
+            with_kernels(kernels, || {
+                let y = guide.forward(x.clone());
+                let g = (y.clone() * wts.clone()).sum().backward();
+                vec![
+                    values(y),
+                    values(x.grad(&g).expect("input gradient")),
+                    values(guide.q.weight.val().grad(&g).expect("query gradient")),
+                    values(guide.k.weight.val().grad(&g).expect("key gradient")),
+                    values(guide.pos_q.val().grad(&g).expect("query position gradient")),
+                    values(guide.pos_k.val().grad(&g).expect("key position gradient")),
+                ]
+            })
+        };
+        let (fast, reference) = (run(Kernels::Fast), run(Kernels::Reference));
+        let names = [
+            "output",
+            "input",
+            "query",
+            "key",
+            "query position",
+            "key position",
+        ];
+        for (what, (a, r)) in names.iter().zip(fast.iter().zip(&reference)) {
+            let scale = r.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
+            let err = max_abs_diff(a, r) / scale;
+            assert!(
+                err < 1e-4,
+                "{heads}x{head_dim} {win}/{kwin}: {what} {err:.2e} of the scale"
+            );
+        }
+    }
+}

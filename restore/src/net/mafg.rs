@@ -86,7 +86,7 @@ impl CrossAttentionGuide {
 
     /// Every filter's answer map `[b·m, hd, h, w]` from the median's query map `[b, hd, h, w]`
     /// and the filters' key and value maps `[b·m, hd, h, w]`, by the kernels [`current`]
-    /// names (the direct one where it applies).
+    /// names (the direct one where it applies, in training with its hand-written backward).
     fn answers(&self, q: Tensor<4>, k: Tensor<4>, v: Tensor<4>) -> Tensor<4> {
         let [b, hd, h, w] = q.dims();
         let m = BANK_SIZE;
@@ -105,6 +105,15 @@ impl CrossAttentionGuide {
             let out = attend_maps(&host(q), &host(k), &host(v), [hd, h, w], &spec)
                 .expect("a supported head width");
             return Tensor::from_data(TensorData::new(out, [b * m, hd, h, w]), &device);
+        }
+        if current() == Kernels::Fast
+            && super::conv_train::trained_applies(&q)
+            && super::window_train::supported(hd, self.heads)
+        {
+            let (pos_q, pos_k) = (self.pos_q.val(), self.pos_k.val());
+            return super::window_train::cross_tensor(
+                q, k, v, pos_q, pos_k, self.heads, self.win, self.kwin,
+            );
         }
         let q = query_windows(q, self.win) + self.pos_q.val().unsqueeze_dim::<3>(0);
         let k = key_windows(k, self.win, self.kwin) + self.pos_k.val().unsqueeze_dim::<3>(0);

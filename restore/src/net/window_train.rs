@@ -24,12 +24,13 @@ use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension, tensor
 use burn::tensor::{Tensor, TensorData};
 use rayon::prelude::*;
 
-/// Whether [`attend_tensor`] serves a layer of `c` channels in `heads` heads.
+/// Whether [`attend_tensor`] and [`cross_tensor`] serve a layer of `c` channels in `heads`
+/// heads.
 pub fn supported(c: usize, heads: usize) -> bool {
     c.is_multiple_of(heads) && head_dim_supported(c / heads)
 }
 
-/// Window attention of the maps `q, k, v: [b, c, h, w]` with position logits
+/// STAF's window attention of the maps `q, k, v: [b, c, h, w]` with position logits
 /// `bias: [heads, win², kwin²]` (keys outside the map left out) → `[b, c, h, w]`, through
 /// [`WindowTrainOps`] (on burn's CPU backend under autodiff; see [`supported`]).
 pub fn attend_tensor(
@@ -50,6 +51,32 @@ pub fn attend_tensor(
     ))
 }
 
+/// MAFG's cross-attention: query maps `q: [b, c, h, w]`, each asked of `share` key and value
+/// maps `k, v: [b·share, c, h, w]`, with position embeddings `pos_q: [win², c]` and
+/// `pos_k: [kwin², c]` added to queries and keys, `heads` heads → `[b·share, c, h, w]`.
+#[allow(clippy::too_many_arguments)]
+pub fn cross_tensor(
+    q: Tensor<4>,
+    k: Tensor<4>,
+    v: Tensor<4>,
+    pos_q: Tensor<2>,
+    pos_k: Tensor<2>,
+    heads: usize,
+    win: usize,
+    kwin: usize,
+) -> Tensor<4> {
+    Tensor::<4>::from_dispatch(<Dispatch as WindowTrainOps>::cross_attention(
+        q.into_dispatch(),
+        k.into_dispatch(),
+        v.into_dispatch(),
+        pos_q.into_dispatch(),
+        pos_k.into_dispatch(),
+        heads,
+        win,
+        kwin,
+    ))
+}
+
 #[backend_extension(Flex, Autodiff)]
 pub trait WindowTrainOps: Backend {
     /// `q, k, v: [b, c, h, w]`, `bias: [heads, win², kwin²]` → `[b, c, h, w]`.
@@ -58,6 +85,19 @@ pub trait WindowTrainOps: Backend {
         k: FloatTensor<Self>,
         v: FloatTensor<Self>,
         bias: FloatTensor<Self>,
+        win: usize,
+        kwin: usize,
+    ) -> FloatTensor<Self>;
+    /// `q: [b, c, h, w]`, `k, v: [b·share, c, h, w]`, `pos_q: [win², c]`,
+    /// `pos_k: [kwin², c]` → `[b·share, c, h, w]`.
+    #[allow(clippy::too_many_arguments)]
+    fn cross_attention(
+        q: FloatTensor<Self>,
+        k: FloatTensor<Self>,
+        v: FloatTensor<Self>,
+        pos_q: FloatTensor<Self>,
+        pos_k: FloatTensor<Self>,
+        heads: usize,
         win: usize,
         kwin: usize,
     ) -> FloatTensor<Self>;
@@ -73,6 +113,61 @@ fn dims<const D: usize>(t: &FlexTensor) -> [usize; D] {
     std::array::from_fn(|i| s[i])
 }
 
+/// Which attention a node is, with its sizes; the position terms are the node's fourth
+/// (bias) or fourth and fifth (embeddings) inputs.
+#[derive(Clone, Copy, Debug)]
+enum Kind {
+    Window,
+    Cross { heads: usize },
+}
+
+/// The spec of `kind` over the position terms `pos` (host copies, dense).
+fn spec<'a>(
+    kind: Kind,
+    pos: &'a [FlexTensor],
+    win: usize,
+    kwin: usize,
+    share: usize,
+) -> WindowSpec<'a> {
+    match kind {
+        Kind::Window => WindowSpec {
+            heads: dims::<3>(&pos[0])[0],
+            win,
+            kwin,
+            share: 1,
+            pos_q: None,
+            pos_k: None,
+            bias: Some(slice(&pos[0])),
+        },
+        Kind::Cross { heads } => WindowSpec {
+            heads,
+            win,
+            kwin,
+            share,
+            pos_q: Some(slice(&pos[0])),
+            pos_k: Some(slice(&pos[1])),
+            bias: None,
+        },
+    }
+}
+
+fn forward(
+    maps: [FlexTensor; 3],
+    pos: Vec<FlexTensor>,
+    kind: Kind,
+    win: usize,
+    kwin: usize,
+) -> FlexTensor {
+    let [q, k, v] = maps.map(|t| t.to_contiguous());
+    let pos: Vec<FlexTensor> = pos.into_iter().map(|t| t.to_contiguous()).collect();
+    let [bq, c, h, w] = dims::<4>(&q);
+    let g = dims::<4>(&k)[0];
+    let spec = spec(kind, &pos, win, kwin, g / bq.max(1));
+    let out = attend_maps(slice(&q), slice(&k), slice(&v), [c, h, w], &spec)
+        .expect("a supported head width");
+    FlexTensor::from_data(TensorData::new(out, [g, c, h, w]))
+}
+
 impl WindowTrainOps for Flex {
     fn window_attention(
         q: FlexTensor,
@@ -82,53 +177,58 @@ impl WindowTrainOps for Flex {
         win: usize,
         kwin: usize,
     ) -> FlexTensor {
-        let (q, k, v, bias) = (
-            q.to_contiguous(),
-            k.to_contiguous(),
-            v.to_contiguous(),
-            bias.to_contiguous(),
-        );
-        let [b, c, h, w] = dims::<4>(&q);
-        let heads = dims::<3>(&bias)[0];
-        let spec = WindowSpec {
-            heads,
+        forward([q, k, v], vec![bias], Kind::Window, win, kwin)
+    }
+
+    fn cross_attention(
+        q: FlexTensor,
+        k: FlexTensor,
+        v: FlexTensor,
+        pos_q: FlexTensor,
+        pos_k: FlexTensor,
+        heads: usize,
+        win: usize,
+        kwin: usize,
+    ) -> FlexTensor {
+        forward(
+            [q, k, v],
+            vec![pos_q, pos_k],
+            Kind::Cross { heads },
             win,
             kwin,
-            share: 1,
-            pos_q: None,
-            pos_k: None,
-            bias: Some(slice(&bias)),
-        };
-        let out = attend_maps(slice(&q), slice(&k), slice(&v), [c, h, w], &spec)
-            .expect("a supported head width");
-        FlexTensor::from_data(TensorData::new(out, [b, c, h, w]))
+        )
     }
 }
 
-/// The gradients of [`attend_maps`] (one query map per output map, position logits, no
-/// position embeddings) from the output gradient `dout`: `(dq, dk, dv, dbias)`.
+/// The gradients of [`attend_maps`] from the output gradient `dout` (`[g, c, h, w]`, `g`
+/// output maps, `g / spec.share` query maps).
+pub struct AttendGrads {
+    /// `[g / share, c, h, w]`: each query map's gradient, summed over the maps sharing it.
+    pub dq: Vec<f32>,
+    pub dk: Vec<f32>,
+    pub dv: Vec<f32>,
+    /// `[heads, win², kwin²]`, with `spec.bias`; else empty.
+    pub dbias: Vec<f32>,
+    /// `[win², c]` and `[kwin², c]`, with `spec.pos_q` / `spec.pos_k`; else empty.
+    pub dpos_q: Vec<f32>,
+    pub dpos_k: Vec<f32>,
+}
+
+/// The gradients of [`attend_maps`] for `q: [g / share, c, h, w]`, `k, v, dout: [g, c, h, w]`.
 pub fn attend_backward(
     q: &[f32],
     k: &[f32],
     v: &[f32],
     dout: &[f32],
-    bias: &[f32],
-    [b, c, h, w]: [usize; 4],
-    [heads, win, kwin]: [usize; 3],
-) -> (Vec<f32>, Vec<f32>, Vec<f32>, Vec<f32>) {
-    let z = Sizes {
-        c,
-        h,
-        w,
-        heads,
-        win,
-        kwin,
-    };
-    match c / heads {
-        4 => run::<4>(q, k, v, dout, bias, b, z),
-        8 => run::<8>(q, k, v, dout, bias, b, z),
-        16 => run::<16>(q, k, v, dout, bias, b, z),
-        32 => run::<32>(q, k, v, dout, bias, b, z),
+    [c, h, w]: [usize; 3],
+    spec: &WindowSpec,
+) -> AttendGrads {
+    let z = Sizes { c, h, w };
+    match c / spec.heads {
+        4 => run::<4>(q, k, v, dout, z, spec),
+        8 => run::<8>(q, k, v, dout, z, spec),
+        16 => run::<16>(q, k, v, dout, z, spec),
+        32 => run::<32>(q, k, v, dout, z, spec),
         d => panic!("window attention with {d} channels per head"),
     }
 }
@@ -138,19 +238,24 @@ struct Sizes {
     c: usize,
     h: usize,
     w: usize,
-    heads: usize,
-    win: usize,
-    kwin: usize,
 }
 
 /// One task's share: `dq` for its strip of window rows (`[c, win, w]`), `dk` and `dv` for
 /// the band of map rows its key windows cover (`[c, kwin, w]`, rows from `wy·win − pad`),
-/// and its windows' share of the position logits' gradient.
+/// and its windows' share of the position terms' gradients.
 struct StripGrads {
     dq: Vec<f32>,
     dk: Vec<f32>,
     dv: Vec<f32>,
     dbias: Vec<f32>,
+    dpos_q: Vec<f32>,
+    dpos_k: Vec<f32>,
+}
+
+fn add(dst: &mut [f32], src: &[f32]) {
+    for (o, &g) in dst.iter_mut().zip(src) {
+        *o += g;
+    }
 }
 
 fn run<const D: usize>(
@@ -158,52 +263,52 @@ fn run<const D: usize>(
     k: &[f32],
     v: &[f32],
     dout: &[f32],
-    bias: &[f32],
-    b: usize,
     z: Sizes,
-) -> (Vec<f32>, Vec<f32>, Vec<f32>, Vec<f32>) {
-    let Sizes {
-        c,
-        h,
-        w,
-        heads,
-        win,
-        kwin,
-    } = z;
+    s: &WindowSpec,
+) -> AttendGrads {
+    let Sizes { c, h, w } = z;
+    let (win, kwin) = (s.win, s.kwin);
     let plane = h * w;
+    let groups = k.len() / (c * plane).max(1);
     let nh = h / win;
     let pad = (kwin - win) / 2;
-    let parts: Vec<StripGrads> = (0..b * nh)
+    let parts: Vec<StripGrads> = (0..groups * nh)
         .into_par_iter()
-        .map(|task| strip::<D>(task, q, k, v, dout, bias, z))
+        .map(|task| strip::<D>(task, q, k, v, dout, z, s))
         .collect();
-    let mut dq = vec![0.0f32; b * c * plane];
-    let mut dk = vec![0.0f32; b * c * plane];
-    let mut dv = vec![0.0f32; b * c * plane];
-    let mut dbias = vec![0.0f32; heads * win * win * kwin * kwin];
+    let size = |on: bool, n: usize| if on { n } else { 0 };
+    let mut g = AttendGrads {
+        dq: vec![0.0f32; groups / s.share * c * plane],
+        dk: vec![0.0f32; groups * c * plane],
+        dv: vec![0.0f32; groups * c * plane],
+        dbias: vec![0.0f32; size(s.bias.is_some(), s.heads * win * win * kwin * kwin)],
+        dpos_q: vec![0.0f32; size(s.pos_q.is_some(), win * win * c)],
+        dpos_k: vec![0.0f32; size(s.pos_k.is_some(), kwin * kwin * c)],
+    };
+    // In task order, so the sums come in a fixed order.
     for (task, part) in parts.iter().enumerate() {
-        let (g, wy) = (task / nh, task % nh);
+        let (grp, wy) = (task / nh, task % nh);
         for ch in 0..c {
-            let map = (g * c + ch) * plane;
-            dq[map + wy * win * w..][..win * w]
-                .copy_from_slice(&part.dq[ch * win * w..][..win * w]);
+            let qmap = ((grp / s.share) * c + ch) * plane;
+            add(
+                &mut g.dq[qmap + wy * win * w..][..win * w],
+                &part.dq[ch * win * w..][..win * w],
+            );
+            let map = (grp * c + ch) * plane;
             for ky in 0..kwin {
                 let Some(y) = (wy * win + ky).checked_sub(pad).filter(|&y| y < h) else {
                     continue;
                 };
                 let band = (ch * kwin + ky) * w;
-                for (d, s) in [(&mut dk, &part.dk), (&mut dv, &part.dv)] {
-                    for (o, &g) in d[map + y * w..][..w].iter_mut().zip(&s[band..][..w]) {
-                        *o += g;
-                    }
-                }
+                add(&mut g.dk[map + y * w..][..w], &part.dk[band..][..w]);
+                add(&mut g.dv[map + y * w..][..w], &part.dv[band..][..w]);
             }
         }
-        for (o, &g) in dbias.iter_mut().zip(&part.dbias) {
-            *o += g;
-        }
+        add(&mut g.dbias, &part.dbias);
+        add(&mut g.dpos_q, &part.dpos_q);
+        add(&mut g.dpos_k, &part.dpos_k);
     }
-    (dq, dk, dv, dbias)
+    g
 }
 
 fn strip<const D: usize>(
@@ -212,16 +317,16 @@ fn strip<const D: usize>(
     k: &[f32],
     v: &[f32],
     dout: &[f32],
-    bias: &[f32],
     z: Sizes,
+    s: &WindowSpec,
 ) -> StripGrads {
     #[cfg(target_arch = "x86_64")]
     if base::isa::Isa::chosen() != base::isa::Isa::Portable {
         // SAFETY: `Isa::chosen` names a build the CPU has, and every build past the
         // portable one has AVX2.
-        return unsafe { strip_avx2::<D>(task, q, k, v, dout, bias, z) };
+        return unsafe { strip_avx2::<D>(task, q, k, v, dout, z, s) };
     }
-    strip_body::<D>(task, q, k, v, dout, bias, z)
+    strip_body::<D>(task, q, k, v, dout, z, s)
 }
 
 /// The same code compiled for AVX2 (no multiply-add contracted: the portable build's bits).
@@ -233,10 +338,10 @@ unsafe fn strip_avx2<const D: usize>(
     k: &[f32],
     v: &[f32],
     dout: &[f32],
-    bias: &[f32],
     z: Sizes,
+    s: &WindowSpec,
 ) -> StripGrads {
-    strip_body::<D>(task, q, k, v, dout, bias, z)
+    strip_body::<D>(task, q, k, v, dout, z, s)
 }
 
 #[inline(always)]
@@ -246,30 +351,27 @@ fn strip_body<const D: usize>(
     k: &[f32],
     v: &[f32],
     dout: &[f32],
-    bias: &[f32],
     z: Sizes,
+    s: &WindowSpec,
 ) -> StripGrads {
-    let Sizes {
-        c,
-        h,
-        w,
-        heads,
-        win,
-        kwin,
-    } = z;
+    let Sizes { c, h, w } = z;
+    let (heads, win, kwin) = (s.heads, s.win, s.kwin);
     let plane = h * w;
     let (nh, nw) = (h / win, w / win);
     let (lq, lk) = (win * win, kwin * kwin);
     let pad = (kwin - win) / 2;
     let scale = (D as f32).powf(-0.5);
     let (g, wy) = (task / nh, task % nh);
-    let at = g * c * plane..(g + 1) * c * plane;
-    let (qmap, kmap, vmap, omap) = (&q[at.clone()], &k[at.clone()], &v[at.clone()], &dout[at]);
+    let at = |m: usize| m * c * plane..(m + 1) * c * plane;
+    let (qmap, kmap, vmap, omap) = (&q[at(g / s.share)], &k[at(g)], &v[at(g)], &dout[at(g)]);
+    let size = |on: bool, n: usize| if on { n } else { 0 };
     let mut out = StripGrads {
         dq: vec![0.0f32; c * win * w],
         dk: vec![0.0f32; c * kwin * w],
         dv: vec![0.0f32; c * kwin * w],
-        dbias: vec![0.0f32; heads * lq * lk],
+        dbias: vec![0.0f32; size(s.bias.is_some(), heads * lq * lk)],
+        dpos_q: vec![0.0f32; size(s.pos_q.is_some(), lq * c)],
+        dpos_k: vec![0.0f32; size(s.pos_k.is_some(), lk * c)],
     };
     // Per window and head: queries (scaled) and output gradients by query, keys and values by
     // key, each `[n, D]`; the softmax `p` and its gradient `ds`, `[lq, n]`.
@@ -303,21 +405,22 @@ fn strip_body<const D: usize>(
                 let ch = (ch0 + i) * plane;
                 for qi in 0..lq {
                     let px = (y0 + qi / win) * w + x0 + qi % win;
-                    qb[qi][i] = qmap[ch + px] * scale;
+                    let pos = s.pos_q.map_or(0.0, |p| p[qi * c + ch0 + i]);
+                    qb[qi][i] = (qmap[ch + px] + pos) * scale;
                     ob[qi][i] = omap[ch + px];
                 }
-                for (j, &(_, px, _)) in inside.iter().enumerate() {
-                    kb[j][i] = kmap[ch + px];
+                for (j, &(slot, px, _)) in inside.iter().enumerate() {
+                    kb[j][i] = kmap[ch + px] + s.pos_k.map_or(0.0, |p| p[slot * c + ch0 + i]);
                     vb[j][i] = vmap[ch + px];
                 }
             }
-            let hb = &bias[head * lq * lk..][..lq * lk];
+            let hb = s.bias.map(|b| &b[head * lq * lk..][..lq * lk]);
             // Softmax rows, as the forward computes them.
             for qi in 0..lq {
                 let row = &mut p[qi * n..][..n];
                 for (l, (kj, &(slot, _, _))) in row.iter_mut().zip(kb.iter().zip(&inside)) {
                     let dot: f32 = qb[qi].iter().zip(kj).map(|(a, b)| a * b).sum();
-                    *l = dot + hb[qi * lk + slot];
+                    *l = dot + hb.map_or(0.0, |b| b[qi * lk + slot]);
                 }
                 let max = row.iter().fold(f32::NEG_INFINITY, |m, &l| m.max(l));
                 for l in row.iter_mut() {
@@ -346,7 +449,6 @@ fn strip_body<const D: usize>(
             }
             // dQ = s·dS·K (into the strip), dK = dSᵀ·(s·Q), dbias += dS.
             dkb[..n].iter_mut().for_each(|r| *r = [0.0; D]);
-            let db = &mut out.dbias[head * lq * lk..][..lq * lk];
             for qi in 0..lq {
                 let dsrow = &ds[qi * n..][..n];
                 let mut dq = [0.0f32; D];
@@ -359,18 +461,30 @@ fn strip_body<const D: usize>(
                         *a += d * kv;
                         *bk += d * qv;
                     }
-                    db[qi * lk + inside[j].0] += d;
+                }
+                if !out.dbias.is_empty() {
+                    let db = &mut out.dbias[(head * lq + qi) * lk..][..lk];
+                    for (&d, &(slot, _, _)) in dsrow.iter().zip(&inside) {
+                        db[slot] += d;
+                    }
                 }
                 let (qy, qx) = (qi / win, qi % win);
                 for (i, a) in dq.iter().enumerate() {
-                    out.dq[((ch0 + i) * win + qy) * w + x0 + qx] = a * scale;
+                    let g = a * scale;
+                    out.dq[((ch0 + i) * win + qy) * w + x0 + qx] = g;
+                    if !out.dpos_q.is_empty() {
+                        out.dpos_q[qi * c + ch0 + i] += g;
+                    }
                 }
             }
-            for (j, &(_, _, band)) in inside.iter().enumerate() {
+            for (j, &(slot, _, band)) in inside.iter().enumerate() {
                 for i in 0..D {
                     let at = (ch0 + i) * kwin * w + band;
                     out.dk[at] += dkb[j][i];
                     out.dv[at] += dvb[j][i];
+                    if !out.dpos_k.is_empty() {
+                        out.dpos_k[slot * c + ch0 + i] += dkb[j][i];
+                    }
                 }
             }
         }
@@ -379,52 +493,87 @@ fn strip_body<const D: usize>(
 }
 
 #[derive(Debug)]
-struct WindowBackward {
+struct AttentionBackward {
+    kind: Kind,
     win: usize,
     kwin: usize,
 }
 
-impl Backward<Flex, 4> for WindowBackward {
-    type State = [NodeId; 4];
+impl AttentionBackward {
+    /// The gradients of the node's inputs, in their order.
+    fn grads(&self, dout: FlexTensor, inputs: Vec<FlexTensor>) -> Vec<FlexTensor> {
+        let dout = dout.to_contiguous();
+        let inputs: Vec<FlexTensor> = inputs.into_iter().map(|t| t.to_contiguous()).collect();
+        let (maps, pos) = inputs.split_at(3);
+        let [bq, c, h, w] = dims::<4>(&maps[0]);
+        let g = dims::<4>(&maps[1])[0];
+        let spec = spec(self.kind, pos, self.win, self.kwin, g / bq.max(1));
+        let grads = attend_backward(
+            slice(&maps[0]),
+            slice(&maps[1]),
+            slice(&maps[2]),
+            slice(&dout),
+            [c, h, w],
+            &spec,
+        );
+        let tensor = |v: Vec<f32>, like: &FlexTensor| {
+            let shape = like.layout().shape().to_vec();
+            FlexTensor::from_data(TensorData::new(v, shape))
+        };
+        let mut out = vec![
+            tensor(grads.dq, &maps[0]),
+            tensor(grads.dk, &maps[1]),
+            tensor(grads.dv, &maps[2]),
+        ];
+        match self.kind {
+            Kind::Window => out.push(tensor(grads.dbias, &pos[0])),
+            Kind::Cross { .. } => {
+                out.push(tensor(grads.dpos_q, &pos[0]));
+                out.push(tensor(grads.dpos_k, &pos[1]));
+            }
+        }
+        out
+    }
+}
+
+impl<const N: usize> Backward<Flex, N> for AttentionBackward {
+    type State = [NodeId; N];
 
     fn backward(
         self,
-        ops: Ops<Self::State, 4>,
+        ops: Ops<Self::State, N>,
         grads: &mut Gradients,
         checkpointer: &mut Checkpointer,
     ) {
-        let dout = grads.consume::<Flex>(&ops.node).to_contiguous();
-        let [q, k, v, bias]: [FlexTensor; 4] = ops
+        let dout = grads.consume::<Flex>(&ops.node);
+        let inputs = ops
             .state
-            .map(|id| checkpointer.retrieve_node_output::<FlexTensor>(id));
-        let (q, k, v, bias) = (
-            q.to_contiguous(),
-            k.to_contiguous(),
-            v.to_contiguous(),
-            bias.to_contiguous(),
-        );
-        let d = dims::<4>(&q);
-        let bias_dims = dims::<3>(&bias);
-        let (dq, dk, dv, dbias) = attend_backward(
-            slice(&q),
-            slice(&k),
-            slice(&v),
-            slice(&dout),
-            slice(&bias),
-            d,
-            [bias_dims[0], self.win, self.kwin],
-        );
-        let tensors = [
-            FlexTensor::from_data(TensorData::new(dq, d)),
-            FlexTensor::from_data(TensorData::new(dk, d)),
-            FlexTensor::from_data(TensorData::new(dv, d)),
-            FlexTensor::from_data(TensorData::new(dbias, bias_dims)),
-        ];
+            .iter()
+            .map(|&id| checkpointer.retrieve_node_output::<FlexTensor>(id))
+            .collect();
+        let tensors = self.grads(dout, inputs);
         for (parent, grad) in ops.parents.into_iter().zip(tensors) {
             if let Some(node) = parent {
                 grads.register::<Flex>(node.id, grad);
             }
         }
+    }
+}
+
+/// Records one attention node of `N` inputs under autodiff.
+fn tracked<C: CheckpointStrategy, const N: usize>(
+    inputs: [FloatTensor<Autodiff<Flex, C>>; N],
+    backward: AttentionBackward,
+    forward: impl FnOnce([FlexTensor; N]) -> FlexTensor,
+) -> FloatTensor<Autodiff<Flex, C>> {
+    let nodes = inputs.each_ref().map(|t| t.node());
+    match backward.prepare::<C>(nodes).compute_bound().stateful() {
+        OpsKind::Tracked(mut prep) => {
+            let state = inputs.each_ref().map(|t| prep.checkpoint(t));
+            let y = forward(inputs.map(|t| t.into_primitive()));
+            prep.finish(state, y)
+        }
+        OpsKind::UnTracked(prep) => prep.finish(forward(inputs.map(|t| t.into_primitive()))),
     }
 }
 
@@ -437,37 +586,29 @@ impl<C: CheckpointStrategy> WindowTrainOps for Autodiff<Flex, C> {
         win: usize,
         kwin: usize,
     ) -> FloatTensor<Self> {
-        let backward = WindowBackward { win, kwin };
-        match backward
-            .prepare::<C>([q.node(), k.node(), v.node(), bias.node()])
-            .compute_bound()
-            .stateful()
-        {
-            OpsKind::Tracked(mut prep) => {
-                let state = [
-                    prep.checkpoint(&q),
-                    prep.checkpoint(&k),
-                    prep.checkpoint(&v),
-                    prep.checkpoint(&bias),
-                ];
-                let y = Flex::window_attention(
-                    q.into_primitive(),
-                    k.into_primitive(),
-                    v.into_primitive(),
-                    bias.into_primitive(),
-                    win,
-                    kwin,
-                );
-                prep.finish(state, y)
-            }
-            OpsKind::UnTracked(prep) => prep.finish(Flex::window_attention(
-                q.into_primitive(),
-                k.into_primitive(),
-                v.into_primitive(),
-                bias.into_primitive(),
-                win,
-                kwin,
-            )),
-        }
+        let kind = Kind::Window;
+        tracked::<C, _>(
+            [q, k, v, bias],
+            AttentionBackward { kind, win, kwin },
+            |[q, k, v, b]| forward([q, k, v], vec![b], kind, win, kwin),
+        )
+    }
+
+    fn cross_attention(
+        q: FloatTensor<Self>,
+        k: FloatTensor<Self>,
+        v: FloatTensor<Self>,
+        pos_q: FloatTensor<Self>,
+        pos_k: FloatTensor<Self>,
+        heads: usize,
+        win: usize,
+        kwin: usize,
+    ) -> FloatTensor<Self> {
+        let kind = Kind::Cross { heads };
+        tracked::<C, _>(
+            [q, k, v, pos_q, pos_k],
+            AttentionBackward { kind, win, kwin },
+            |[q, k, v, pq, pk]| forward([q, k, v], vec![pq, pk], kind, win, kwin),
+        )
     }
 }
