@@ -373,14 +373,16 @@ fn strip_body<const D: usize>(
         dpos_q: vec![0.0f32; size(s.pos_q.is_some(), lq * c)],
         dpos_k: vec![0.0f32; size(s.pos_k.is_some(), lk * c)],
     };
-    // Per window and head: queries (scaled) and output gradients by query, keys and values by
-    // key, each `[n, D]`; the softmax `p` and its gradient `ds`, `[lq, n]`.
+    // Per window and head: queries (scaled) and output gradients by query, `[lq, D]`; keys,
+    // values and their gradients transposed, `[D, n]`, so that every inner loop runs along
+    // contiguous keys (8 wide) instead of summing across the few channels of a head; the
+    // softmax `p` and its gradient `ds`, `[lq, n]`.
     let mut qb = vec![[0.0f32; D]; lq];
     let mut ob = vec![[0.0f32; D]; lq];
-    let mut kb = vec![[0.0f32; D]; lk];
-    let mut vb = vec![[0.0f32; D]; lk];
-    let mut dkb = vec![[0.0f32; D]; lk];
-    let mut dvb = vec![[0.0f32; D]; lk];
+    let mut kt = vec![0.0f32; D * lk];
+    let mut vt = vec![0.0f32; D * lk];
+    let mut dkt = vec![0.0f32; D * lk];
+    let mut dvt = vec![0.0f32; D * lk];
     let mut p = vec![0.0f32; lq * lk];
     let mut ds = vec![0.0f32; lq * lk];
     // (slot in the key window, pixel in the map, pixel in the band)
@@ -409,19 +411,36 @@ fn strip_body<const D: usize>(
                     qb[qi][i] = (qmap[ch + px] + pos) * scale;
                     ob[qi][i] = omap[ch + px];
                 }
+                let (krow, vrow) = (&mut kt[i * n..][..n], &mut vt[i * n..][..n]);
                 for (j, &(slot, px, _)) in inside.iter().enumerate() {
-                    kb[j][i] = kmap[ch + px] + s.pos_k.map_or(0.0, |p| p[slot * c + ch0 + i]);
-                    vb[j][i] = vmap[ch + px];
+                    krow[j] = kmap[ch + px] + s.pos_k.map_or(0.0, |p| p[slot * c + ch0 + i]);
+                    vrow[j] = vmap[ch + px];
                 }
             }
-            let hb = s.bias.map(|b| &b[head * lq * lk..][..lq * lk]);
-            // Softmax rows, as the forward computes them.
-            for qi in 0..lq {
-                let row = &mut p[qi * n..][..n];
-                for (l, (kj, &(slot, _, _))) in row.iter_mut().zip(kb.iter().zip(&inside)) {
-                    let dot: f32 = qb[qi].iter().zip(kj).map(|(a, b)| a * b).sum();
-                    *l = dot + hb.map_or(0.0, |b| b[qi * lk + slot]);
+            let p = &mut p[..lq * n];
+            let ds = &mut ds[..lq * n];
+            // Logits and softmax rows, as the forward computes them.
+            match s.bias {
+                Some(b) => {
+                    let b = &b[head * lq * lk..][..lq * lk];
+                    for qi in 0..lq {
+                        for (l, &(slot, _, _)) in p[qi * n..][..n].iter_mut().zip(&inside) {
+                            *l = b[qi * lk + slot];
+                        }
+                    }
                 }
+                None => p.fill(0.0),
+            }
+            for i in 0..D {
+                let krow = &kt[i * n..][..n];
+                for qi in 0..lq {
+                    let a = qb[qi][i];
+                    for (l, &k) in p[qi * n..][..n].iter_mut().zip(krow) {
+                        *l += a * k;
+                    }
+                }
+            }
+            for row in p.chunks_exact_mut(n) {
                 let max = row.iter().fold(f32::NEG_INFINITY, |m, &l| m.max(l));
                 for l in row.iter_mut() {
                     *l = exp_nonpositive(*l - max);
@@ -429,61 +448,69 @@ fn strip_body<const D: usize>(
                 let inv = 1.0 / row.iter().sum::<f32>();
                 row.iter_mut().for_each(|l| *l *= inv);
             }
-            // dV = Pᵀ dO; dP = dO Vᵀ; dS = P (dP − rowsum(P dP)).
-            dvb[..n].iter_mut().for_each(|r| *r = [0.0; D]);
-            for qi in 0..lq {
-                let prow = &p[qi * n..][..n];
-                let dsrow = &mut ds[qi * n..][..n];
-                let mut total = 0.0f32;
-                for (j, (d, &pj)) in dsrow.iter_mut().zip(prow).enumerate() {
-                    let dp: f32 = ob[qi].iter().zip(&vb[j]).map(|(a, b)| a * b).sum();
-                    *d = dp;
-                    total += pj * dp;
-                    for (a, &o) in dvb[j].iter_mut().zip(&ob[qi]) {
-                        *a += pj * o;
+            // dP = dO·Vᵀ (into ds); dV = Pᵀ·dO.
+            ds.fill(0.0);
+            dvt[..D * n].fill(0.0);
+            for i in 0..D {
+                let vrow = &vt[i * n..][..n];
+                let dvrow = &mut dvt[i * n..][..n];
+                for qi in 0..lq {
+                    let o = ob[qi][i];
+                    let prow = &p[qi * n..][..n];
+                    for ((d, &v), (dv, &pj)) in ds[qi * n..][..n]
+                        .iter_mut()
+                        .zip(vrow)
+                        .zip(dvrow.iter_mut().zip(prow))
+                    {
+                        *d += o * v;
+                        *dv += pj * o;
                     }
                 }
+            }
+            // dS = P ⊙ (dP − rowsum(P ⊙ dP)).
+            for (dsrow, prow) in ds.chunks_exact_mut(n).zip(p.chunks_exact(n)) {
+                let total: f32 = dsrow.iter().zip(prow).map(|(d, p)| d * p).sum();
                 for (d, &pj) in dsrow.iter_mut().zip(prow) {
                     *d = pj * (*d - total);
                 }
             }
-            // dQ = s·dS·K (into the strip), dK = dSᵀ·(s·Q), dbias += dS.
-            dkb[..n].iter_mut().for_each(|r| *r = [0.0; D]);
-            for qi in 0..lq {
-                let dsrow = &ds[qi * n..][..n];
-                let mut dq = [0.0f32; D];
-                for (j, &d) in dsrow.iter().enumerate() {
-                    for ((a, &kv), (bk, &qv)) in dq
-                        .iter_mut()
-                        .zip(&kb[j])
-                        .zip(dkb[j].iter_mut().zip(&qb[qi]))
-                    {
-                        *a += d * kv;
-                        *bk += d * qv;
+            // dK = dSᵀ·(s·Q); dQ = s·dS·K (into the strip); the position terms.
+            dkt[..D * n].fill(0.0);
+            for i in 0..D {
+                let krow = &kt[i * n..][..n];
+                let dkrow = &mut dkt[i * n..][..n];
+                for qi in 0..lq {
+                    let a = qb[qi][i];
+                    let dsrow = &ds[qi * n..][..n];
+                    let mut dq = 0.0f32;
+                    for ((dk, &d), &k) in dkrow.iter_mut().zip(dsrow).zip(krow) {
+                        *dk += a * d;
+                        dq += d * k;
                     }
-                }
-                if !out.dbias.is_empty() {
-                    let db = &mut out.dbias[(head * lq + qi) * lk..][..lk];
-                    for (&d, &(slot, _, _)) in dsrow.iter().zip(&inside) {
-                        db[slot] += d;
-                    }
-                }
-                let (qy, qx) = (qi / win, qi % win);
-                for (i, a) in dq.iter().enumerate() {
-                    let g = a * scale;
+                    let g = dq * scale;
+                    let (qy, qx) = (qi / win, qi % win);
                     out.dq[((ch0 + i) * win + qy) * w + x0 + qx] = g;
                     if !out.dpos_q.is_empty() {
                         out.dpos_q[qi * c + ch0 + i] += g;
                     }
                 }
             }
-            for (j, &(slot, _, band)) in inside.iter().enumerate() {
-                for i in 0..D {
+            if !out.dbias.is_empty() {
+                for (qi, dsrow) in ds.chunks_exact(n).enumerate() {
+                    let db = &mut out.dbias[(head * lq + qi) * lk..][..lk];
+                    for (&d, &(slot, _, _)) in dsrow.iter().zip(&inside) {
+                        db[slot] += d;
+                    }
+                }
+            }
+            for i in 0..D {
+                let (dkrow, dvrow) = (&dkt[i * n..][..n], &dvt[i * n..][..n]);
+                for (j, &(slot, _, band)) in inside.iter().enumerate() {
                     let at = (ch0 + i) * kwin * w + band;
-                    out.dk[at] += dkb[j][i];
-                    out.dv[at] += dvb[j][i];
+                    out.dk[at] += dkrow[j];
+                    out.dv[at] += dvrow[j];
                     if !out.dpos_k.is_empty() {
-                        out.dpos_k[slot * c + ch0 + i] += dkb[j][i];
+                        out.dpos_k[slot * c + ch0 + i] += dkrow[j];
                     }
                 }
             }
