@@ -59,10 +59,24 @@ def phase_op(st):
             m = re.search(r"<restore::net::([a-z_]+)::[A-Za-z0-9]+ as burn_autodiff::ops::backward::Backward", f)
             if m:
                 return "backward", f"{m.group(1)} (hand-written)"
+        # A hand-written backward's parallel jobs carry its kernel but not the node.
+        for f in st:
+            m = re.search(r"<burn_flex::backend::Flex as restore::net::([a-z_]+)::[A-Za-z]+Ops>", f)
+            if m:
+                return "backward", f"{m.group(1)} (hand-written)"
         if any("Gradients::register" in f or "broadcast_shape" in f for f in st):
             return "backward", "gradient bookkeeping"
         # Element-wise nodes (slices, chunks, scalar products) whose closures are inlined.
         return "backward", "other element-wise nodes"
+    # The second thread's share of a hand-written backward has no autodiff frame (and its
+    # stack may be cut short): its innermost kernel is one of the backward pass (a `_grad`
+    # or `backward` function, or window_train's strips, whose forward runs window_direct's).
+    for f in st:
+        m = re.search(r"restore::net::([a-z_]+)::([A-Za-z0-9_]+)", f)
+        if m:
+            if m.group(1) == "window_train" or re.search(r"_grad|backward", m.group(2)):
+                return "backward", f"{m.group(1)} (hand-written)"
+            break
     for f in st:
         m = re.match(r"<?restore::net::([a-z_]+)::([A-Za-z_]+(?:::[A-Za-z_]+)?)", f)
         if m and "RestorerNet::forward" not in f:
