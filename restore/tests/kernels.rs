@@ -614,3 +614,59 @@ fn the_guide_trains_alike_through_the_hand_written_cross_attention_backward() {
         }
     }
 }
+
+#[test]
+fn the_channel_norm_trains_alike_through_the_hand_written_backward() {
+    use restore::net::layers::ChannelNorm;
+    let device = Device::flex().autodiff();
+    device.seed(26);
+    // A plane longer than one strip and not a multiple of it, one channel, an offset map.
+    for (c, h, w, offset) in [(16, 17, 31, 0.0), (5, 7, 9, 300.0), (1, 4, 4, 0.0)] {
+        let mut m = ChannelNorm::new(c, &device);
+        m.weight = burn::module::Param::from_tensor(Tensor::random(
+            [c],
+            Distribution::Normal(1.0, 0.5),
+            &device,
+        ));
+        m.bias = burn::module::Param::from_tensor(Tensor::random(
+            [c],
+            Distribution::Normal(0.0, 0.5),
+            &device,
+        ));
+        let x = Tensor::<4>::random([2, c, h, w], Distribution::Normal(0.0, 2.0), &device)
+            .add_scalar(offset)
+            .detach()
+            .require_grad();
+        let wts = Tensor::<4>::random([2, c, h, w], Distribution::Normal(0.0, 1.0), &device);
+        let run = |kernels| {
+            with_kernels(kernels, || {
+                let y = m.forward(x.clone());
+                let g = (y.clone() * wts.clone()).sum().backward();
+                vec![
+                    values(y),
+                    values(x.grad(&g).expect("input gradient")),
+                    values(m.weight.val().grad(&g).expect("weight gradient")),
+                    values(m.bias.val().grad(&g).expect("bias gradient")),
+                ]
+            })
+        };
+        let (fast, reference) = (run(Kernels::Fast), run(Kernels::Reference));
+        for (what, (a, r)) in [
+            "output",
+            "input gradient",
+            "weight gradient",
+            "bias gradient",
+        ]
+        .iter()
+        .zip(fast.iter().zip(&reference))
+        {
+            assert!(a.iter().all(|v| v.is_finite()), "{c}x{h}x{w}: {what}");
+            let scale = r.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
+            let err = max_abs_diff(a, r) / scale;
+            assert!(
+                err < 1e-4,
+                "{c}x{h}x{w}+{offset}: {what} {err:.2e} of the scale"
+            );
+        }
+    }
+}

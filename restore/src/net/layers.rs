@@ -86,8 +86,8 @@ pub fn depthwise3(c: usize, device: &Device) -> Conv2d {
 /// The LayerNorm's ε (Restormer's).
 const NORM_EPS: f32 = 1e-5;
 
-/// LayerNorm over the channels of every pixel, with bias (Restormer's "WithBias"); in CPU
-/// inference in two passes ([`super::norm_direct`]).
+/// LayerNorm over the channels of every pixel, with bias (Restormer's "WithBias"); on the CPU
+/// in two passes, with a hand-written backward ([`super::norm_direct`]).
 #[derive(Module, Debug)]
 pub struct ChannelNorm {
     pub weight: Param<Tensor<1>>,
@@ -103,12 +103,11 @@ impl ChannelNorm {
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        if current() == Kernels::Fast && direct_applies(&x) {
-            let dims = x.dims();
-            let device = x.device();
-            let (weight, bias) = (host(self.weight.val()), host(self.bias.val()));
-            let y = super::norm_direct::channel_norm(&host(x), &weight, &bias, NORM_EPS, dims);
-            return Tensor::from_data(TensorData::new(y, dims), &device);
+        if current() == Kernels::Fast
+            && (direct_applies(&x) || super::conv_train::trained_applies(&x))
+        {
+            let (weight, bias) = (self.weight.val(), self.bias.val());
+            return super::norm_direct::norm_tensor(x, weight, bias, NORM_EPS);
         }
         let c = x.dims()[1];
         let mean = x.clone().mean_dim(1);
