@@ -58,7 +58,9 @@ impl Compute {
     }
 }
 
+// burn marks its tch backend deprecated; it is here only to be measured against flex.
 #[cfg(feature = "libtorch")]
+#[allow(deprecated)]
 fn libtorch() -> Result<Device> {
     Ok(Device::libtorch())
 }

@@ -24,6 +24,24 @@ fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
         .fold(0.0, f32::max)
 }
 
+/// Each of `fast`'s tensors (named by `names`) within `tol` of `reference`'s largest value,
+/// and finite; `case` names the sizes in a failure.
+fn assert_within_scale(
+    names: &[&str],
+    fast: &[Vec<f32>],
+    reference: &[Vec<f32>],
+    tol: f32,
+    case: &str,
+) {
+    assert_eq!(fast.len(), reference.len());
+    for (what, (a, r)) in names.iter().zip(fast.iter().zip(reference)) {
+        assert!(a.iter().all(|v| v.is_finite()), "{case}: {what} not finite");
+        let scale = r.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
+        let err = max_abs_diff(a, r) / scale;
+        assert!(err < tol, "{case}: {what} {err:.2e} of the scale");
+    }
+}
+
 /// A photo-like test card: smooth shading, a hard edge, fine stripes and a dot grid.
 fn test_card(w: usize, h: usize) -> Image {
     let mut data = Vec::with_capacity(3 * w * h);
@@ -546,22 +564,18 @@ fn window_attention_trains_alike_through_the_hand_written_backward() {
             })
         };
         let (fast, reference) = (run(Kernels::Fast), run(Kernels::Reference));
-        for (what, (a, r)) in [
-            "output",
-            "input gradient",
-            "qkv gradient",
-            "position gradient",
-        ]
-        .iter()
-        .zip(fast.iter().zip(&reference))
-        {
-            let scale = r.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
-            let err = max_abs_diff(a, r) / scale;
-            assert!(
-                err < 1e-4,
-                "{c}/{heads} {win}/{kwin} {h}x{w}: {what} {err:.2e} of the scale"
-            );
-        }
+        assert_within_scale(
+            &[
+                "output",
+                "input gradient",
+                "qkv gradient",
+                "position gradient",
+            ],
+            &fast,
+            &reference,
+            1e-4,
+            &format!("{c}/{heads} {win}/{kwin} {h}x{w}"),
+        );
     }
 }
 
@@ -604,14 +618,13 @@ fn the_guide_trains_alike_through_the_hand_written_cross_attention_backward() {
             "query position",
             "key position",
         ];
-        for (what, (a, r)) in names.iter().zip(fast.iter().zip(&reference)) {
-            let scale = r.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
-            let err = max_abs_diff(a, r) / scale;
-            assert!(
-                err < 1e-4,
-                "{heads}x{head_dim} {win}/{kwin}: {what} {err:.2e} of the scale"
-            );
-        }
+        assert_within_scale(
+            &names,
+            &fast,
+            &reference,
+            1e-4,
+            &format!("{heads}x{head_dim} {win}/{kwin}"),
+        );
     }
 }
 
@@ -651,22 +664,17 @@ fn the_channel_norm_trains_alike_through_the_hand_written_backward() {
             })
         };
         let (fast, reference) = (run(Kernels::Fast), run(Kernels::Reference));
-        for (what, (a, r)) in [
-            "output",
-            "input gradient",
-            "weight gradient",
-            "bias gradient",
-        ]
-        .iter()
-        .zip(fast.iter().zip(&reference))
-        {
-            assert!(a.iter().all(|v| v.is_finite()), "{c}x{h}x{w}: {what}");
-            let scale = r.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
-            let err = max_abs_diff(a, r) / scale;
-            assert!(
-                err < 1e-4,
-                "{c}x{h}x{w}+{offset}: {what} {err:.2e} of the scale"
-            );
-        }
+        assert_within_scale(
+            &[
+                "output",
+                "input gradient",
+                "weight gradient",
+                "bias gradient",
+            ],
+            &fast,
+            &reference,
+            1e-4,
+            &format!("{c}x{h}x{w}+{offset}"),
+        );
     }
 }
