@@ -501,35 +501,6 @@ fn the_fusion_gate_through_the_mean_equals_the_whole_fuse_out_map() {
 }
 
 #[test]
-fn gathered_key_windows_have_the_unfolded_ones_values_and_gradient() {
-    use restore::net::window::key_windows;
-    let device = Device::flex().autodiff();
-    device.seed(23);
-    // tiny's windows, wider overlaps, and a map of one window.
-    for (win, kwin, h, w) in [(4, 6, 12, 8), (4, 8, 8, 12), (2, 6, 6, 4), (4, 6, 4, 4)] {
-        let x = Tensor::<4>::random([2, 3, h, w], Distribution::Normal(0.0, 1.0), &device)
-            .require_grad();
-        let n = 2 * (h / win) * (w / win);
-        let wts = Tensor::<3>::random([n, kwin * kwin, 3], Distribution::Normal(0.0, 1.0), &device);
-        let run = |kernels| {
-            with_kernels(kernels, || {
-                let k = key_windows(x.clone(), win, kwin);
-                let g = (k.clone() * wts.clone()).sum().backward();
-                (values(k), values(x.grad(&g).expect("input gradient")))
-            })
-        };
-        let ((k, dx), (k_ref, dx_ref)) = (run(Kernels::Fast), run(Kernels::Reference));
-        assert_eq!(
-            max_abs_diff(&k, &k_ref),
-            0.0,
-            "{win}/{kwin} on {h}x{w}: a gather copies"
-        );
-        let err = max_abs_diff(&dx, &dx_ref);
-        assert!(err < 1e-5, "{win}/{kwin} on {h}x{w}: gradient {err:.2e}");
-    }
-}
-
-#[test]
 fn window_attention_trains_alike_through_the_hand_written_backward() {
     use restore::net::window::WindowAttention;
     let device = Device::flex().autodiff();

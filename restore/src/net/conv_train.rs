@@ -16,6 +16,7 @@
 //! stand in only on burn's CPU backend under autodiff ([`trained_applies`]), and the reference
 //! path keeps burn's `Conv2d`.
 
+use super::kernels::{flex_dims, flex_slice};
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -89,7 +90,7 @@ impl DenseOps for Flex {
 
     fn dense3_x_grad(weight: FlexTensor, dy: FlexTensor) -> FlexTensor {
         let (weight, [cout, cin, _, _]) = values(weight);
-        let turned = transposed_half_turn(slice(&weight), cout, cin);
+        let turned = transposed_half_turn(flex_slice(&weight), cout, cin);
         <Flex as ModuleOps<Flex>>::conv2d(dy, tensor(turned, [cin, cout, 3, 3]), None, same3())
     }
 
@@ -99,15 +100,15 @@ impl DenseOps for Flex {
         let n = b * h * w;
         // [cin·9, n] · [n, cout] = [cin·9, cout], then reordered to [cout, cin, 3, 3].
         let cols = tensor(
-            neighbourhoods(slice(&x), [b, cin, h, w]),
+            neighbourhoods(flex_slice(&x), [b, cin, h, w]),
             [1, 1, cin * 9, n],
         );
         let dyt = tensor(
-            pixels_by_channel(slice(&dy), [b, cout, h, w]),
+            pixels_by_channel(flex_slice(&dy), [b, cout, h, w]),
             [1, 1, n, cout],
         );
         let (g, _) = values(<Flex as FloatTensorOps<Flex>>::float_matmul(cols, dyt));
-        let g = slice(&g);
+        let g = flex_slice(&g);
         let mut out = vec![0.0f32; cout * cin * 9];
         for (ck, row) in g.chunks_exact(cout).enumerate() {
             for (co, &v) in row.iter().enumerate() {
@@ -243,21 +244,11 @@ pub trait DepthwiseOps: Backend {
     fn depthwise3_w_grad(x: FloatTensor<Self>, dy: FloatTensor<Self>) -> FloatTensor<Self>;
 }
 
-fn dims4(t: &FlexTensor) -> [usize; 4] {
-    let s = t.layout().shape();
-    [s[0], s[1], s[2], s[3]]
-}
-
 /// A dense copy's values (no copy when the tensor is dense already).
 fn values(t: FlexTensor) -> (FlexTensor, [usize; 4]) {
     let t = t.to_contiguous();
-    let d = dims4(&t);
+    let d = flex_dims::<4>(&t);
     (t, d)
-}
-
-fn slice(t: &FlexTensor) -> &[f32] {
-    t.as_slice::<f32>()
-        .expect("the restorer's maps are f32 on the CPU")
 }
 
 fn tensor(v: Vec<f32>, shape: [usize; 4]) -> FlexTensor {
@@ -268,19 +259,25 @@ impl DepthwiseOps for Flex {
     fn depthwise3(x: FlexTensor, weight: FlexTensor) -> FlexTensor {
         let (x, d) = values(x);
         let (weight, _) = values(weight);
-        tensor(forward(slice(&x), slice(&weight), d), d)
+        tensor(forward(flex_slice(&x), flex_slice(&weight), d), d)
     }
 
     fn depthwise3_x_grad(weight: FlexTensor, dy: FlexTensor) -> FlexTensor {
         let (dy, d) = values(dy);
         let (weight, _) = values(weight);
-        tensor(forward(slice(&dy), &half_turn(slice(&weight)), d), d)
+        tensor(
+            forward(flex_slice(&dy), &half_turn(flex_slice(&weight)), d),
+            d,
+        )
     }
 
     fn depthwise3_w_grad(x: FlexTensor, dy: FlexTensor) -> FlexTensor {
         let (x, d) = values(x);
         let (dy, _) = values(dy);
-        tensor(weight_grad(slice(&x), slice(&dy), d), [d[1], 1, 3, 3])
+        tensor(
+            weight_grad(flex_slice(&x), flex_slice(&dy), d),
+            [d[1], 1, 3, 3],
+        )
     }
 }
 

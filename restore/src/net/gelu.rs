@@ -6,6 +6,7 @@
 //! Registered with burn as a backend extension ([`GeluOps`]); it stands in only on burn's CPU
 //! backend, under autodiff or not.
 
+use super::kernels::flex_slice;
 use super::window_direct::exp_nonpositive;
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
@@ -102,26 +103,17 @@ pub trait GeluOps: Backend {
     fn gelu_fast_grad(x: FloatTensor<Self>, dy: FloatTensor<Self>) -> FloatTensor<Self>;
 }
 
-fn dense(t: FlexTensor) -> FlexTensor {
-    t.to_contiguous()
-}
-
-fn slice(t: &FlexTensor) -> &[f32] {
-    t.as_slice::<f32>()
-        .expect("the restorer's maps are f32 on the CPU")
-}
-
 impl GeluOps for Flex {
     fn gelu_fast(x: FlexTensor) -> FlexTensor {
-        let x = dense(x);
+        let x = x.to_contiguous();
         let shape = x.layout().shape().to_vec();
-        FlexTensor::from_data(TensorData::new(gelu_values(slice(&x), None), shape))
+        FlexTensor::from_data(TensorData::new(gelu_values(flex_slice(&x), None), shape))
     }
 
     fn gelu_fast_grad(x: FlexTensor, dy: FlexTensor) -> FlexTensor {
-        let (x, dy) = (dense(x), dense(dy));
+        let (x, dy) = (x.to_contiguous(), dy.to_contiguous());
         let shape = x.layout().shape().to_vec();
-        let g = gelu_values(slice(&x), Some(slice(&dy)));
+        let g = gelu_values(flex_slice(&x), Some(flex_slice(&dy)));
         FlexTensor::from_data(TensorData::new(g, shape))
     }
 }

@@ -6,6 +6,7 @@
 //! The choice is per thread: the network reads it on the thread that calls `forward`, so
 //! tests running in parallel cannot change each other's.
 
+use burn::backend::flex::FlexTensor;
 use burn::tensor::{Device, Tensor};
 use std::cell::Cell;
 
@@ -60,4 +61,23 @@ pub fn direct_applies(t: &Tensor<4>) -> bool {
 /// A CPU tensor's values, in its logical order.
 pub fn host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.try_into_vec_as::<f32>().expect("flex tensors read back")
+}
+
+/// Whether a backend extension of this module (hand-written kernels with their own
+/// gradients) may stand in for the tensor formulation: the fast kernels run and `t` is on
+/// burn's CPU backend, with or without autodiff (the extensions are registered for both).
+pub fn extension_applies(t: &Tensor<4>) -> bool {
+    current() == Kernels::Fast && (direct_applies(t) || super::conv_train::trained_applies(t))
+}
+
+/// A dense CPU tensor's values, as the backend extensions' kernels read them.
+pub(super) fn flex_slice(t: &FlexTensor) -> &[f32] {
+    t.as_slice::<f32>()
+        .expect("the restorer's maps are f32 on the CPU")
+}
+
+/// A CPU tensor's first `D` dimensions.
+pub(super) fn flex_dims<const D: usize>(t: &FlexTensor) -> [usize; D] {
+    let s = t.layout().shape();
+    std::array::from_fn(|i| s[i])
 }

@@ -9,7 +9,7 @@ use burn::tensor::ops::AvgPoolOptions;
 use burn::tensor::{Device, Tensor, TensorData};
 
 use super::gate_direct::gated_depthwise;
-use super::kernels::{Kernels, current, direct_applies, host};
+use super::kernels::{Kernels, current, direct_applies, extension_applies, host};
 
 /// A layer made by [`conv`] applied to `x`: a dense 3×3 one in training on the CPU through the hand-written backward of [`super::conv_train`] (burn's
 /// weight gradient is slow), else burn's `Conv2d`.
@@ -28,8 +28,7 @@ pub fn conv3(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
 /// GELU; on burn's CPU backend with the vectorised erf of [`super::gelu`] (forward and
 /// backward) when the fast kernels run.
 pub fn gelu(x: Tensor<4>) -> Tensor<4> {
-    if current() == Kernels::Fast && (direct_applies(&x) || super::conv_train::trained_applies(&x))
-    {
+    if extension_applies(&x) {
         return super::gelu::gelu_tensor(x);
     }
     burn::tensor::activation::gelu(x)
@@ -103,9 +102,7 @@ impl ChannelNorm {
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        if current() == Kernels::Fast
-            && (direct_applies(&x) || super::conv_train::trained_applies(&x))
-        {
+        if extension_applies(&x) {
             let (weight, bias) = (self.weight.val(), self.bias.val());
             return super::norm_direct::norm_tensor(x, weight, bias, NORM_EPS);
         }
@@ -164,10 +161,7 @@ pub fn enhance_query(q: Tensor<4>, k: usize) -> Tensor<4> {
     if k <= 1 {
         return q;
     }
-    if current() == Kernels::Fast
-        && k % 2 == 1
-        && (direct_applies(&q) || super::conv_train::trained_applies(&q))
-    {
+    if k % 2 == 1 && extension_applies(&q) {
         return super::query_box::enhance_tensor(q, k);
     }
     let pool = |x: Tensor<4>, kernel: [usize; 2]| {

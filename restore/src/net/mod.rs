@@ -7,7 +7,6 @@ pub mod fuse_direct;
 pub mod gate_direct;
 pub mod gelu;
 pub mod kernels;
-pub mod key_gather;
 pub mod layers;
 pub mod mafg;
 pub mod norm_direct;

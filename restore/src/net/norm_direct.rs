@@ -12,6 +12,7 @@
 //! `dβ = Σ dy` (summed plane by plane in a fixed order). Registered with burn as a backend
 //! extension ([`NormOps`]); it stands in only on burn's CPU backend.
 
+use super::kernels::{flex_dims, flex_slice};
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -58,16 +59,9 @@ fn stats(x: &[f32], eps: f32, [b, c, h, w]: [usize; 4]) -> (Vec<f32>, Vec<f32>) 
     let plane = h * w;
     let mut mean = vec![0.0f32; b * plane];
     let mut rstd = vec![0.0f32; b * plane];
-    mean.par_chunks_mut(plane)
-        .zip(rstd.par_chunks_mut(plane))
-        .enumerate()
-        .for_each(|(n, (m, r))| {
-            let item = &x[n * c * plane..][..c * plane];
-            m.par_chunks_mut(STRIP)
-                .zip(r.par_chunks_mut(STRIP))
-                .enumerate()
-                .for_each(|(s, (m, r))| moments(m, r, item, c, plane, s * STRIP, eps));
-        });
+    per_strip(&mut mean, &mut rstd, plane, |n, p0, m, r| {
+        moments(m, r, &x[n * c * plane..][..c * plane], c, plane, p0, eps)
+    });
     (mean, rstd)
 }
 
@@ -89,33 +83,24 @@ pub fn channel_norm_backward(
     let mut a = vec![0.0f32; b * plane];
     let mut bx = vec![0.0f32; b * plane];
     let inv_c = 1.0 / c as f32;
-    a.par_chunks_mut(plane)
-        .zip(bx.par_chunks_mut(plane))
-        .enumerate()
-        .for_each(|(n, (a, bx))| {
-            let at = n * c * plane..(n + 1) * c * plane;
-            let (xi, di) = (&x[at.clone()], &dy[at]);
-            let (m, r) = (&mean[n * plane..][..plane], &rstd[n * plane..][..plane]);
-            a.par_chunks_mut(STRIP)
-                .zip(bx.par_chunks_mut(STRIP))
-                .enumerate()
-                .for_each(|(s, (a, bx))| {
-                    let p0 = s * STRIP;
-                    let len = a.len();
-                    let (m, r) = (&m[p0..][..len], &r[p0..][..len]);
-                    for (ch, &g) in weight.iter().enumerate() {
-                        let xs = &xi[ch * plane + p0..][..len];
-                        let ds = &di[ch * plane + p0..][..len];
-                        for i in 0..len {
-                            let gd = g * ds[i];
-                            a[i] += gd;
-                            bx[i] += gd * (xs[i] - m[i]) * r[i];
-                        }
-                    }
-                    a.iter_mut().for_each(|v| *v *= inv_c);
-                    bx.iter_mut().for_each(|v| *v *= inv_c);
-                });
-        });
+    per_strip(&mut a, &mut bx, plane, |n, p0, a, bx| {
+        let len = a.len();
+        let (m, r) = (
+            &mean[n * plane + p0..][..len],
+            &rstd[n * plane + p0..][..len],
+        );
+        for (ch, &g) in weight.iter().enumerate() {
+            let at = (n * c + ch) * plane + p0;
+            let (xs, ds) = (&x[at..][..len], &dy[at..][..len]);
+            for i in 0..len {
+                let gd = g * ds[i];
+                a[i] += gd;
+                bx[i] += gd * (xs[i] - m[i]) * r[i];
+            }
+        }
+        a.iter_mut().for_each(|v| *v *= inv_c);
+        bx.iter_mut().for_each(|v| *v *= inv_c);
+    });
     // Per plane: dx, and that plane's share of dγ and dβ.
     let mut dx = vec![0.0f32; b * c * plane];
     let partial: Vec<(f32, f32)> = dx
@@ -144,6 +129,25 @@ pub fn channel_norm_backward(
         dbeta[task % c] += db;
     }
     (dx, dgamma, dbeta)
+}
+
+/// Runs `f(n, p0, a, b)` on every strip of [`STRIP`] pixels (from pixel `p0`) of batch item
+/// `n`'s part of two per-pixel arrays `a`, `b` (`[batch, plane]` each), strips in parallel.
+fn per_strip(
+    a: &mut [f32],
+    b: &mut [f32],
+    plane: usize,
+    f: impl Fn(usize, usize, &mut [f32], &mut [f32]) + Sync,
+) {
+    a.par_chunks_mut(plane)
+        .zip(b.par_chunks_mut(plane))
+        .enumerate()
+        .for_each(|(n, (a, b))| {
+            a.par_chunks_mut(STRIP)
+                .zip(b.par_chunks_mut(STRIP))
+                .enumerate()
+                .for_each(|(s, (a, b))| f(n, s * STRIP, a, b));
+        });
 }
 
 fn moments(
@@ -254,16 +258,6 @@ pub trait NormOps: Backend {
     ) -> FloatTensor<Self>;
 }
 
-fn slice(t: &FlexTensor) -> &[f32] {
-    t.as_slice::<f32>()
-        .expect("the restorer's maps are f32 on the CPU")
-}
-
-fn dims4(t: &FlexTensor) -> [usize; 4] {
-    let s = t.layout().shape();
-    [s[0], s[1], s[2], s[3]]
-}
-
 impl NormOps for Flex {
     fn channel_norm(x: FlexTensor, weight: FlexTensor, bias: FlexTensor, eps: f32) -> FlexTensor {
         let (x, weight, bias) = (
@@ -271,8 +265,14 @@ impl NormOps for Flex {
             weight.to_contiguous(),
             bias.to_contiguous(),
         );
-        let d = dims4(&x);
-        let y = channel_norm(slice(&x), slice(&weight), slice(&bias), eps, d);
+        let d = flex_dims::<4>(&x);
+        let y = channel_norm(
+            flex_slice(&x),
+            flex_slice(&weight),
+            flex_slice(&bias),
+            eps,
+            d,
+        );
         FlexTensor::from_data(TensorData::new(y, d))
     }
 }
@@ -297,9 +297,14 @@ impl Backward<Flex, 3> for NormBackward {
                 .retrieve_node_output::<FlexTensor>(id)
                 .to_contiguous()
         });
-        let d = dims4(&x);
-        let (dx, dgamma, dbeta) =
-            channel_norm_backward(slice(&x), slice(&dy), slice(&weight), self.eps, d);
+        let d = flex_dims::<4>(&x);
+        let (dx, dgamma, dbeta) = channel_norm_backward(
+            flex_slice(&x),
+            flex_slice(&dy),
+            flex_slice(&weight),
+            self.eps,
+            d,
+        );
         let c = d[1];
         let tensors = [
             FlexTensor::from_data(TensorData::new(dx, d)),

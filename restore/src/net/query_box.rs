@@ -11,6 +11,7 @@
 //! a backend extension ([`EnhanceOps`]), autodiff records it as one node; it stands in only
 //! on burn's CPU backend, under autodiff or not.
 
+use super::kernels::{flex_dims, flex_slice};
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
@@ -105,12 +106,11 @@ pub trait EnhanceOps: Backend {
 impl EnhanceOps for Flex {
     fn enhance(x: FlexTensor, k: usize) -> FlexTensor {
         let x = x.to_contiguous();
-        let s = x.layout().shape();
-        let dims = [s[0], s[1], s[2], s[3]];
-        let values = x
-            .as_slice::<f32>()
-            .expect("the restorer's maps are f32 on the CPU");
-        FlexTensor::from_data(TensorData::new(enhance(values, k, dims[2], dims[3]), dims))
+        let dims = flex_dims::<4>(&x);
+        FlexTensor::from_data(TensorData::new(
+            enhance(flex_slice(&x), k, dims[2], dims[3]),
+            dims,
+        ))
     }
 }
 

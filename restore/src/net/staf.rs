@@ -6,9 +6,8 @@ use burn::nn::conv::Conv2d;
 use burn::tensor::activation::sigmoid;
 use burn::tensor::{Device, Tensor, TensorData};
 
-use super::kernels::{Kernels, current, direct_applies, host};
-
 use super::channel::ChannelAttention;
+use super::kernels::{Kernels, current, direct_applies, host};
 use super::layers::{ChannelNorm, Gdfn, conv, gelu, pointwise};
 use super::window::WindowAttention;
 

@@ -38,13 +38,8 @@ pub fn merge_windows(x: Tensor<3>, b: usize, h: usize, w: usize, win: usize) -> 
 /// `[b, c, h, w]` → `[b·n_windows, kwin², c]`: the key window around every query window
 /// (zero outside the image). Built from strided views of the zero-padded map (`unfold` per
 /// axis), not im2col: burn's padded `unfold4d` runs as a one-hot convolution, `C·kwin²`
-/// output channels, which dominated training time. On the CPU with the fast kernels, a
-/// gather with a hand-written gradient ([`super::key_gather`]).
+/// output channels, which dominated training time.
 pub fn key_windows(x: Tensor<4>, win: usize, kwin: usize) -> Tensor<3> {
-    if current() == Kernels::Fast && (direct_applies(&x) || super::conv_train::trained_applies(&x))
-    {
-        return super::key_gather::key_windows_tensor(x, win, kwin);
-    }
     let [b, c, h, w] = x.dims();
     let p = (kwin - win) / 2;
     let (nh, nw) = (h / win, w / win);

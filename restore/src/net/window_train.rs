@@ -13,6 +13,7 @@
 //! bits on every run). Registered with burn as a backend extension ([`WindowTrainOps`]); it
 //! stands in only on burn's CPU backend under autodiff.
 
+use super::kernels::{flex_dims, flex_slice};
 use super::window_direct::{WindowSpec, attend_maps, exp_nonpositive, head_dim_supported};
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
@@ -103,16 +104,6 @@ pub trait WindowTrainOps: Backend {
     ) -> FloatTensor<Self>;
 }
 
-fn slice(t: &FlexTensor) -> &[f32] {
-    t.as_slice::<f32>()
-        .expect("the restorer's maps are f32 on the CPU")
-}
-
-fn dims<const D: usize>(t: &FlexTensor) -> [usize; D] {
-    let s = t.layout().shape();
-    std::array::from_fn(|i| s[i])
-}
-
 /// Which attention a node is, with its sizes; the position terms are the node's fourth
 /// (bias) or fourth and fifth (embeddings) inputs.
 #[derive(Clone, Copy, Debug)]
@@ -131,21 +122,21 @@ fn spec<'a>(
 ) -> WindowSpec<'a> {
     match kind {
         Kind::Window => WindowSpec {
-            heads: dims::<3>(&pos[0])[0],
+            heads: flex_dims::<3>(&pos[0])[0],
             win,
             kwin,
             share: 1,
             pos_q: None,
             pos_k: None,
-            bias: Some(slice(&pos[0])),
+            bias: Some(flex_slice(&pos[0])),
         },
         Kind::Cross { heads } => WindowSpec {
             heads,
             win,
             kwin,
             share,
-            pos_q: Some(slice(&pos[0])),
-            pos_k: Some(slice(&pos[1])),
+            pos_q: Some(flex_slice(&pos[0])),
+            pos_k: Some(flex_slice(&pos[1])),
             bias: None,
         },
     }
@@ -160,11 +151,17 @@ fn forward(
 ) -> FlexTensor {
     let [q, k, v] = maps.map(|t| t.to_contiguous());
     let pos: Vec<FlexTensor> = pos.into_iter().map(|t| t.to_contiguous()).collect();
-    let [bq, c, h, w] = dims::<4>(&q);
-    let g = dims::<4>(&k)[0];
+    let [bq, c, h, w] = flex_dims::<4>(&q);
+    let g = flex_dims::<4>(&k)[0];
     let spec = spec(kind, &pos, win, kwin, g / bq.max(1));
-    let out = attend_maps(slice(&q), slice(&k), slice(&v), [c, h, w], &spec)
-        .expect("a supported head width");
+    let out = attend_maps(
+        flex_slice(&q),
+        flex_slice(&k),
+        flex_slice(&v),
+        [c, h, w],
+        &spec,
+    )
+    .expect("a supported head width");
     FlexTensor::from_data(TensorData::new(out, [g, c, h, w]))
 }
 
@@ -532,14 +529,14 @@ impl AttentionBackward {
         let dout = dout.to_contiguous();
         let inputs: Vec<FlexTensor> = inputs.into_iter().map(|t| t.to_contiguous()).collect();
         let (maps, pos) = inputs.split_at(3);
-        let [bq, c, h, w] = dims::<4>(&maps[0]);
-        let g = dims::<4>(&maps[1])[0];
+        let [bq, c, h, w] = flex_dims::<4>(&maps[0]);
+        let g = flex_dims::<4>(&maps[1])[0];
         let spec = spec(self.kind, pos, self.win, self.kwin, g / bq.max(1));
         let grads = attend_backward(
-            slice(&maps[0]),
-            slice(&maps[1]),
-            slice(&maps[2]),
-            slice(&dout),
+            flex_slice(&maps[0]),
+            flex_slice(&maps[1]),
+            flex_slice(&maps[2]),
+            flex_slice(&dout),
             [c, h, w],
             &spec,
         );
