@@ -121,6 +121,61 @@ impl std::str::FromStr for Iters {
     }
 }
 
+/// `--coarse-to-fine`: how many smaller resolutions the first steps train at, and for how
+/// many steps each.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CoarseToFine {
+    /// 0: off; `L`: the first steps `2^L` times smaller, halving the factor at each level.
+    pub levels: u32,
+    /// Steps per level; None: a tenth of the schedule.
+    pub steps: Option<u64>,
+}
+
+impl std::str::FromStr for CoarseToFine {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        let bad = || {
+            format!(
+                "'{s}' is not off, on, LEVELS (1 to 4) or LEVELS:STEPS (steps per level, 1 to 100000000)"
+            )
+        };
+        let (levels, steps) = match s.trim() {
+            "off" => {
+                return Ok(CoarseToFine {
+                    levels: 0,
+                    steps: None,
+                });
+            }
+            "on" => (2, None),
+            t => {
+                let (l, n) = match t.split_once(':') {
+                    Some((l, n)) => (l, Some(n)),
+                    None => (t, None),
+                };
+                let levels = l.trim().parse::<u32>().map_err(|_| bad())?;
+                let steps = n
+                    .map(|n| n.trim().parse::<u64>().map_err(|_| bad()))
+                    .transpose()?;
+                (levels, steps)
+            }
+        };
+        if !(1..=4).contains(&levels) || steps.is_some_and(|n| !(1..=100_000_000).contains(&n)) {
+            return Err(bad());
+        }
+        Ok(CoarseToFine { levels, steps })
+    }
+}
+
+impl std::fmt::Display for CoarseToFine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match (self.levels, self.steps) {
+            (0, _) => f.write_str("off"),
+            (l, None) => write!(f, "{l}"),
+            (l, Some(n)) => write!(f, "{l}:{n}"),
+        }
+    }
+}
+
 impl std::fmt::Display for Iters {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
@@ -293,6 +348,13 @@ pub struct TrainSettings {
     /// supplied one.
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "warp")]
     pub refine_psf: Option<crate::train::psf_refine::PsfModel>,
+    /// Train the first steps at smaller resolutions: `off` (default), `on` (two levels: 4
+    /// then 2 times smaller, each for a tenth of the schedule), `LEVELS` (the first steps
+    /// 2^LEVELS times smaller, halving at each level) or `LEVELS:STEPS` (steps per level).
+    /// Levels whose shorter side would fall under 32 px are left out. The photos, `I_ac`,
+    /// masks and the PSF grid are shrunk alike; evaluation stays at full size.
+    #[arg(long, default_value = "off")]
+    pub coarse_to_fine: CoarseToFine,
 }
 
 /// Parses `args` into `T` alone: the defaults of its clap attributes, with `args` on top.
@@ -415,5 +477,23 @@ mod tests {
             assert!(bad.parse::<Iters>().is_err(), "{bad}");
         }
         assert_eq!(t.max_sh_degree, TrainSettings::default().max_sh_degree);
+    }
+
+    #[test]
+    fn coarse_to_fine_reads_off_on_levels_and_steps() {
+        let read = |s: &str| s.parse::<CoarseToFine>();
+        let c = |levels, steps| CoarseToFine { levels, steps };
+        assert_eq!(TrainSettings::default().coarse_to_fine, c(0, None));
+        assert_eq!(read("off"), Ok(c(0, None)));
+        assert_eq!(read("on"), Ok(c(2, None)));
+        assert_eq!(read("3"), Ok(c(3, None)));
+        assert_eq!(read("1:250"), Ok(c(1, Some(250))));
+        for bad in ["0", "5", "2:0", "2:", ":5", "x", "-1", "2:1e3"] {
+            let e = read(bad).expect_err(bad);
+            assert!(e.contains(bad) && e.contains("LEVELS:STEPS"), "{e}");
+        }
+        for ok in ["off", "on", "3", "1:250"] {
+            assert_eq!(read(ok).unwrap().to_string().parse(), read(ok), "{ok}");
+        }
     }
 }

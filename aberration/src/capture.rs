@@ -55,6 +55,30 @@ impl ImagingModel {
         })
     }
 
+    /// The same lens on images `n` times smaller on each side (a remainder of fewer than `n`
+    /// rows or columns dropped, as area shrinking does): the PSFs at this scale shrunk by the
+    /// area rule, so that blurring a shrunk image approximates shrinking the blurred one
+    /// (coarse-to-fine training's `L_abr` at its early resolutions). Noise is kept as it is.
+    pub fn shrunk(&self, n: usize) -> Result<Self> {
+        if n == 0 {
+            return Err(crate::error::AberrationError::BadParameter(
+                "a shrink factor of 0".into(),
+            ));
+        }
+        let psf = self.psf.resampled(1.0 / n as f64);
+        let plan = BlurPlan::new(
+            &psf,
+            self.plan.width() / n,
+            self.plan.height() / n,
+            self.plan.mode(),
+        )?;
+        Ok(Self {
+            psf,
+            plan,
+            noise: self.noise,
+        })
+    }
+
     /// Blurs through `psf` from now on (a grid at this image's scale, as [`Self::psf`]
     /// returns, e.g. one being refined during training).
     pub fn set_psf(&mut self, psf: PsfGrid) -> Result<()> {

@@ -259,3 +259,94 @@ fn pixel_layout_gives_the_planar_results_bit_for_bit() {
         assert!(plan.apply_pixels(&to_pixels(&x)[1..]).is_err());
     }
 }
+
+/// `n` times smaller by the area rule, planar, a remainder dropped.
+fn area_shrunk(img: &Image, n: usize) -> Image {
+    let (w, h) = (img.width / n, img.height / n);
+    let mut out = Image::new(w, h);
+    for c in 0..3 {
+        for y in 0..h {
+            for x in 0..w {
+                let mut sum = 0.0f64;
+                for dy in 0..n {
+                    for dx in 0..n {
+                        let (sx, sy) = (x * n + dx, y * n + dy);
+                        sum += img.data[c * img.width * img.height + sy * img.width + sx] as f64;
+                    }
+                }
+                out.data[c * w * h + y * w + x] = (sum / (n * n) as f64) as f32;
+            }
+        }
+    }
+    out
+}
+
+/// Coarse-to-fine training blurs shrunk renders through [`ImagingModel::shrunk`]: on a smooth
+/// scene that must approximate shrinking the full-size blur, far closer than the full-size
+/// PSFs applied to the shrunk image (the wrong scale, which the check would accept if
+/// `shrunk` forgot to resample).
+#[test]
+fn shrunk_model_blurs_as_the_shrunk_blur() {
+    use aberration::{ImagingModel, NoiseModel};
+    // Gaussian PSFs whose width varies over the field and by colour.
+    let (g, k) = (3, 21);
+    let mut data = Vec::with_capacity(g * g * 3 * k * k);
+    for cell in 0..g * g {
+        for c in 0..3 {
+            let sigma = 1.5 + 0.4 * cell as f64 / 2.0 + 0.6 * c as f64;
+            for y in 0..k {
+                for x in 0..k {
+                    let (dx, dy) = (x as f64 - 10.0, y as f64 - 10.0);
+                    data.push((-(dx * dx + dy * dy) / (2.0 * sigma * sigma)).exp() as f32);
+                }
+            }
+        }
+    }
+    let psf = PsfGrid::from_planar(g, k, data).unwrap();
+    let (w, h) = (98, 75);
+    let scene = Image::from_fn(w, h, |x, y| {
+        let (u, v) = (x as f32 / w as f32, y as f32 / h as f32);
+        [
+            0.5 + 0.4 * (6.0 * u + 2.0 * v).sin(),
+            0.5 + 0.3 * (5.0 * v).cos() * (3.0 * u).sin(),
+            0.4 + 0.3 * u * v,
+        ]
+    });
+    for mode in [BlurMode::Tiled, BlurMode::Blend] {
+        let full = ImagingModel::new(&psf, w, h, mode, Some(w), NoiseModel::default()).unwrap();
+        for n in [2, 4] {
+            let small = full.shrunk(n).unwrap();
+            assert_eq!(
+                (small.plan().width(), small.plan().height()),
+                (w / n, h / n)
+            );
+            let expected = area_shrunk(&full.blur(&scene).unwrap(), n);
+            let shrunk_scene = area_shrunk(&scene, n);
+            let got = small.blur(&shrunk_scene).unwrap();
+            let wrong = BlurPlan::new(full.psf(), w / n, h / n, mode)
+                .unwrap()
+                .apply(&shrunk_scene)
+                .unwrap();
+            let rms = |a: &Image| {
+                let s: f64 = a
+                    .data
+                    .iter()
+                    .zip(&expected.data)
+                    .map(|(x, y)| ((x - y) as f64).powi(2))
+                    .sum();
+                (s / a.data.len() as f64).sqrt()
+            };
+            let (err, wrong_err) = (rms(&got), rms(&wrong));
+            assert!(
+                err < 0.005 && err * 4.0 < wrong_err,
+                "{mode} 1/{n}: RMS {err:.5} against the shrunk blur ({wrong_err:.5} at the full-size PSFs)"
+            );
+        }
+    }
+    assert!(
+        ImagingModel::new(&psf, w, h, BlurMode::Tiled, Some(w), NoiseModel::default())
+            .unwrap()
+            .shrunk(0)
+            .is_err()
+    );
+}

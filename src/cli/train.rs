@@ -123,6 +123,16 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
                 }
             );
         }
+        match &config.coarse {
+            Some(c) => println!("{}", c.describe(data.width, data.height)),
+            None if t.coarse_to_fine.levels > 0 => println!(
+                "Coarse to fine left out: the {}x{} views leave no level of at least {} px a side.",
+                data.width,
+                data.height,
+                metasplat::train::coarse::MIN_COARSE_SIDE
+            ),
+            None => {}
+        }
         if let Some(every) = config.recipe.opacity_reset_every {
             println!(
                 "Opacities reset every {every} steps{}.",

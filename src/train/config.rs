@@ -8,6 +8,7 @@ pub use crate::settings::Mode;
 use crate::settings::{
     Background, Iters, LambdaFade, MaskChoice, StrategyChoice, Toggle, TrainSettings,
 };
+use crate::train::coarse::Coarse;
 use crate::train::data::Dataset;
 use crate::train::iac::IacSource;
 use crate::train::object::MaskUse;
@@ -234,6 +235,10 @@ pub struct TrainConfig {
     /// schedules were made for.
     #[serde(default)]
     pub stop: Option<StopRule>,
+    /// `--coarse-to-fine`: the first steps at smaller resolutions; None: every step at full
+    /// size (absent from the configs of runs without it, so their fingerprints stay).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub coarse: Option<Coarse>,
 }
 
 /// Steps the schedules of an `--iters auto` run are made for: 150 per training view (how
@@ -539,6 +544,12 @@ impl TrainConfig {
                 at.dedup();
                 at
             },
+            coarse: Coarse::for_capture(
+                settings.coarse_to_fine.levels,
+                settings.coarse_to_fine.steps.unwrap_or((iters / 10).max(1)),
+                data.width,
+                data.height,
+            ),
             recipe,
             stop: None,
         };
@@ -548,7 +559,9 @@ impl TrainConfig {
                 Strategy::Adaptive => config.recipe.densify_until,
                 Strategy::Mcmc(m) => m.refine_until,
             };
-            let not_before = densified.max(config.lambda_fade_until.unwrap_or(0));
+            let not_before = densified
+                .max(config.lambda_fade_until.unwrap_or(0))
+                .max(config.coarse.as_ref().map_or(0, Coarse::end));
             config.stop = Some(StopRule::new(data.train.len(), not_before));
             config.schedule_iters = Some(iters);
             config.iters = cap;

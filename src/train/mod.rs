@@ -4,6 +4,7 @@
 
 pub mod capture;
 pub mod checkpoint;
+pub mod coarse;
 pub mod config;
 pub mod data;
 pub mod densify;
@@ -234,6 +235,9 @@ struct Run<'a> {
     checkpoint_path: Option<&'a Path>,
     /// `--mask-mode object`: how the training views become the object's targets.
     object: Option<ObjectTargets>,
+    /// `--coarse-to-fine`: the training views and lens of each smaller resolution, coarsest
+    /// first (empty without it).
+    levels: Vec<coarse::Level>,
 }
 
 impl<'a> Run<'a> {
@@ -262,6 +266,7 @@ impl<'a> Run<'a> {
         };
         Ok(Run {
             object: ObjectTargets::for_run(config, data)?,
+            levels: coarse::Level::for_run(config, data)?,
             config,
             data,
             device,
@@ -285,12 +290,27 @@ impl<'a> Run<'a> {
 
     /// Training view `index` as step training compares a render drawn over `background` with:
     /// the object's targets in `object` mask mode, the view itself otherwise.
-    fn train_view(&self, index: usize, background: Vec3) -> std::borrow::Cow<'a, data::View> {
-        let view = &self.data.train[index];
-        match &self.object {
+    /// At a coarse `level`, its shrunk copy of the view.
+    fn train_view<'b>(
+        &'b self,
+        index: usize,
+        background: Vec3,
+        level: Option<&'b coarse::Level>,
+    ) -> std::borrow::Cow<'b, data::View> {
+        let (view, object) = match level {
+            Some(l) => (&l.train[index], &l.object),
+            None => (&self.data.train[index], &self.object),
+        };
+        match object {
             Some(o) => o.view(index, view, background),
             None => std::borrow::Cow::Borrowed(view),
         }
+    }
+
+    /// The coarse level step `step` trains at; None: full size.
+    fn level_at(&self, step: u64) -> Option<&coarse::Level> {
+        let factor = self.config.coarse.as_ref()?.factor_at(step);
+        self.levels.iter().find(|l| l.factor == factor)
     }
 
     /// The objective step `step` minimises (λ may fade), through the PSF grid as refined so
@@ -300,6 +320,26 @@ impl<'a> Run<'a> {
             lambda: self.config.lambda_at(step),
             imaging: psf.map(PsfRefinement::imaging).or(self.objective.imaging),
             ..self.objective
+        }
+    }
+
+    /// [`Self::objective_at`] at a coarse `level`: its size and its shrunk lens (a grid being
+    /// refined is refined at full size only).
+    fn objective_at_level<'b>(
+        &'b self,
+        step: u64,
+        psf: Option<&'b PsfRefinement>,
+        level: Option<&'b coarse::Level>,
+    ) -> Objective<'b> {
+        match level {
+            None => self.objective_at(step, psf),
+            Some(l) => Objective {
+                lambda: self.config.lambda_at(step),
+                imaging: l.imaging.as_ref(),
+                width: l.width,
+                height: l.height,
+                ..self.objective
+            },
         }
     }
 
@@ -322,18 +362,21 @@ impl<'a> Run<'a> {
     }
 
     /// What an SH band is judged on after `step` steps: the mean loss of the probe views
-    /// rendered with `degree` bands, under the objective the next step minimises.
+    /// rendered with `degree` bands, under the objective the next step minimises (at its
+    /// coarse level's size: a model fitted at a quarter of the size is not judged on detail
+    /// it has not been shown yet).
     fn band_loss<'b>(
         &'b self,
         step: u64,
         psf: Option<&'b PsfRefinement>,
     ) -> impl FnMut(&Gaussians, u32) -> Result<f64> + 'b {
-        let objective = self.objective_at(step, psf);
+        let level = self.level_at(step);
+        let objective = self.objective_at_level(step, psf, level);
         move |model, degree| {
             let mut sum = 0.0;
             for &i in &self.probe {
                 let settings = self.settings(degree);
-                let view = self.train_view(i, settings.background);
+                let view = self.train_view(i, settings.background, level);
                 let out = self.device.render(model, &view.camera, &settings)?;
                 sum += objective.value(&out.color, &view)? as f64;
             }
@@ -347,9 +390,11 @@ impl<'a> Run<'a> {
     fn step<T: SplatTrainer>(&self, t: &mut T, p: &mut Progress) -> Result<LossParts> {
         let n_views = self.data.train.len();
         let settings = self.step_settings(t.sh_degree(), p.step);
+        let level = self.level_at(p.step);
         let view = self.train_view(
             view_index(self.config.seed, p.step, n_views),
             settings.background,
+            level,
         );
         let view = view.as_ref();
         let at = |what: &str, cause: &str| {
@@ -363,9 +408,9 @@ impl<'a> Run<'a> {
         let refine_now = self
             .config
             .refine_psf
-            .is_some_and(|r| p.psf.is_some() && r.updates_at(p.step));
+            .is_some_and(|r| p.psf.is_some() && level.is_none() && r.updates_at(p.step));
         let (parts, v, psf_gradient) = self
-            .objective_at(p.step, p.psf.as_ref())
+            .objective_at_level(p.step, p.psf.as_ref(), level)
             .evaluate_with_psf(&out.color, view, refine_now)?;
         if !parts.total.is_finite() {
             return Err(at(

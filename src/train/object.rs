@@ -70,19 +70,36 @@ impl ObjectTargets {
     /// The object targets of an `object` run: `PSF ⊛ (1 − mask)` per training view where the targets
     /// need it ([`Self::needs_spread`]); None for any other run.
     pub fn for_run(config: &TrainConfig, data: &Dataset) -> Result<Option<Self>> {
+        Self::build(
+            config,
+            &data.train,
+            data.imaging.as_ref(),
+            data.composited_over,
+            (data.width, data.height),
+        )
+    }
+
+    /// [`Self::for_run`] for any training views of `size` and the lens at their scale (a
+    /// coarse level's, [`crate::train::coarse`]).
+    pub fn build(
+        config: &TrainConfig,
+        train: &[View],
+        imaging: Option<&aberration::ImagingModel>,
+        composited_over: Option<[f32; 3]>,
+        (width, height): (u32, u32),
+    ) -> Result<Option<Self>> {
         if config.masks != Some(MaskUse::Object) {
             return Ok(None);
         }
         let through_lens = config.mode == crate::settings::Mode::Aware;
-        let composited_over = data.composited_over.map(Vec3::from_array);
+        let composited_over = composited_over.map(Vec3::from_array);
         let fixed = (!config.random_background).then(|| Vec3::from_array(config.background));
         let (spread, blur_of_one) = match (
             Self::needs_spread(through_lens, composited_over, fixed),
-            data.imaging.as_ref(),
+            imaging,
         ) {
             (true, Some(imaging)) => {
-                let spread = data
-                    .train
+                let spread = train
                     .par_iter()
                     .map(|v| {
                         v.mask
@@ -95,7 +112,7 @@ impl ObjectTargets {
                             .transpose()
                     })
                     .collect::<std::result::Result<Vec<_>, _>>()?;
-                let n = (data.width * data.height) as usize;
+                let n = (width * height) as usize;
                 (spread, imaging.blur_pixels(&vec![Vec3::ONE; n])?)
             }
             _ => (Vec::new(), Vec::new()),
