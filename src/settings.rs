@@ -121,14 +121,22 @@ impl std::str::FromStr for Iters {
     }
 }
 
-/// `--coarse-to-fine`: how many smaller resolutions the first steps train at, and for how
-/// many steps each.
+/// `--coarse-to-fine`: whether the first steps train at smaller resolutions, how many, and
+/// for how many steps each.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct CoarseToFine {
-    /// 0: off; `L`: the first steps `2^L` times smaller, halving the factor at each level.
-    pub levels: u32,
-    /// Steps per level; None: a tenth of the schedule.
-    pub steps: Option<u64>,
+pub enum CoarseToFine {
+    /// Two levels where densification grows the splats from the capture's points (the
+    /// adaptive strategy); none for MCMC, which starts at its budget ([`TrainConfig::build`]).
+    ///
+    /// [`TrainConfig::build`]: crate::train::config::TrainConfig::build
+    Auto,
+    Off,
+    /// The first steps `2^levels` times smaller, halving the factor at each level, `steps`
+    /// steps per level (None: a tenth of the schedule).
+    Levels {
+        levels: u32,
+        steps: Option<u64>,
+    },
 }
 
 impl std::str::FromStr for CoarseToFine {
@@ -136,16 +144,12 @@ impl std::str::FromStr for CoarseToFine {
     fn from_str(s: &str) -> std::result::Result<Self, String> {
         let bad = || {
             format!(
-                "'{s}' is not off, on, LEVELS (1 to 4) or LEVELS:STEPS (steps per level, 1 to 100000000)"
+                "'{s}' is not auto, off, on, LEVELS (1 to 4) or LEVELS:STEPS (steps per level, 1 to 100000000)"
             )
         };
         let (levels, steps) = match s.trim() {
-            "off" => {
-                return Ok(CoarseToFine {
-                    levels: 0,
-                    steps: None,
-                });
-            }
+            "auto" => return Ok(CoarseToFine::Auto),
+            "off" => return Ok(CoarseToFine::Off),
             "on" => (2, None),
             t => {
                 let (l, n) = match t.split_once(':') {
@@ -162,16 +166,23 @@ impl std::str::FromStr for CoarseToFine {
         if !(1..=4).contains(&levels) || steps.is_some_and(|n| !(1..=100_000_000).contains(&n)) {
             return Err(bad());
         }
-        Ok(CoarseToFine { levels, steps })
+        Ok(CoarseToFine::Levels { levels, steps })
     }
 }
 
 impl std::fmt::Display for CoarseToFine {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match (self.levels, self.steps) {
-            (0, _) => f.write_str("off"),
-            (l, None) => write!(f, "{l}"),
-            (l, Some(n)) => write!(f, "{l}:{n}"),
+        match self {
+            CoarseToFine::Auto => f.write_str("auto"),
+            CoarseToFine::Off => f.write_str("off"),
+            CoarseToFine::Levels {
+                levels,
+                steps: None,
+            } => write!(f, "{levels}"),
+            CoarseToFine::Levels {
+                levels,
+                steps: Some(n),
+            } => write!(f, "{levels}:{n}"),
         }
     }
 }
@@ -348,12 +359,14 @@ pub struct TrainSettings {
     /// supplied one.
     #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "warp")]
     pub refine_psf: Option<crate::train::psf_refine::PsfModel>,
-    /// Train the first steps at smaller resolutions: `off` (default), `on` (two levels: 4
+    /// Train the first steps at smaller resolutions, with a splat budget that follows the
+    /// pixel count: `auto` (default: on where densification grows the splats from the
+    /// capture's points, off for MCMC, which starts at its budget), `off`, `on` (two levels: 4
     /// then 2 times smaller, each for a tenth of the schedule), `LEVELS` (the first steps
     /// 2^LEVELS times smaller, halving at each level) or `LEVELS:STEPS` (steps per level).
     /// Levels whose shorter side would fall under 32 px are left out. The photos, `I_ac`,
     /// masks and the PSF grid are shrunk alike; evaluation stays at full size.
-    #[arg(long, default_value = "off")]
+    #[arg(long, default_value = "auto")]
     pub coarse_to_fine: CoarseToFine,
 }
 
@@ -480,11 +493,12 @@ mod tests {
     }
 
     #[test]
-    fn coarse_to_fine_reads_off_on_levels_and_steps() {
+    fn coarse_to_fine_reads_auto_off_on_levels_and_steps() {
         let read = |s: &str| s.parse::<CoarseToFine>();
-        let c = |levels, steps| CoarseToFine { levels, steps };
-        assert_eq!(TrainSettings::default().coarse_to_fine, c(0, None));
-        assert_eq!(read("off"), Ok(c(0, None)));
+        let c = |levels, steps| CoarseToFine::Levels { levels, steps };
+        assert_eq!(TrainSettings::default().coarse_to_fine, CoarseToFine::Auto);
+        assert_eq!(read("auto"), Ok(CoarseToFine::Auto));
+        assert_eq!(read("off"), Ok(CoarseToFine::Off));
         assert_eq!(read("on"), Ok(c(2, None)));
         assert_eq!(read("3"), Ok(c(3, None)));
         assert_eq!(read("1:250"), Ok(c(1, Some(250))));
@@ -492,7 +506,7 @@ mod tests {
             let e = read(bad).expect_err(bad);
             assert!(e.contains(bad) && e.contains("LEVELS:STEPS"), "{e}");
         }
-        for ok in ["off", "on", "3", "1:250"] {
+        for ok in ["auto", "off", "on", "3", "1:250"] {
             assert_eq!(read(ok).unwrap().to_string().parse(), read(ok), "{ok}");
         }
     }

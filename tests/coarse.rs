@@ -184,3 +184,68 @@ fn a_run_resumed_across_a_level_end_is_the_uninterrupted_run() {
         .to_string();
     assert!(err.contains("coarse"), "{err}");
 }
+
+/// By default a capture trained by adaptive densification from its points, large enough for
+/// a level, starts coarse and says so; `off` trains at full size, its config without the
+/// field (so configs and checkpoints of runs without it are what they were); a bad value is
+/// refused naming the flag.
+#[test]
+fn the_cli_starts_coarse_by_default_and_says_so() {
+    use common::cli::{fails, ok, procedural, s};
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("scene");
+    procedural(&scene, 96, 64, 5);
+    let train = |out: &str, extra: &[&str]| {
+        let out = tmp.path().join(out);
+        let mut args = vec![
+            "train",
+            "--scene",
+            s(&scene),
+            "--out",
+            s(&out),
+            "--mode",
+            "plain",
+            "--iters",
+            "40",
+            "--downsample",
+            "1",
+        ];
+        args.extend_from_slice(extra);
+        let text = ok(&args);
+        let config: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
+        (text, config)
+    };
+    let (text, config) = train("auto", &[]);
+    assert!(
+        text.contains("Coarse to fine: steps 0-3 at 1/2 size (48x32), full size from step 4."),
+        "{text}"
+    );
+    assert_eq!(
+        config["coarse"]["levels"][0],
+        serde_json::json!({"factor": 2, "until": 4})
+    );
+    let (text, config) = train("off", &["--coarse-to-fine", "off"]);
+    assert!(!text.contains("Coarse to fine"), "{text}");
+    assert!(config.get("coarse").is_none(), "{config}");
+    // Three levels asked for: 64 px leave room for one of at least 32 px.
+    let (text, _) = train("deep", &["--coarse-to-fine", "3:5"]);
+    assert!(
+        text.contains("Coarse to fine: steps 0-4 at 1/2 size (48x32), full size from step 5."),
+        "{text}"
+    );
+    let err = fails(&[
+        "train",
+        "--scene",
+        s(&scene),
+        "--out",
+        s(&tmp.path().join("bad")),
+        "--coarse-to-fine",
+        "9",
+    ]);
+    assert!(
+        err.contains("--coarse-to-fine") && err.contains("'9'"),
+        "{err}"
+    );
+    assert!(!tmp.path().join("bad").exists());
+}

@@ -39,7 +39,11 @@ fn growth_stops_at_the_budget_and_takes_the_largest_gradients() {
     let mut model = row_of_splats(n, 0);
     let mut adam = Adam::new(&model);
     let budget = n + 4;
-    let strategy = DensifyStrategy::new(recipe(), budget, 10.0);
+    let strategy = DensifyStrategy::new(
+        recipe(),
+        metasplat::train::densify::Budget::fixed(budget),
+        10.0,
+    );
     let mut d = strategy.initialize_state(n);
     // Every splat is a candidate (mean gradient above 2e-4); splat i has gradient i + 1.
     for i in 0..n {
@@ -88,7 +92,11 @@ fn unseen_and_invisible_splats_are_pruned_without_changing_renders() {
     let n = 10;
     let mut model = row_of_splats(n, 0);
     let mut adam = Adam::new(&model);
-    let strategy = DensifyStrategy::new(recipe(), 100, 10.0);
+    let strategy = DensifyStrategy::new(
+        recipe(),
+        metasplat::train::densify::Budget::fixed(100),
+        10.0,
+    );
     let mut d = strategy.initialize_state(n);
     d.seen = (0..n).map(|i| i % 3 != 0).collect();
     let pruned = strategy

@@ -88,6 +88,9 @@ pub struct ExperimentRuns {
     /// Densification strategy of every run (as `train --strategy`).
     #[arg(long, value_enum, default_value_t = metasplat::settings::StrategyChoice::Auto)]
     pub strategy: metasplat::settings::StrategyChoice,
+    /// The first steps of every run at smaller resolutions (as `train --coarse-to-fine`).
+    #[arg(long, default_value = "auto")]
+    pub coarse_to_fine: metasplat::settings::CoarseToFine,
     /// What the capture's masks mean to every run (as `train --mask-mode`).
     #[arg(long, value_enum, default_value_t = metasplat::settings::MaskChoice::Auto)]
     pub mask_mode: metasplat::settings::MaskChoice,
@@ -453,6 +456,7 @@ impl ExperimentRuns {
         args.training.iters = metasplat::settings::Iters::Steps(self.iters);
         args.training.strategy = self.strategy;
         args.training.mask_mode = self.mask_mode;
+        args.training.coarse_to_fine = self.coarse_to_fine;
         args
     }
 }

@@ -6,7 +6,9 @@ use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use metasplat::outputs::{self, RunSummary};
 use metasplat::run;
-use metasplat::settings::{Background, MaskChoice, RunRequest, StrategyChoice, Toggle};
+use metasplat::settings::{
+    Background, CoarseToFine, MaskChoice, RunRequest, StrategyChoice, Toggle,
+};
 use metasplat::train::config::{Mode, Strategy};
 use metasplat::train::eval::Against;
 use metasplat::train::object::MaskUse;
@@ -123,15 +125,16 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
                 }
             );
         }
-        match &config.coarse {
-            Some(c) => println!("{}", c.describe(data.width, data.height)),
-            None if t.coarse_to_fine.levels > 0 => println!(
+        match (&config.coarse, t.coarse_to_fine) {
+            (Some(c), _) => println!("{}", c.describe(data.width, data.height)),
+            (None, CoarseToFine::Off) => {}
+            (None, CoarseToFine::Auto) if matches!(config.strategy, Strategy::Mcmc(_)) => {}
+            (None, _) => println!(
                 "Coarse to fine left out: the {}x{} views leave no level of at least {} px a side.",
                 data.width,
                 data.height,
                 metasplat::train::coarse::MIN_COARSE_SIDE
             ),
-            None => {}
         }
         if let Some(every) = config.recipe.opacity_reset_every {
             println!(

@@ -243,6 +243,19 @@ mod tests {
     }
 
     #[test]
+    fn the_splat_budget_follows_the_pixel_count() {
+        let b = crate::train::densify::Budget {
+            max: 95_000,
+            coarse: Coarse::for_capture(2, 700, 504, 378),
+        };
+        assert_eq!(
+            [0, 699, 700, 1399, 1400].map(|s| b.at(s)),
+            [5937, 5937, 23_750, 23_750, 95_000]
+        );
+        assert_eq!(crate::train::densify::Budget::fixed(7).at(0), 7);
+    }
+
+    #[test]
     fn shrinking_takes_block_means_and_drops_the_remainder() {
         // 5x3 with values x + 10y: 2x smaller is 2x1, the last column and row dropped.
         let px: Vec<Vec3> = (0..15)

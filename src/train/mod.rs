@@ -254,13 +254,15 @@ impl<'a> Run<'a> {
             lr_final: recipe.lrs.means * data.extent * recipe.position_lr_final_ratio,
             max_steps: config.schedule_iters.unwrap_or(config.iters),
         };
+        let budget = densify::Budget {
+            max: config.max_splats,
+            coarse: config.coarse.clone(),
+        };
         let densify = match &config.strategy {
-            Strategy::Adaptive => {
-                DensifyStrategy::new(recipe.clone(), config.max_splats, data.extent)
-            }
+            Strategy::Adaptive => DensifyStrategy::new(recipe.clone(), budget.clone(), data.extent),
             Strategy::Mcmc(m) => DensifyStrategy::Mcmc(Mcmc {
                 recipe: m.clone(),
-                budget: config.max_splats,
+                budget: budget.clone(),
                 position_lr: position_lr.clone(),
             }),
         };

@@ -6,7 +6,7 @@ use splat::densify::{DensifyStats, clone_gaussians, prune_mask, reset_opacity, s
 use splat::optim::{Adam, ParamGroup};
 use splat::{Gaussians, RenderOutput};
 
-use super::{DensifyState, Edit, carry, prune};
+use super::{Budget, DensifyState, Edit, carry, prune};
 use crate::error::Result;
 use crate::train::config::Recipe;
 
@@ -21,12 +21,12 @@ pub const RESET_RECOVERY: u64 = 100;
 #[derive(Clone, Debug)]
 pub struct Adaptive {
     pub recipe: Recipe,
-    pub budget: usize,
+    pub budget: Budget,
     pub extent: f32,
 }
 
 impl Adaptive {
-    pub fn new(recipe: Recipe, budget: usize, extent: f32) -> Self {
+    pub fn new(recipe: Recipe, budget: Budget, extent: f32) -> Self {
         Self {
             recipe,
             budget,
@@ -89,7 +89,14 @@ impl Adaptive {
         let mut edit = Edit::default();
         let mut changed = false;
         if self.grows_at(step) {
-            self.grow(state, model, adam, seed ^ step, &mut edit)?;
+            self.grow(
+                state,
+                model,
+                adam,
+                seed ^ step,
+                self.budget.at(step),
+                &mut edit,
+            )?;
             let after_reset = r.opacity_reset_every.is_some_and(|every| step > every);
             let mask = prune_mask(
                 model,
@@ -122,6 +129,7 @@ impl Adaptive {
         model: &mut Gaussians,
         adam: &mut Adam,
         seed: u64,
+        budget: usize,
         edit: &mut Edit,
     ) -> Result<()> {
         let n = model.len();
@@ -133,7 +141,7 @@ impl Adaptive {
             .filter(|(_, m)| **m)
             .map(|(i, _)| (stats.grad_norm_sum[i] / stats.count[i] as f32, i))
             .collect();
-        let room = self.budget.saturating_sub(n);
+        let room = budget.saturating_sub(n);
         if candidates.len() > room {
             candidates.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
             edit.over_budget = candidates.len() - room;

@@ -10,7 +10,7 @@ use splat::mcmc::{add_gaussians, inject_noise, relocate_gaussians};
 use splat::model::{logit, sigmoid};
 use splat::optim::{Adam, ExponentialLr};
 
-use super::{DensifyState, Edit, carry};
+use super::{Budget, DensifyState, Edit, carry};
 use crate::error::Result;
 use crate::train::config::McmcRecipe;
 
@@ -23,7 +23,7 @@ const NOISE: u64 = 0x4e4f_4953;
 #[derive(Clone, Debug)]
 pub struct Mcmc {
     pub recipe: McmcRecipe,
-    pub budget: usize,
+    pub budget: Budget,
     /// The position learning rate's schedule: the noise follows it.
     pub position_lr: ExponentialLr,
 }
@@ -88,7 +88,8 @@ impl Mcmc {
                 .collect();
             let relocated = self.relocate(state, model, adam, &dead, seed)?;
             let n = model.len();
-            let target = ((n as f64 * (1.0 + r.grow_fraction as f64)) as usize).min(self.budget);
+            let target =
+                ((n as f64 * (1.0 + r.grow_fraction as f64)) as usize).min(self.budget.at(step));
             let added = target.saturating_sub(n);
             if added > 0 {
                 let sources = add_gaussians(model, added, r.min_opacity, seed ^ ADD)?;

@@ -104,6 +104,29 @@ impl std::fmt::Display for Unseen {
     }
 }
 
+/// The most splats a strategy may grow to after a step: the run's budget, shared out by
+/// pixel count while coarse to fine trains at a smaller size (a view shrunk 4 times has a
+/// sixteenth of the pixels to fit, so it gets a sixteenth of the splats: DashGaussian's
+/// splat count that follows the resolution). The count grows on at full size.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Budget {
+    pub max: usize,
+    pub coarse: Option<crate::train::coarse::Coarse>,
+}
+
+impl Budget {
+    /// A budget of `max` at every step.
+    pub fn fixed(max: usize) -> Self {
+        Self { max, coarse: None }
+    }
+
+    /// The budget after `step` steps, when the next step trains at the level of `step`.
+    pub fn at(&self, step: u64) -> usize {
+        let f = self.coarse.as_ref().map_or(1, |c| c.factor_at(step)) as usize;
+        (self.max / (f * f)).max(1)
+    }
+}
+
 /// The strategy of a run: its settings, fixed for the run.
 #[derive(Clone, Debug)]
 pub enum DensifyStrategy {
@@ -113,7 +136,7 @@ pub enum DensifyStrategy {
 
 impl DensifyStrategy {
     /// The adaptive strategy with `recipe`, `budget` and the scene's `extent`.
-    pub fn new(recipe: Recipe, budget: usize, extent: f32) -> Self {
+    pub fn new(recipe: Recipe, budget: Budget, extent: f32) -> Self {
         Self::Adaptive(Adaptive::new(recipe, budget, extent))
     }
 
