@@ -5,7 +5,6 @@
 mod common;
 
 use metasplat::device::Device;
-use metasplat::procedural::ProceduralOptions;
 use metasplat::settings::DataOptions;
 use metasplat::train::config::{Mode, TrainConfig};
 use metasplat::train::data;
@@ -14,14 +13,8 @@ use metasplat::train::data;
 /// no more than the step the loop counted.
 #[test]
 fn the_step_benchmark_times_the_training_step() {
-    let dir = tempfile::tempdir().unwrap();
-    let o = ProceduralOptions {
-        width: 64,
-        height: 48,
-        views: 10,
-        seed: 1,
-    };
-    let (_, aberrated, _) = common::aberrated_procedural(dir.path(), &o);
+    let capture = common::small_capture(1);
+    let aberrated = &capture.aberrated;
     let options = DataOptions {
         downsample: 1,
         ..DataOptions::default()

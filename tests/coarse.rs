@@ -4,12 +4,10 @@
 
 mod common;
 
-use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use glam::Vec3;
 use metasplat::device::Device;
-use metasplat::procedural::ProceduralOptions;
 use metasplat::settings::{DataOptions, Iters, Mode, TrainSettings};
 use metasplat::train::coarse::{Coarse, CoarseLevel, shrink_pixels, shrink_view};
 use metasplat::train::config::TrainConfig;
@@ -17,28 +15,10 @@ use metasplat::train::data::{self, Dataset, View};
 use metasplat::train::{self, eval};
 use splat::{RenderSettings, render};
 
-struct Fixture {
-    _dir: tempfile::TempDir,
-    aberrated: PathBuf,
-}
-
-/// A 64×48 procedural capture seen through a small lens, built once per test binary.
-fn fixture() -> &'static Fixture {
-    static F: OnceLock<Fixture> = OnceLock::new();
-    F.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let o = ProceduralOptions {
-            width: 64,
-            height: 48,
-            views: 10,
-            seed: 1,
-        };
-        let (_, aberrated, _) = common::aberrated_procedural(dir.path(), &o);
-        Fixture {
-            _dir: dir,
-            aberrated,
-        }
-    })
+/// The small aberrated capture, built once per test binary.
+fn fixture() -> &'static common::SmallCapture {
+    static F: OnceLock<common::SmallCapture> = OnceLock::new();
+    F.get_or_init(|| common::small_capture(1))
 }
 
 fn load(mode: Mode) -> Dataset {

@@ -4,7 +4,6 @@
 
 mod common;
 
-use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use common::cli::{fails, ok, s};
@@ -16,27 +15,9 @@ use metasplat::train::data::{self, Dataset};
 use metasplat::train::psf_refine::PsfRefineConfig;
 use metasplat::train::{self, Event};
 
-struct Fixture {
-    _dir: tempfile::TempDir,
-    aberrated: PathBuf,
-}
-
-fn fixture() -> &'static Fixture {
-    static F: OnceLock<Fixture> = OnceLock::new();
-    F.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let o = ProceduralOptions {
-            width: 64,
-            height: 48,
-            views: 10,
-            seed: 2,
-        };
-        let (_, aberrated, _) = common::aberrated_procedural(dir.path(), &o);
-        Fixture {
-            _dir: dir,
-            aberrated,
-        }
-    })
+fn fixture() -> &'static common::SmallCapture {
+    static F: OnceLock<common::SmallCapture> = OnceLock::new();
+    F.get_or_init(|| common::small_capture(2))
 }
 
 fn options() -> DataOptions {

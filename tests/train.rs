@@ -28,21 +28,14 @@ struct Fixture {
 fn fixture() -> &'static Fixture {
     static F: OnceLock<Fixture> = OnceLock::new();
     F.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let o = ProceduralOptions {
-            width: 64,
-            height: 48,
-            views: 10,
-            seed: 1,
-        };
-        let (clean, aberrated, _) = common::aberrated_procedural(dir.path(), &o);
+        let c = common::small_capture(1);
         let (other, _) = simulate_grid(&SimConfig::small(15), &|_, _| {}).unwrap();
-        let other_psf = dir.path().join("other.npy");
+        let other_psf = c.dir.path().join("other.npy");
         other.save_npy(&other_psf).unwrap();
         Fixture {
-            _dir: dir,
-            clean,
-            aberrated,
+            _dir: c.dir,
+            clean: c.clean,
+            aberrated: c.aberrated,
             other_psf,
         }
     })

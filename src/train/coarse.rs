@@ -155,7 +155,8 @@ impl Level {
     }
 }
 
-/// `view` (images `width × height`) `n` times smaller on each side: every image area-shrunk,
+/// `view` (images `width × height`) `n` times smaller on each side: the images training reads
+/// area-shrunk,
 /// the camera's intrinsics divided by `n` (pixel edges at integer coordinates, so no
 /// half-pixel shift).
 pub fn shrink_view(view: &View, width: u32, height: u32, n: u32) -> View {
@@ -170,7 +171,9 @@ pub fn shrink_view(view: &View, width: u32, height: u32, n: u32) -> View {
         camera,
         observed: shrink(&view.observed),
         restored: view.restored.as_ref().map(shrink),
-        clean: view.clean.as_ref().map(shrink),
+        // Training never reads a training view's clean image (held-out views are scored at
+        // full size), so levels do not keep one.
+        clean: None,
         mask: view.mask.as_ref().map(|m| {
             let wide: Vec<Vec3> = m.iter().map(|&v| Vec3::splat(v)).collect();
             shrink_pixels(&wide, width, height, n)

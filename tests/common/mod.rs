@@ -45,3 +45,30 @@ pub fn aberrated_procedural_through(
     .unwrap();
     (clean, aberrated, psf_path)
 }
+
+/// The capture most training tests share: the procedural scene at 64×48, 10 views, seen
+/// through the small lens, in a folder that lives as long as the value.
+pub struct SmallCapture {
+    pub dir: tempfile::TempDir,
+    pub clean: PathBuf,
+    pub aberrated: PathBuf,
+    pub psf: PathBuf,
+}
+
+/// [`SmallCapture`] of the procedural scene drawn with `seed`.
+pub fn small_capture(seed: u64) -> SmallCapture {
+    let dir = tempfile::tempdir().unwrap();
+    let o = ProceduralOptions {
+        width: 64,
+        height: 48,
+        views: 10,
+        seed,
+    };
+    let (clean, aberrated, psf) = aberrated_procedural(dir.path(), &o);
+    SmallCapture {
+        dir,
+        clean,
+        aberrated,
+        psf,
+    }
+}
