@@ -19,7 +19,7 @@ fn the_step_benchmark_times_the_training_step() {
         downsample: 1,
         ..DataOptions::default()
     };
-    let data = data::load(&aberrated, Mode::Aware, &options).unwrap();
+    let data = data::load(aberrated, Mode::Aware, &options).unwrap();
     let settings = metasplat::settings::TrainSettings {
         mode: Mode::Aware,
         iters: metasplat::settings::Iters::Steps(3),

@@ -2457,3 +2457,76 @@ fn aberrate_a_folder_of_frames_with_noise_of_their_own() {
     ]);
     assert!(err.contains("exists"), "{err}");
 }
+
+/// `render --aberrate PSF` makes a clean and aberrated clip pair in one step: `clean/` holds
+/// what `render` alone draws, `aberrated/` what `aberrate --in DIR` makes of it with the
+/// same seed; the imaging flags without `--aberrate`, and `--aberrate` with `--video`, are
+/// refused before anything is written.
+#[test]
+fn render_aberrate_makes_a_clean_and_aberrated_clip_pair() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ply = d.join("model.glb");
+    splat::formats::glb::write_glb(&ply, &splat::synthetic::random_box_scene(2, 2000, 1)).unwrap();
+    let psf = d.join("psf.npy");
+    small_psf(&psf);
+    let orbit = [
+        "--orbit", "3", "--width", "64", "--height", "48", "--device", "cpu",
+    ];
+    let render = |out: &Path, extra: &[&str]| {
+        let mut args = vec!["render", "--ply", s(&ply), "--out", s(out)];
+        args.extend_from_slice(&orbit);
+        args.extend_from_slice(extra);
+        args.iter().map(|a| a.to_string()).collect::<Vec<_>>()
+    };
+    let pair = d.join("pair");
+    let text = ok(&render(&pair, &["--aberrate", s(&psf), "--seed", "5"]));
+    assert!(text.contains("aberrated twin"), "{text}");
+    let alone = d.join("alone");
+    ok(&render(&alone, &[]));
+    let twin = d.join("twin");
+    ok(&[
+        "aberrate",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&alone),
+        "--out",
+        s(&twin),
+        "--seed",
+        "5",
+    ]);
+    for k in 0..3 {
+        let name = format!("orbit{k:03}.png");
+        let read = |p: std::path::PathBuf| std::fs::read(p).unwrap();
+        assert_eq!(
+            read(pair.join("clean").join(&name)),
+            read(alone.join(&name))
+        );
+        assert_eq!(
+            read(pair.join("aberrated").join(&name)),
+            read(twin.join(&name))
+        );
+        assert_ne!(
+            read(pair.join("clean").join(&name)),
+            read(pair.join("aberrated").join(&name))
+        );
+    }
+    let refused = d.join("refused");
+    let err = fails(&render(&refused, &["--seed", "5"]));
+    assert!(err.contains("--aberrate"), "{err}");
+    let err = fails(&[
+        "render",
+        "--ply",
+        s(&ply),
+        "--video",
+        s(&d.join("clip.gif")),
+        "--aberrate",
+        s(&psf),
+    ]);
+    assert!(
+        err.contains("--aberrate") && err.contains("--video"),
+        "{err}"
+    );
+    assert!(!refused.exists() && !d.join("clip.gif").exists());
+}

@@ -40,6 +40,37 @@ pub struct ImagingArgs {
 }
 
 impl ImagingArgs {
+    /// Whether any setting differs from its default (`render` refuses them without
+    /// `--aberrate`, which they would not change).
+    pub fn any_given(&self) -> bool {
+        self.mode != BlurMode::Tiled || self.seed != 0 || self.no_noise || self.sensor_px.is_some()
+    }
+
+    /// The imaging model of `psf` (read from `psf_path`) for `width × height` frames; the
+    /// error names the flag and the size.
+    pub fn model_for(
+        &self,
+        psf: &PsfGrid,
+        psf_path: &std::path::Path,
+        what: &str,
+        (width, height): (u32, u32),
+    ) -> Result<ImagingModel> {
+        ImagingModel::new(
+            psf,
+            width as usize,
+            height as usize,
+            self.mode,
+            self.sensor_px,
+            self.noise(),
+        )
+        .with_context(|| {
+            format!(
+                "{what} ({width}x{height}) with {}: cannot plan the blur",
+                super::sensor_flag(self.sensor_px, psf_path)
+            )
+        })
+    }
+
     pub fn noise(&self) -> NoiseModel {
         if self.no_noise {
             NoiseModel::none()
@@ -109,36 +140,36 @@ fn run_folder(a: AberrateArgs) -> Result<()> {
     let (w, h) = io.size;
     let psf = PsfGrid::load_npy(&a.psf)?;
     let im = &a.imaging;
-    let model = ImagingModel::new(
-        &psf,
-        w as usize,
-        h as usize,
-        im.mode,
-        im.sensor_px,
-        im.noise(),
-    )
-    .with_context(|| {
-        format!(
-            "--in {} ({w}x{h}) with {}: cannot plan the blur",
-            a.input.display(),
-            super::sensor_flag(im.sensor_px, &a.psf)
-        )
-    })?;
+    let what = format!("--in {}", a.input.display());
+    let model = im.model_for(&psf, &a.psf, &what, (w, h))?;
     io.make_out()?;
-    let mut sum = 0.0;
-    for (i, f) in io.frames.iter().enumerate() {
-        let clean = Image::load(f)?;
-        let out = model.capture(&clean, base::mix64(im.seed ^ i as u64))?;
-        out.save_png(&io.target(f))?;
-        sum += psnr(&out, &clean)?;
-    }
+    let targets: Vec<PathBuf> = io.frames.iter().map(|f| io.target(f)).collect();
+    let mean = aberrate_frames(&model, &io.frames, &targets, im.seed)?;
     println!(
-        "{} frames {w}x{h} through {} px PSFs ({} mode), noise seeded per frame: mean PSNR {:.2} dB vs input; wrote {}",
+        "{} frames {w}x{h} through {} px PSFs ({} mode), noise seeded per frame: mean PSNR {mean:.2} dB vs input; wrote {}",
         io.frames.len(),
         model.psf().size(),
         im.mode,
-        sum / io.frames.len() as f64,
         a.out.display()
     );
     Ok(())
+}
+
+/// Frame `i` of `frames` through `model` into `targets[i]`, with the sensor noise of seed
+/// `mix(seed, i)` (a video's noise changes from frame to frame); the mean PSNR against the
+/// clean frames.
+pub fn aberrate_frames(
+    model: &ImagingModel,
+    frames: &[PathBuf],
+    targets: &[PathBuf],
+    seed: u64,
+) -> Result<f64> {
+    let mut sum = 0.0;
+    for (i, (f, to)) in frames.iter().zip(targets).enumerate() {
+        let clean = Image::load(f)?;
+        let out = model.capture(&clean, base::mix64(seed ^ i as u64))?;
+        out.save_png(to)?;
+        sum += psnr(&out, &clean)?;
+    }
+    Ok(sum / frames.len().max(1) as f64)
 }

@@ -75,6 +75,15 @@ pub struct RenderArgs {
     /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu`.
     #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
     pub device: DeviceChoice,
+    /// Also make the clip's aberrated twin through this PSF grid (.npy): the frames go to
+    /// `--out`/clean/ and their blur, with noise seeded per frame as `aberrate --in DIR`
+    /// makes it, to `--out`/aberrated/ — a clean and aberrated clip pair to restore
+    /// (`restore --in`) and score (`restorer eval-video`).
+    #[arg(long, conflicts_with_all = ["video", "split"])]
+    pub aberrate: Option<PathBuf>,
+    /// How `--aberrate` blurs the frames.
+    #[command(flatten)]
+    pub imaging: super::aberrate::ImagingArgs,
 }
 
 pub fn run(a: RenderArgs) -> Result<()> {
@@ -85,6 +94,14 @@ pub fn run(a: RenderArgs) -> Result<()> {
     }
     if let Some(p) = &a.path {
         inputs.push(("--path", p));
+    }
+    if let Some(p) = &a.aberrate {
+        inputs.push(("--aberrate", p));
+    }
+    if a.aberrate.is_none() && a.imaging.any_given() {
+        bail!(
+            "--mode, --seed, --no-noise and --sensor-px say how --aberrate blurs the frames; give --aberrate PSF with them"
+        );
     }
     let mut inputs = metasplat::guard::Inputs::of(&inputs);
     // The frames' folder, or the video file; and how the video is written, before any work.
@@ -169,6 +186,21 @@ pub fn run(a: RenderArgs) -> Result<()> {
         }
         (None, None) => free_cameras(&a, &model)?,
     };
+    // The lens of the aberrated twin, planned for the frames' size before any is rendered.
+    let lens = match &a.aberrate {
+        Some(path) => {
+            let size = cameras.first().map_or((0, 0), |c| (c.1.width, c.1.height));
+            if cameras.iter().any(|c| (c.1.width, c.1.height) != size) {
+                bail!("--aberrate: the frames differ in size; one imaging model serves one size");
+            }
+            let psf = aberration::PsfGrid::load_npy(path)?;
+            Some(
+                a.imaging
+                    .model_for(&psf, path, "--aberrate: the frames", size)?,
+            )
+        }
+        None => None,
+    };
     if video.is_some() {
         // The encoders read the frames by number.
         for (k, (name, _)) in cameras.iter_mut().enumerate() {
@@ -205,8 +237,15 @@ pub fn run(a: RenderArgs) -> Result<()> {
         .prefix(&format!("{}frames-", base::temp_prefix()))
         .tempdir_in(&parent)
         .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
-    // With --split, renders/ and gt/ inside --out; else the frames themselves.
+    // With --split, renders/ and gt/ inside --out; with --aberrate, clean/ and aberrated/;
+    // else the frames themselves.
     let (frames_dir, truth_dir) = match (&capture, &views) {
+        _ if lens.is_some() => {
+            let clean = staging.path().join("clean");
+            std::fs::create_dir_all(&clean)
+                .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
+            (clean, None)
+        }
         (Some(capture), Some(views)) => {
             let truth = staging.path().join("gt");
             std::fs::create_dir_all(&truth)
@@ -247,10 +286,26 @@ pub fn run(a: RenderArgs) -> Result<()> {
         return Ok(());
     }
     let out = &target;
-    // The frames into --out (or its renders/ beside gt/), then their ground truth.
-    let frames_to = match truth_dir {
-        Some(_) => out.join("renders"),
-        None => out.clone(),
+    let twin = match &lens {
+        Some(model) => {
+            let dir = staging.path().join("aberrated");
+            std::fs::create_dir_all(&dir)
+                .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
+            let targets: Vec<PathBuf> = staged
+                .iter()
+                .map(|f| dir.join(f.file_name().expect("a frame file")))
+                .collect();
+            let mean = super::aberrate::aberrate_frames(model, &staged, &targets, a.imaging.seed)?;
+            Some((targets, mean, model.psf().size()))
+        }
+        None => None,
+    };
+    // The frames into --out (or its renders/ beside gt/, or its clean/ beside aberrated/),
+    // then their ground truth or their blur.
+    let frames_to = match (&truth_dir, &twin) {
+        (Some(_), _) => out.join("renders"),
+        (None, Some(_)) => out.join("clean"),
+        (None, None) => out.clone(),
     };
     let mut moves: Vec<(PathBuf, PathBuf)> = staged
         .iter()
@@ -266,6 +321,15 @@ pub fn run(a: RenderArgs) -> Result<()> {
             let f = e?.path();
             let to = out.join("gt").join(f.file_name().expect("a frame file"));
             moves.push((f, to));
+        }
+    }
+    if let Some((targets, ..)) = &twin {
+        for f in targets {
+            moves.push((
+                f.clone(),
+                out.join("aberrated")
+                    .join(f.file_name().expect("a frame file")),
+            ));
         }
     }
     for (from, to) in moves {
@@ -284,6 +348,14 @@ pub fn run(a: RenderArgs) -> Result<()> {
         start.elapsed().as_secs_f64(),
         out.display()
     );
+    if let Some((_, mean, px)) = &twin {
+        println!(
+            "Their aberrated twin, through {px} px PSFs ({} mode, noise seeded per frame; {mean:.2} dB against the clean frames), is in {}/aberrated/ beside them in {}/clean/.",
+            a.imaging.mode,
+            out.display(),
+            out.display()
+        );
+    }
     if let (Some(capture), Some(_)) = (&capture, &truth_dir) {
         let truth = if capture.root.join(scenes::aberrated::CLEAN_DIR).is_dir() {
             "the clean images"
