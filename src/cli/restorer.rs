@@ -1102,6 +1102,10 @@ fn run_eval_video(a: EvalVideoArgs) -> Result<()> {
         flicker,
         restore::video::frame_to_frame(&clean)
     );
+    println!(
+        "temporal error: {:.5} (mean absolute difference of the restored and the clean frame-to-frame changes; 0 where the restored clip changes as the clean one does, whatever its error within a frame)",
+        restore::video::temporal_error(&restored, &clean)?
+    );
     Ok(())
 }
 
