@@ -189,9 +189,16 @@ fn get_legacy(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
     floats(&keyed[8..])
 }
 
-/// Stores an image under `key` (atomically; the folder is made if needed).
+/// Stores an image under `key` (atomically; the folder is made if needed). A cache folder
+/// that is a symbolic link is refused: its entries would land in whatever folder it names.
 pub fn put(dir: &Path, key: Key, image: &[Vec3]) -> std::io::Result<()> {
     let key = key.now;
+    if std::fs::symlink_metadata(dir).is_ok_and(|m| m.file_type().is_symlink()) {
+        return Err(std::io::Error::other(format!(
+            "{} is a symbolic link; the cache writes only into a folder of its own (remove the link; the cache is made again)",
+            dir.display()
+        )));
+    }
     std::fs::create_dir_all(dir)?;
     let body: Vec<u8> = image
         .iter()
@@ -239,6 +246,26 @@ mod tests {
             assert_eq!(for_run(&scene, &run), run.join(CACHE_DIR));
         }
         std::fs::set_permissions(&scene, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
+
+    #[test]
+    fn a_cache_folder_that_is_a_link_is_not_written_through() {
+        let tmp = tempfile::tempdir().unwrap();
+        let elsewhere = tmp.path().join("elsewhere");
+        std::fs::create_dir_all(&elsewhere).unwrap();
+        let link = tmp.path().join(CACHE_DIR);
+        std::os::unix::fs::symlink(&elsewhere, &link).unwrap();
+        let k = Keyer::new("net", "net before", &PsfGrid::delta(3, 5)).key(2, 1, &[Vec3::ZERO; 2]);
+        let err = put(&link, k, &[Vec3::ONE; 2]).unwrap_err().to_string();
+        assert!(
+            err.contains("symbolic link") && err.contains(CACHE_DIR),
+            "{err}"
+        );
+        assert_eq!(std::fs::read_dir(&elsewhere).unwrap().count(), 0);
+        // A real folder takes the entry.
+        let real = tmp.path().join("real");
+        put(&real, k, &[Vec3::ONE; 2]).unwrap();
+        assert_eq!(get(&real, k, 2).unwrap(), vec![Vec3::ONE; 2]);
     }
 
     #[test]
