@@ -42,17 +42,7 @@ impl ImagingModel {
     /// The same model (image size, blur mode, noise) through another grid at this image's
     /// scale.
     pub fn with_psf(&self, psf: PsfGrid) -> Result<Self> {
-        let plan = BlurPlan::new(
-            &psf,
-            self.plan.width(),
-            self.plan.height(),
-            self.plan.mode(),
-        )?;
-        Ok(Self {
-            psf,
-            plan,
-            noise: self.noise,
-        })
+        self.planned(psf, 1)
     }
 
     /// The same lens on images `n` times smaller on each side (a remainder of fewer than `n`
@@ -65,7 +55,11 @@ impl ImagingModel {
                 "a shrink factor of 0".into(),
             ));
         }
-        let psf = self.psf.resampled(1.0 / n as f64);
+        self.planned(self.psf.resampled(1.0 / n as f64), n)
+    }
+
+    /// `psf` planned for this model's images `n` times smaller, in its blur mode and noise.
+    fn planned(&self, psf: PsfGrid, n: usize) -> Result<Self> {
         let plan = BlurPlan::new(
             &psf,
             self.plan.width() / n,

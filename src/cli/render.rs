@@ -286,20 +286,10 @@ pub fn run(a: RenderArgs) -> Result<()> {
         return Ok(());
     }
     let out = &target;
-    let twin = match &lens {
-        Some(model) => {
-            let dir = staging.path().join("aberrated");
-            std::fs::create_dir_all(&dir)
-                .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
-            let targets: Vec<PathBuf> = staged
-                .iter()
-                .map(|f| dir.join(f.file_name().expect("a frame file")))
-                .collect();
-            let mean = super::aberrate::aberrate_frames(model, &staged, &targets, a.imaging.seed)?;
-            Some((targets, mean, model.psf().size()))
-        }
-        None => None,
-    };
+    let twin = lens
+        .as_ref()
+        .map(|model| aberrated_twin(model, &staged, staging.path(), a.imaging.seed))
+        .transpose()?;
     // The frames into --out (or its renders/ beside gt/, or its clean/ beside aberrated/),
     // then their ground truth or their blur.
     let frames_to = match (&truth_dir, &twin) {
@@ -369,6 +359,25 @@ pub fn run(a: RenderArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// `render --aberrate`: the staged frames through `model` into `staging`/aberrated/, noise
+/// seeded per frame; the twin frames, their mean PSNR against the clean ones, and the PSF
+/// side.
+fn aberrated_twin(
+    model: &aberration::ImagingModel,
+    staged: &[PathBuf],
+    staging: &std::path::Path,
+    seed: u64,
+) -> Result<(Vec<PathBuf>, f64, usize)> {
+    let dir = staging.join("aberrated");
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot stage {}", dir.display()))?;
+    let targets: Vec<PathBuf> = staged
+        .iter()
+        .map(|f| dir.join(f.file_name().expect("a frame file")))
+        .collect();
+    let mean = super::aberrate::aberrate_frames(model, staged, &targets, seed)?;
+    Ok((targets, mean, model.psf().size()))
 }
 
 /// The viewer's default view without a capture: an orbit around the view that frames the
