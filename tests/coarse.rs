@@ -171,27 +171,13 @@ fn a_run_resumed_across_a_level_end_is_the_uninterrupted_run() {
 /// refused naming the flag.
 #[test]
 fn the_cli_starts_coarse_by_default_and_says_so() {
-    use common::cli::{fails, ok, procedural, s};
+    use common::cli::{fails, ok, plain_train, procedural, s};
     let tmp = tempfile::tempdir().unwrap();
     let scene = tmp.path().join("scene");
     procedural(&scene, 96, 64, 5);
     let train = |out: &str, extra: &[&str]| {
         let out = tmp.path().join(out);
-        let mut args = vec![
-            "train",
-            "--scene",
-            s(&scene),
-            "--out",
-            s(&out),
-            "--mode",
-            "plain",
-            "--iters",
-            "40",
-            "--downsample",
-            "1",
-        ];
-        args.extend_from_slice(extra);
-        let text = ok(&args);
+        let text = ok(&plain_train(&scene, &out, "40", extra));
         let config: serde_json::Value =
             serde_json::from_slice(&std::fs::read(out.join("config.json")).unwrap()).unwrap();
         (text, config)

@@ -6,7 +6,7 @@ mod common;
 
 use std::process::{Output, Stdio};
 
-use common::cli::{metasplat, procedural, s};
+use common::cli::{metasplat, procedural, quick_train, s};
 
 /// Makes what standard output goes to.
 type Sink = fn() -> Stdio;
@@ -65,26 +65,7 @@ fn commands_finish_their_work_when_their_output_cannot_be_written() {
         let o = run_into(&["scene", "info", s(&scene)], *out);
         check(&format!("scene info into {sink}"), &o);
         let run = d.join(format!("run {sink}"));
-        let o = run_into(
-            &[
-                "train",
-                "--scene",
-                s(&scene),
-                "--out",
-                s(&run),
-                "--mode",
-                "plain",
-                "--iters",
-                "20",
-                "--downsample",
-                "1",
-                "--spiral",
-                "0",
-                "--device",
-                "cpu",
-            ],
-            *out,
-        );
+        let o = run_into(&quick_train(&scene, &run, "20", &[]), *out);
         check(&format!("train into {sink}"), &o);
         for f in ["point_cloud.ply", "metrics.json", "config.json"] {
             assert!(run.join(f).is_file(), "train into {sink} left no {f}");
@@ -123,25 +104,10 @@ fn a_run_stopped_before_its_first_checkpoint_starts_again() {
     procedural(&scene, 32, 24, 6);
     let run = d.join("run");
     let train = |extra: &[&str]| {
-        let mut args = vec![
-            "train",
-            "--scene",
-            s(&scene),
-            "--out",
-            s(&run),
-            "--mode",
-            "plain",
-            "--iters",
-            "10",
-            "--downsample",
-            "1",
-            "--spiral",
-            "0",
-            "--device",
-            "cpu",
-        ];
-        args.extend_from_slice(extra);
-        metasplat().args(&args).output().unwrap()
+        metasplat()
+            .args(quick_train(&scene, &run, "10", extra))
+            .output()
+            .unwrap()
     };
     let left_early = || {
         let config = std::fs::read(run.join("config.json")).unwrap();

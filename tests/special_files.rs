@@ -9,7 +9,7 @@ use std::path::Path;
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use common::cli::{metasplat, ok, procedural, s, small_psf};
+use common::cli::{metasplat, ok, plain_train, procedural, quick_train, s, small_psf};
 
 /// Runs the binary, which must fail within a time limit, without a panic, naming `named`.
 fn refused_quickly(args: &[&str], named: &Path) {
@@ -52,23 +52,7 @@ fn special_files_given_as_inputs_are_refused_at_once() {
     let scene = d.join("scene");
     procedural(&scene, 32, 24, 6);
     let run = d.join("run");
-    ok(&[
-        "train",
-        "--scene",
-        s(&scene),
-        "--out",
-        s(&run),
-        "--mode",
-        "plain",
-        "--iters",
-        "10",
-        "--downsample",
-        "1",
-        "--spiral",
-        "0",
-        "--device",
-        "cpu",
-    ]);
+    ok(&quick_train(&scene, &run, "10", &[]));
     let psf = d.join("psf.npy");
     small_psf(&psf);
     let photo = d.join("photo.png");
@@ -92,24 +76,8 @@ fn special_files_given_as_inputs_are_refused_at_once() {
         [link, fifo]
     };
     for f in specials("init.ply") {
-        refused_quickly(
-            &[
-                "train",
-                "--scene",
-                s(&scene),
-                "--out",
-                s(&d.join("r2")),
-                "--mode",
-                "plain",
-                "--iters",
-                "10",
-                "--downsample",
-                "1",
-                "--init",
-                s(&f),
-            ],
-            &f,
-        );
+        let r2 = d.join("r2");
+        refused_quickly(&plain_train(&scene, &r2, "10", &["--init", s(&f)]), &f);
     }
     for f in specials("render.ply") {
         refused_quickly(
@@ -180,22 +148,6 @@ fn special_files_given_as_inputs_are_refused_at_once() {
     for f in specials("checkpoint.bin") {
         std::fs::remove_file(&ckpt).ok();
         std::fs::rename(&f, &ckpt).unwrap();
-        refused_quickly(
-            &[
-                "train",
-                "--scene",
-                s(&scene),
-                "--out",
-                s(&run),
-                "--mode",
-                "plain",
-                "--iters",
-                "20",
-                "--downsample",
-                "1",
-                "--resume",
-            ],
-            &ckpt,
-        );
+        refused_quickly(&plain_train(&scene, &run, "20", &["--resume"]), &ckpt);
     }
 }

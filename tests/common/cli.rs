@@ -80,3 +80,40 @@ pub fn small_psf(out: &Path) {
     args.extend_from_slice(SMALL_LENS);
     ok(&args);
 }
+
+/// `train` in plain mode for `iters` steps on `scene` at its own size into `out`, then
+/// `extra`: the arguments most end-to-end runs start from.
+pub fn plain_train<'a>(
+    scene: &'a Path,
+    out: &'a Path,
+    iters: &'a str,
+    extra: &[&'a str],
+) -> Vec<&'a str> {
+    let mut args = vec![
+        "train",
+        "--scene",
+        s(scene),
+        "--out",
+        s(out),
+        "--mode",
+        "plain",
+        "--iters",
+        iters,
+        "--downsample",
+        "1",
+    ];
+    args.extend_from_slice(extra);
+    args
+}
+
+/// [`plain_train`] with no spiral frames, on the CPU: a run whose outputs a test reads.
+pub fn quick_train<'a>(
+    scene: &'a Path,
+    out: &'a Path,
+    iters: &'a str,
+    extra: &[&'a str],
+) -> Vec<&'a str> {
+    let mut args = plain_train(scene, out, iters, &["--spiral", "0", "--device", "cpu"]);
+    args.extend_from_slice(extra);
+    args
+}
