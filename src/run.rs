@@ -202,6 +202,13 @@ fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String
             config.schedule_iters = Some(base);
         }
     }
+    // `--coarse-to-fine auto` resumes a run as it was made: one made at full size (before
+    // coarse to fine existed, or with it off) stays so, instead of being refused as changed.
+    if let Some(saved) = &saved
+        && request.training.coarse_to_fine == crate::settings::CoarseToFine::Auto
+    {
+        config.coarse = saved.coarse.clone();
+    }
     if let Some(&last) = config.save_at.last()
         && last > config.iters
     {

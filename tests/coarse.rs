@@ -194,6 +194,20 @@ fn the_cli_starts_coarse_by_default_and_says_so() {
     let (text, config) = train("off", &["--coarse-to-fine", "off"]);
     assert!(!text.contains("Coarse to fine"), "{text}");
     assert!(config.get("coarse").is_none(), "{config}");
+    // A run made at full size (as every run before coarse to fine) resumes and extends
+    // under the default, at full size.
+    let off = tmp.path().join("off");
+    let text = ok(&plain_train(&scene, &off, "60", &["--resume"]));
+    assert!(
+        text.contains("Full size throughout: the run resumed was made so."),
+        "{text}"
+    );
+    let config: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(off.join("config.json")).unwrap()).unwrap();
+    assert_eq!(
+        (config.get("coarse"), &config["iters"]),
+        (None, &serde_json::json!(60))
+    );
     // Three levels asked for: 64 px leave room for one of at least 32 px.
     let (text, _) = train("deep", &["--coarse-to-fine", "3:5"]);
     assert!(

@@ -244,6 +244,9 @@ fn step(a: StepArgs) -> Result<()> {
         iters: metasplat::settings::Iters::Steps(a.steps),
         eval_every: Some(0),
         checkpoint_every: Some(0),
+        // The step at the capture's size: coarse to fine would make the first tenth of the
+        // measured steps smaller ones.
+        coarse_to_fine: metasplat::settings::CoarseToFine::Off,
         ..TrainSettings::default()
     };
     let config = TrainConfig::build(&settings, a.data.seed, &data);

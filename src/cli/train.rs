@@ -9,6 +9,7 @@ use metasplat::run;
 use metasplat::settings::{
     Background, CoarseToFine, MaskChoice, RunRequest, StrategyChoice, Toggle,
 };
+use metasplat::train::coarse::Coarse;
 use metasplat::train::config::{Mode, Strategy};
 use metasplat::train::eval::Against;
 use metasplat::train::object::MaskUse;
@@ -129,12 +130,22 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
             (Some(c), _) => println!("{}", c.describe(data.width, data.height)),
             (None, CoarseToFine::Off) => {}
             (None, CoarseToFine::Auto) if matches!(config.strategy, Strategy::Mcmc(_)) => {}
-            (None, _) => println!(
-                "Coarse to fine left out: the {}x{} views leave no level of at least {} px a side.",
-                data.width,
-                data.height,
-                metasplat::train::coarse::MIN_COARSE_SIDE
-            ),
+            (None, asked) => {
+                let levels = match asked {
+                    CoarseToFine::Levels { levels, .. } => levels,
+                    _ => 2,
+                };
+                if Coarse::for_capture(levels, 1, data.width, data.height).is_none() {
+                    println!(
+                        "Coarse to fine left out: the {}x{} views leave no level of at least {} px a side.",
+                        data.width,
+                        data.height,
+                        metasplat::train::coarse::MIN_COARSE_SIDE
+                    );
+                } else {
+                    println!("Full size throughout: the run resumed was made so.");
+                }
+            }
         }
         if let Some(every) = config.recipe.opacity_reset_every {
             println!(
