@@ -108,21 +108,43 @@ fn a_shrunk_view_is_what_its_shrunk_camera_sees() {
     );
 }
 
-/// Coarse steps change the run (the level is used) and cost it nothing in held-out PSNR
-/// (both runs gain about 1.2 dB over the blurred photos at this size).
+/// Coarse steps change the run (the level is used, with its share of the splat budget) and
+/// cost it nothing in held-out PSNR (both runs gain about 1.2 dB over the blurred photos at
+/// this size).
 #[test]
 fn a_coarse_start_trains_as_well_as_the_full_size_run() {
     let data = load(Mode::Aware);
     let score = |coarse: u64| {
         let cfg = config(&data, 600, coarse);
-        let out = train::train(&cfg, &data, &Device::Cpu, None, false, &mut |_| {}).unwrap();
+        // (step, splats) after every densification.
+        let mut counts = Vec::new();
+        let out = train::train(&cfg, &data, &Device::Cpu, None, false, &mut |e| {
+            if let train::Event::Densified { step, splats, .. } = e {
+                counts.push((step, splats));
+            }
+        })
+        .unwrap();
         let m = eval::evaluate(&out.model, &data.test, &out.settings, &Device::Cpu, None)
             .unwrap()
             .unwrap();
-        (out.model, m.mean_psnr)
+        (out.model, m.mean_psnr, counts, cfg.max_splats)
     };
-    let (full_model, full) = score(0);
-    let (coarse_model, coarse) = score(200);
+    let (full_model, full, full_counts, budget) = score(0);
+    let (coarse_model, coarse, coarse_counts, _) = score(200);
+    // At full size densification fills the budget at once; at the 2x level a quarter of it
+    // holds the splats below what they started with, and they grow once at full size.
+    assert_eq!(full_counts.first().map(|c| c.1), Some(budget));
+    let (during, after): (Vec<&(u64, usize)>, Vec<_>) =
+        coarse_counts.iter().partition(|c| c.0 < 200);
+    let start = during[0].1;
+    assert!(
+        start < budget && during.iter().all(|c| c.1 <= start),
+        "the splats grew during the level: {coarse_counts:?}"
+    );
+    assert!(
+        after.iter().any(|c| c.1 > start),
+        "no growth at full size: {coarse_counts:?}"
+    );
     let observed = data
         .test
         .iter()
