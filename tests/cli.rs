@@ -4,7 +4,7 @@ mod common;
 
 use std::path::Path;
 
-use common::cli::{SMALL_LENS, fails, ok, procedural, s, small_psf};
+use common::cli::{SMALL_LENS, fails, ok, procedural, quick_train, s, small_psf};
 
 /// `scene aberrate` of `clean` through `psf` into `out`, at full resolution.
 fn aberrate(clean: &Path, psf: &Path, out: &Path) {
@@ -1776,25 +1776,10 @@ fn resume_with_more_iters_extends_a_run_as_one_extension_would() {
     let clean = d.join("clean");
     procedural(&clean, 48, 32, 9);
     let train = |out: &Path, iters: &str, extra: &[&str]| {
-        let mut args = vec![
-            "train",
-            "--scene",
-            s(&clean),
-            "--out",
-            s(out),
-            "--mode",
-            "plain",
-            "--iters",
-            iters,
-            "--downsample",
-            "1",
-            "--spiral",
-            "0",
-            "--device",
-            "cpu",
-        ];
-        args.extend(extra);
-        args.iter().map(|a| a.to_string()).collect::<Vec<_>>()
+        quick_train(&clean, out, iters, extra)
+            .iter()
+            .map(|a| a.to_string())
+            .collect::<Vec<_>>()
     };
     let (a, b) = (d.join("a"), d.join("b"));
     ok(&train(&a, "200", &[]));

@@ -250,7 +250,7 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
         overwrite: a.overwrite,
         strategy: metasplat::settings::StrategyChoice::Auto,
         mask_mode: metasplat::settings::MaskChoice::Auto,
-        coarse_to_fine: metasplat::settings::TrainSettings::default().coarse_to_fine,
+        coarse_to_fine: metasplat::settings::CoarseToFine::Auto,
         ceiling: false,
         resume: a.resume,
         keep_distortion: a.keep_distortion,

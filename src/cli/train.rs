@@ -6,9 +6,7 @@ use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
 use metasplat::outputs::{self, RunSummary};
 use metasplat::run;
-use metasplat::settings::{
-    Background, CoarseToFine, MaskChoice, RunRequest, StrategyChoice, Toggle,
-};
+use metasplat::settings::{Background, MaskChoice, RunRequest, StrategyChoice, Toggle};
 use metasplat::train::coarse::Coarse;
 use metasplat::train::config::{Mode, Strategy};
 use metasplat::train::eval::Against;
@@ -126,26 +124,19 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
                 }
             );
         }
-        match (&config.coarse, t.coarse_to_fine) {
-            (Some(c), _) => println!("{}", c.describe(data.width, data.height)),
-            (None, CoarseToFine::Off) => {}
-            (None, CoarseToFine::Auto) if matches!(config.strategy, Strategy::Mcmc(_)) => {}
-            (None, asked) => {
-                let levels = match asked {
-                    CoarseToFine::Levels { levels, .. } => levels,
-                    _ => 2,
-                };
-                if Coarse::for_capture(levels, 1, data.width, data.height).is_none() {
-                    println!(
-                        "Coarse to fine left out: the {}x{} views leave no level of at least {} px a side.",
-                        data.width,
-                        data.height,
-                        metasplat::train::coarse::MIN_COARSE_SIDE
-                    );
-                } else {
-                    println!("Full size throughout: the run resumed was made so.");
-                }
-            }
+        let asked = t
+            .coarse_to_fine
+            .levels_for(matches!(config.strategy, Strategy::Mcmc(_)));
+        match &config.coarse {
+            Some(c) => println!("{}", c.describe(data.width, data.height)),
+            None if asked == 0 => {}
+            None if Coarse::for_capture(asked, 1, data.width, data.height).is_none() => println!(
+                "Coarse to fine left out: the {}x{} views leave no level of at least {} px a side.",
+                data.width,
+                data.height,
+                metasplat::train::coarse::MIN_COARSE_SIDE
+            ),
+            None => println!("Full size throughout: the run resumed was made so."),
         }
         if let Some(every) = config.recipe.opacity_reset_every {
             println!(

@@ -137,13 +137,7 @@ impl Level {
             .as_ref()
             .map(|m| m.shrunk(factor as usize))
             .transpose()?;
-        let object = ObjectTargets::build(
-            config,
-            &train,
-            imaging.as_ref(),
-            data.composited_over,
-            (width, height),
-        )?;
+        let object = ObjectTargets::build(config, &train, imaging.as_ref(), data.composited_over)?;
         Ok(Level {
             factor,
             width,

@@ -6,7 +6,7 @@ use splat::optim::LearningRates;
 
 pub use crate::settings::Mode;
 use crate::settings::{
-    Background, CoarseToFine, Iters, LambdaFade, MaskChoice, StrategyChoice, Toggle, TrainSettings,
+    Background, Iters, LambdaFade, MaskChoice, StrategyChoice, Toggle, TrainSettings,
 };
 use crate::train::coarse::Coarse;
 use crate::train::data::Dataset;
@@ -544,18 +544,15 @@ impl TrainConfig {
                 at.dedup();
                 at
             },
-            coarse: {
-                let tenth = (iters / 10).max(1);
-                let (levels, steps) = match settings.coarse_to_fine {
-                    CoarseToFine::Off => (0, tenth),
-                    // MCMC starts at its budget: smaller views would save little of a step,
-                    // and at 1000 steps the all-around scene lost 0.4 dB with them.
-                    CoarseToFine::Auto if mcmc => (0, tenth),
-                    CoarseToFine::Auto => (2, tenth),
-                    CoarseToFine::Levels { levels, steps } => (levels, steps.unwrap_or(tenth)),
-                };
-                Coarse::for_capture(levels, steps, data.width, data.height)
-            },
+            coarse: Coarse::for_capture(
+                settings.coarse_to_fine.levels_for(mcmc),
+                settings
+                    .coarse_to_fine
+                    .steps()
+                    .unwrap_or((iters / 10).max(1)),
+                data.width,
+                data.height,
+            ),
             recipe,
             stop: None,
         };

@@ -316,27 +316,23 @@ impl<'a> Run<'a> {
     }
 
     /// The objective step `step` minimises (λ may fade), through the PSF grid as refined so
-    /// far when it is.
-    fn objective_at<'b>(&'b self, step: u64, psf: Option<&'b PsfRefinement>) -> Objective<'b> {
-        Objective {
-            lambda: self.config.lambda_at(step),
-            imaging: psf.map(PsfRefinement::imaging).or(self.objective.imaging),
-            ..self.objective
-        }
-    }
-
-    /// [`Self::objective_at`] at a coarse `level`: its size and its shrunk lens (a grid being
+    /// far when it is; at a coarse `level`, at its size through its shrunk lens (a grid being
     /// refined is refined at full size only).
-    fn objective_at_level<'b>(
+    fn objective_at<'b>(
         &'b self,
         step: u64,
         psf: Option<&'b PsfRefinement>,
         level: Option<&'b coarse::Level>,
     ) -> Objective<'b> {
+        let lambda = self.config.lambda_at(step);
         match level {
-            None => self.objective_at(step, psf),
+            None => Objective {
+                lambda,
+                imaging: psf.map(PsfRefinement::imaging).or(self.objective.imaging),
+                ..self.objective
+            },
             Some(l) => Objective {
-                lambda: self.config.lambda_at(step),
+                lambda,
                 imaging: l.imaging.as_ref(),
                 width: l.width,
                 height: l.height,
@@ -373,7 +369,7 @@ impl<'a> Run<'a> {
         psf: Option<&'b PsfRefinement>,
     ) -> impl FnMut(&Gaussians, u32) -> Result<f64> + 'b {
         let level = self.level_at(step);
-        let objective = self.objective_at_level(step, psf, level);
+        let objective = self.objective_at(step, psf, level);
         move |model, degree| {
             let mut sum = 0.0;
             for &i in &self.probe {
@@ -412,7 +408,7 @@ impl<'a> Run<'a> {
             .refine_psf
             .is_some_and(|r| p.psf.is_some() && level.is_none() && r.updates_at(p.step));
         let (parts, v, psf_gradient) = self
-            .objective_at_level(p.step, p.psf.as_ref(), level)
+            .objective_at(p.step, p.psf.as_ref(), level)
             .evaluate_with_psf(&out.color, view, refine_now)?;
         if !parts.total.is_finite() {
             return Err(at(

@@ -75,18 +75,16 @@ impl ObjectTargets {
             &data.train,
             data.imaging.as_ref(),
             data.composited_over,
-            (data.width, data.height),
         )
     }
 
-    /// [`Self::for_run`] for any training views of `size` and the lens at their scale (a
+    /// [`Self::for_run`] for any training views and the lens planned for their size (a
     /// coarse level's, [`crate::train::coarse`]).
     pub fn build(
         config: &TrainConfig,
         train: &[View],
         imaging: Option<&aberration::ImagingModel>,
         composited_over: Option<[f32; 3]>,
-        (width, height): (u32, u32),
     ) -> Result<Option<Self>> {
         if config.masks != Some(MaskUse::Object) {
             return Ok(None);
@@ -112,7 +110,7 @@ impl ObjectTargets {
                             .transpose()
                     })
                     .collect::<std::result::Result<Vec<_>, _>>()?;
-                let n = (width * height) as usize;
+                let n = imaging.plan().width() * imaging.plan().height();
                 (spread, imaging.blur_pixels(&vec![Vec3::ONE; n])?)
             }
             _ => (Vec::new(), Vec::new()),
