@@ -30,7 +30,7 @@ pub enum TrainError {
     #[error("interrupted: {0}")]
     Interrupted(String),
     #[error(transparent)]
-    Plot(#[from] crate::plot::PlotError),
+    Plot(#[from] crate::output::plot::PlotError),
     /// What was being done when `source` went wrong.
     #[error("{what}")]
     Context {

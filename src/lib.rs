@@ -1,23 +1,15 @@
 //! metasplat: clean Gaussian-splat scenes from metalens-aberrated photos.
 //!
 //! The library behind the `metasplat` binary: the aberration-aware training loop
-//! ([`train`]), one run assembled from a request ([`run`]), the initial splats ([`init`]), and the
-//! conversions between the member crates' types ([`convert`]).
+//! ([`train`]), one run assembled from a request ([`run`]) with its settings ([`settings`]),
+//! the splat side of a run ([`splats`]: initial splats, the procedural scenes, the renderer
+//! it runs on), and what a run writes and shows ([`output`]).
 
-pub mod bench;
-pub mod convert;
-pub mod device;
 pub mod error;
-pub mod flags;
-pub mod guard;
-pub mod init;
-pub mod outputs;
-pub mod plot;
-pub mod procedural;
+pub mod output;
 pub mod run;
 pub mod settings;
-pub mod spiral;
+pub mod splats;
 pub mod train;
-pub mod view;
 
 pub use error::{Result, TrainError};

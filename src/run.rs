@@ -3,10 +3,10 @@
 //! and recorded) and the run itself with its outputs. What the run is asked to do is a
 //! [`RunRequest`] ([`crate::settings`]).
 
-use crate::device::Device;
 use crate::error::{Result, TrainError};
-use crate::outputs::{self, CHECKPOINT_FILE, RunSummary};
+use crate::output::{self, CHECKPOINT_FILE, RunSummary};
 use crate::settings::{LambdaFade, Mode, RestorerChoice, RunRequest};
+use crate::splats::device::Device;
 use crate::train::config::TrainConfig;
 use crate::train::data::{self, Dataset};
 use crate::train::{self, Event, Outcome};
@@ -33,12 +33,12 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
     let request = &restartable(request);
     let (data, config, device, device_note) = checked(request)?;
     let out = &request.out;
-    let lock = outputs::prepare_run_dir(out, "train")
+    let lock = output::prepare_run_dir(out, "train")
         .map_err(|e| e.context(format!("cannot use {} as the run folder", out.display())))?;
     if request.overwrite {
-        outputs::clear_run(out)?;
+        output::clear_run(out)?;
     }
-    outputs::write_json(&out.join(outputs::CONFIG_FILE), &config)?;
+    output::write_json(&out.join(output::CONFIG_FILE), &config)?;
     Ok(PreparedRun {
         request: request.clone(),
         data,
@@ -63,7 +63,7 @@ pub fn check(request: &RunRequest) -> Result<()> {
 /// neither the same command nor `--resume` is refused for it.
 fn restartable(request: &RunRequest) -> RunRequest {
     let out = &request.out;
-    let kept: Vec<&str> = outputs::RUN_FILES
+    let kept: Vec<&str> = output::RUN_FILES
         .iter()
         .copied()
         .filter(|f| out.join(f.trim_end_matches('/')).exists())
@@ -73,12 +73,12 @@ fn restartable(request: &RunRequest) -> RunRequest {
         .into_iter()
         .flatten()
         .flatten()
-        .any(|e| e.file_name().to_str().is_some_and(outputs::is_snapshot));
-    let stopped_early = kept.contains(&outputs::CONFIG_FILE)
+        .any(|e| e.file_name().to_str().is_some_and(output::is_snapshot));
+    let stopped_early = kept.contains(&output::CONFIG_FILE)
         && !snapshots
         && kept
             .iter()
-            .all(|f| [outputs::CONFIG_FILE, outputs::LOG_FILE].contains(f));
+            .all(|f| [output::CONFIG_FILE, output::LOG_FILE].contains(f));
     let mut request = request.clone();
     if stopped_early && !request.overwrite {
         request.resume = false;
@@ -101,9 +101,9 @@ fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String
     if let Some(i) = &request.training.init {
         inputs.push(("--init", i));
     }
-    let mut inputs = crate::guard::Inputs::of(&inputs);
+    let mut inputs = crate::output::guard::Inputs::of(&inputs);
     inputs.refuse("--out", out)?;
-    crate::guard::refuse_file_as_folder("--out", out)?;
+    crate::output::guard::refuse_file_as_folder("--out", out)?;
     check_run_folder(request)?;
     let (device, device_note) = Device::choose(request.device)?;
     // Every input is checked before the run folder is made.
@@ -284,7 +284,7 @@ fn check_run_folder(request: &RunRequest) -> Result<()> {
             format!("--resume: there is no {CHECKPOINT_FILE} to continue"),
         ));
     }
-    let existing = outputs::RUN_FILES.iter().find(|f| out.join(f).exists());
+    let existing = output::RUN_FILES.iter().find(|f| out.join(f).exists());
     if let Some(f) = existing
         && !request.resume
         && !request.overwrite
@@ -327,10 +327,10 @@ impl PreparedRun {
             // The log file grows with the run, so `tail -f` follows it; only a cache of what
             // the run writes at its end, so a failure here is not the run's.
             if let Event::Logged { rows } = &e {
-                let _ = outputs::write_log_csv(&out.join(outputs::LOG_FILE), rows);
+                let _ = output::write_log_csv(&out.join(output::LOG_FILE), rows);
             }
             if let Event::Snapshot { step, model } = &e {
-                let path = out.join(outputs::snapshot_file(*step));
+                let path = out.join(output::snapshot_file(*step));
                 if let Err(err) = splat::formats::ply::write_ply(&path, model)
                     && snapshot_failure.is_none()
                 {
@@ -347,7 +347,7 @@ impl PreparedRun {
             self.request.resume,
             &mut events,
         )?;
-        let summary = outputs::write_run(
+        let summary = output::write_run(
             out,
             &self.data,
             &self.config,
@@ -355,7 +355,7 @@ impl PreparedRun {
             self.request.spiral as usize,
             &self.device,
         )
-        .and_then(|s| outputs::plot_log(out, &outcome.log, s.observed_psnr).map(|_| s))
+        .and_then(|s| output::plot_log(out, &outcome.log, s.observed_psnr).map(|_| s))
         .map_err(|e| match e {
             // Stopped while the outputs were written: the trained splats are in the last
             // checkpoint, and a resume only writes the files.

@@ -3,9 +3,9 @@
 //! the model at a short length.
 
 use glam::DVec3;
-use metasplat::device::Device;
-use metasplat::procedural::ProceduralOptions;
 use metasplat::settings::{DataOptions, StrategyChoice, TrainSettings};
+use metasplat::splats::device::Device;
+use metasplat::splats::procedural::ProceduralOptions;
 use metasplat::train::config::{Mode, Strategy, TrainConfig};
 use metasplat::train::data::{self, Dataset};
 use metasplat::train::{self, Event};
@@ -25,7 +25,7 @@ fn around(dir: &std::path::Path) -> std::path::PathBuf {
         views: 12,
         seed: 2,
     };
-    metasplat::procedural::write_capture_around(&dir.join("around"), &o).unwrap()
+    metasplat::splats::procedural::write_capture_around(&dir.join("around"), &o).unwrap()
 }
 
 fn config(data: &Dataset, strategy: StrategyChoice, iters: u64) -> TrainConfig {

@@ -4,8 +4,8 @@
 
 mod common;
 
-use metasplat::device::Device;
 use metasplat::settings::DataOptions;
+use metasplat::splats::device::Device;
 use metasplat::train::config::{Mode, TrainConfig};
 use metasplat::train::data;
 
@@ -28,7 +28,7 @@ fn the_step_benchmark_times_the_training_step() {
         ..Default::default()
     };
     let cfg = TrainConfig::build(&settings, 0, &data);
-    let t = metasplat::bench::time_steps(&data, &cfg, &Device::Cpu, 1).unwrap();
+    let t = metasplat::train::timing::time_steps(&data, &cfg, &Device::Cpu, 1).unwrap();
     let names: Vec<&str> = t.phases.iter().map(|p| p.0).collect();
     for want in [
         "render forward",

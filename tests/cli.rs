@@ -1472,7 +1472,7 @@ fn render_finds_the_image_folder_a_capture_has() {
     procedural(&scene, 48, 32, 3);
     assert!(scene.join("images").is_dir() && !scene.join("images_8").exists());
     let ply = d.join("truth.ply");
-    splat::formats::ply::write_ply(&ply, &metasplat::procedural::ground_truth(0)).unwrap();
+    splat::formats::ply::write_ply(&ply, &metasplat::splats::procedural::ground_truth(0)).unwrap();
     let frames = d.join("frames");
     let text = ok(&[
         "render",
@@ -1817,7 +1817,7 @@ fn render_writes_a_video_with_or_without_ffmpeg() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let ply = d.join("scene.ply");
-    splat::formats::ply::write_ply(&ply, &metasplat::procedural::ground_truth(0)).unwrap();
+    splat::formats::ply::write_ply(&ply, &metasplat::splats::procedural::ground_truth(0)).unwrap();
     let gif = d.join("orbit.gif");
     let text = ok(&[
         "render",

@@ -7,11 +7,12 @@ mod common;
 use std::sync::OnceLock;
 
 use glam::Vec3;
-use metasplat::device::Device;
 use metasplat::settings::{DataOptions, Iters, Mode, TrainSettings};
-use metasplat::train::coarse::{Coarse, CoarseLevel, shrink_pixels, shrink_view};
+use metasplat::splats::device::Device;
+use metasplat::train::coarse::{Coarse, CoarseLevel};
 use metasplat::train::config::TrainConfig;
 use metasplat::train::data::{self, Dataset, View};
+use metasplat::train::levels::{shrink_pixels, shrink_view};
 use metasplat::train::{self, eval};
 use splat::{RenderSettings, render};
 
@@ -59,8 +60,8 @@ fn psnr(a: &[Vec3], b: &[Vec3]) -> f64 {
 #[test]
 fn a_shrunk_view_is_what_its_shrunk_camera_sees() {
     let data = load(Mode::Aware);
-    let cloud = metasplat::init::within_budget(&data.points, 4000, 0);
-    let model = metasplat::init::from_points(&cloud, 0);
+    let cloud = metasplat::splats::init::within_budget(&data.points, 4000, 0);
+    let model = metasplat::splats::init::from_points(&cloud, 0);
     let settings = RenderSettings {
         sh_degree: 0,
         background: Vec3::ZERO,

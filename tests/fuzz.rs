@@ -125,13 +125,13 @@ fn valid() -> &'static Valid {
         aberration::PsfGrid::delta(2, 3).save_npy(&psf).unwrap();
 
         // A 3-view capture, trained 4 steps for a checkpoint.
-        let o = metasplat::procedural::ProceduralOptions {
+        let o = metasplat::splats::procedural::ProceduralOptions {
             width: 16,
             height: 12,
             views: 3,
             seed: 1,
         };
-        let scene = metasplat::procedural::write_capture(&d.join("scene"), &o).unwrap();
+        let scene = metasplat::splats::procedural::write_capture(&d.join("scene"), &o).unwrap();
         let options = metasplat::settings::DataOptions {
             downsample: 1,
             ..Default::default()
@@ -150,7 +150,7 @@ fn valid() -> &'static Valid {
         metasplat::train::train(
             &cfg,
             &data,
-            &metasplat::device::Device::Cpu,
+            &metasplat::splats::device::Device::Cpu,
             Some(&ckpt),
             false,
             &mut |_| {},

@@ -8,13 +8,14 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use glam::Vec3;
-use metasplat::convert::{pixels_to_rgb, splat_camera};
-use metasplat::device::Device;
-use metasplat::procedural::{ProceduralOptions, cameras_around, ground_truth_around};
+use metasplat::settings::MaskUse;
 use metasplat::settings::{DataOptions, MaskChoice, TrainSettings};
+use metasplat::splats::convert::{pixels_to_rgb, splat_camera};
+use metasplat::splats::device::Device;
+use metasplat::splats::procedural::{ProceduralOptions, cameras_around, ground_truth_around};
 use metasplat::train::config::{Mode, TrainConfig};
 use metasplat::train::data::{self, View};
-use metasplat::train::object::{MaskUse, ObjectTargets, over};
+use metasplat::train::object::{ObjectTargets, over};
 use metasplat::train::objective::Objective;
 use metasplat::train::{self, eval};
 use splat::RenderSettings;
@@ -541,7 +542,8 @@ fn the_viewers_comparison_scores_an_object_capture_on_the_object() {
         &|| {},
     )
     .unwrap();
-    let mut comparison = metasplat::view::CaptureComparison::open(&copy, &options()).unwrap();
+    let mut comparison =
+        metasplat::output::view::CaptureComparison::open(&copy, &options()).unwrap();
     let data = data::load(&copy, Mode::Plain, &options()).unwrap();
     let i = data.capture.split.train[0];
     let view = &data.train[0];

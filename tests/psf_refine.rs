@@ -7,9 +7,9 @@ mod common;
 use std::sync::OnceLock;
 
 use common::cli::{fails, ok, s};
-use metasplat::device::Device;
-use metasplat::procedural::ProceduralOptions;
 use metasplat::settings::DataOptions;
+use metasplat::splats::device::Device;
+use metasplat::splats::procedural::ProceduralOptions;
 use metasplat::train::config::{Mode, TrainConfig};
 use metasplat::train::data::{self, Dataset};
 use metasplat::train::psf_refine::PsfRefineConfig;
@@ -131,18 +131,18 @@ fn the_run_folder_holds_the_refined_grid_and_the_flag_needs_aware() {
         "--refine-psf",
     ]);
     let grid =
-        aberration::PsfGrid::load_npy(&run.join(metasplat::outputs::PSF_REFINED_FILE)).unwrap();
+        aberration::PsfGrid::load_npy(&run.join(metasplat::output::PSF_REFINED_FILE)).unwrap();
     let data = data::load(&fixture().aberrated, Mode::Aware, &options()).unwrap();
     let supplied = data.imaging.as_ref().unwrap().psf();
     assert_eq!(
         (grid.grid(), grid.size()),
         (supplied.grid(), supplied.size())
     );
-    let picture = image::open(run.join(metasplat::outputs::PSF_REFINED_PICTURE)).unwrap();
+    let picture = image::open(run.join(metasplat::output::PSF_REFINED_PICTURE)).unwrap();
     assert!(picture.height() > picture.width() / 3, "two grids stacked");
     assert!(out.contains("PSF"), "{out}");
     let metrics: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(run.join(metasplat::outputs::METRICS_FILE)).unwrap())
+        serde_json::from_slice(&std::fs::read(run.join(metasplat::output::METRICS_FILE)).unwrap())
             .unwrap();
     assert!(metrics["psf_change"].as_f64().is_some_and(|c| c > 0.0));
     // The bare flag learns the warp, and says what it learnt.

@@ -7,9 +7,9 @@ use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use aberration::optics::{SimConfig, simulate_grid};
-use metasplat::device::Device;
-use metasplat::procedural::ProceduralOptions;
 use metasplat::settings::DataOptions;
+use metasplat::splats::device::Device;
+use metasplat::splats::procedural::ProceduralOptions;
 use metasplat::train::config::{Mode, Strategy, TrainConfig};
 use metasplat::train::data::{self, Dataset};
 use metasplat::train::eval::Against;
@@ -108,7 +108,7 @@ fn training_on_the_gpu_reaches_the_cpu_result() {
 }
 
 fn gpu_device() -> Option<Device> {
-    match Device::choose(metasplat::device::DeviceChoice::Gpu) {
+    match Device::choose(metasplat::splats::device::DeviceChoice::Gpu) {
         Ok((d, note)) => {
             eprintln!("{note}");
             Some(d)
@@ -459,7 +459,10 @@ fn bad_input_is_reported_clearly() {
         ..options()
     };
     let data = data::load(&f.clean, Mode::Aware, &opts).unwrap();
-    assert_eq!(data.evaluated_against(), Some(Against::Photos));
+    assert_eq!(
+        metasplat::train::eval::reference(&data.test),
+        Some(Against::Photos)
+    );
     let cfg = config(Mode::Aware, 20, &data);
     let out = train::train(&cfg, &data, &Device::Cpu, None, false, &mut |_| {}).unwrap();
     let m =
@@ -482,7 +485,10 @@ fn bad_input_is_reported_clearly() {
     );
     // The aberrated capture has clean copies, and is compared with them.
     let aberrated = data::load(&f.aberrated, Mode::Aware, &options()).unwrap();
-    assert_eq!(aberrated.evaluated_against(), Some(Against::Clean));
+    assert_eq!(
+        metasplat::train::eval::reference(&aberrated.test),
+        Some(Against::Clean)
+    );
 
     // Aware mode needs a PSF: a clean capture without --psf is refused, naming the folder.
     let err = data::load(&f.clean, Mode::Aware, &options())
@@ -515,7 +521,7 @@ fn bad_input_is_reported_clearly() {
     // An unwritable run folder fails before any training.
     let blocker = f._dir.path().join("a-file");
     std::fs::write(&blocker, b"x").unwrap();
-    let err = metasplat::outputs::prepare_run_dir(&blocker.join("run"), "train")
+    let err = metasplat::output::prepare_run_dir(&blocker.join("run"), "train")
         .err()
         .unwrap()
         .to_string();
@@ -563,9 +569,11 @@ fn a_capture_taken_all_around_gets_a_larger_budget_and_mcmc_or_resets() {
         views: 12,
         seed: 2,
     };
-    let facing = metasplat::procedural::write_capture(&dir.path().join("facing"), &o).unwrap();
+    let facing =
+        metasplat::splats::procedural::write_capture(&dir.path().join("facing"), &o).unwrap();
     let around =
-        metasplat::procedural::write_capture_around(&dir.path().join("around"), &o).unwrap();
+        metasplat::splats::procedural::write_capture_around(&dir.path().join("around"), &o)
+            .unwrap();
     let build = |capture: &std::path::Path, strategy| {
         let data = data::load(capture, Mode::Plain, &options()).unwrap();
         let settings = metasplat::settings::TrainSettings {
@@ -782,7 +790,7 @@ fn the_log_file_holds_every_evaluation_while_the_run_trains() {
     request.training.eval_every = Some(10);
     request.spiral = 0;
     let mut prepared = metasplat::run::prepare(&request).unwrap();
-    let log = out.join(metasplat::outputs::LOG_FILE);
+    let log = out.join(metasplat::output::LOG_FILE);
     let mut seen = Vec::new();
     prepared
         .run(&mut |e| {
@@ -946,7 +954,8 @@ fn a_distorted_capture_trains_better_undistorted_at_load() {
         views: 12,
         seed: 2,
     };
-    let clean = metasplat::procedural::write_capture(&dir.path().join("clean"), &o).unwrap();
+    let clean =
+        metasplat::splats::procedural::write_capture(&dir.path().join("clean"), &o).unwrap();
     let open = |d: &std::path::Path| {
         scenes::open(
             d,

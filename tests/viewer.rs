@@ -11,12 +11,14 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output};
 use std::sync::OnceLock;
 
-use metasplat::procedural::{ProceduralOptions, ground_truth};
+use metasplat::output::view::{
+    CLEAN, CaptureComparison, PHOTO, REBLURRED, REFINED, RENDER, RESTORED,
+};
 use metasplat::settings::{self, DataOptions};
+use metasplat::splats::procedural::{ProceduralOptions, ground_truth};
 use metasplat::train::config::Mode;
 use metasplat::train::data;
 use metasplat::train::objective::Objective;
-use metasplat::view::{CLEAN, CaptureComparison, PHOTO, REBLURRED, REFINED, RENDER, RESTORED};
 
 const W: u32 = 128;
 const H: u32 = 96;
@@ -466,12 +468,12 @@ fn a_window_with_a_free_camera_shows_the_headless_render() {
 
 #[test]
 fn a_run_being_followed_shows_its_newest_model() {
-    use metasplat::view::RunWatch;
+    use metasplat::output::view::RunWatch;
     let dir = tempfile::tempdir().unwrap();
     let mut watch = RunWatch::new(dir.path());
     // Nothing yet: nothing to show.
     assert!(watch.check().is_none());
-    let ply = dir.path().join(metasplat::outputs::PLY_FILE);
+    let ply = dir.path().join(metasplat::output::PLY_FILE);
     let g = ground_truth(3);
     splat::formats::ply::write_ply(&ply, &g).unwrap();
     let (first, what) = watch.check().unwrap().unwrap();
@@ -481,7 +483,7 @@ fn a_run_being_followed_shows_its_newest_model() {
     assert!(watch.check().is_none());
     // A newer file replaces it (a later mtime; file systems may round to a second).
     std::thread::sleep(std::time::Duration::from_millis(1100));
-    let other = metasplat::procedural::ground_truth_around(0);
+    let other = metasplat::splats::procedural::ground_truth_around(0);
     splat::formats::ply::write_ply(&ply, &other).unwrap();
     let (second, _) = watch.check().unwrap().unwrap();
     assert_eq!(second.len(), other.len());
@@ -504,7 +506,7 @@ fn a_run_folder_or_in_opens_as_the_file_does() {
     let dir = tempfile::tempdir().unwrap();
     let run = dir.path().join("run");
     std::fs::create_dir_all(&run).unwrap();
-    std::fs::copy(&f.ply, run.join(metasplat::outputs::PLY_FILE)).unwrap();
+    std::fs::copy(&f.ply, run.join(metasplat::output::PLY_FILE)).unwrap();
     let model = ground_truth(3);
     let (c, _) = splat::camera::scene_bounds(&model.means).unwrap();
     let pose = format!(

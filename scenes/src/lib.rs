@@ -19,6 +19,7 @@ pub mod nerfstudio;
 pub mod photo_cache;
 pub mod point_ply;
 pub mod points;
+pub mod spiral;
 pub mod split;
 pub mod summary;
 pub mod undistort;

@@ -35,7 +35,7 @@ pub struct ImagingArgs {
     #[arg(long)]
     pub no_noise: bool,
     /// Sensor size (px) the grid spans; default G·K.
-    #[arg(long, value_parser = metasplat::flags::sensor_px)]
+    #[arg(long, value_parser = metasplat::settings::values::sensor_px)]
     pub sensor_px: Option<usize>,
 }
 
@@ -84,8 +84,12 @@ pub fn run(a: AberrateArgs) -> Result<()> {
     if a.input.is_dir() {
         return run_folder(a);
     }
-    metasplat::guard::refuse_overwrite("--out", &a.out, &[("--in", &a.input), ("--psf", &a.psf)])?;
-    metasplat::guard::refuse_unwritable_image("--out", &a.out)?;
+    metasplat::output::guard::refuse_overwrite(
+        "--out",
+        &a.out,
+        &[("--in", &a.input), ("--psf", &a.psf)],
+    )?;
+    metasplat::output::guard::refuse_unwritable_image("--out", &a.out)?;
     let psf = PsfGrid::load_npy(&a.psf)?;
     let clean = Image::load(&a.input)?;
     let im = &a.imaging;

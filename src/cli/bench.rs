@@ -5,12 +5,12 @@
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
-use metasplat::bench::{StepTimes, time_steps};
-use metasplat::device::{Device, DeviceChoice};
 use metasplat::settings::DataOptions;
 use metasplat::settings::TrainSettings;
+use metasplat::splats::device::{Device, DeviceChoice};
 use metasplat::train::config::{Mode, TrainConfig};
 use metasplat::train::data;
+use metasplat::train::timing::{StepTimes, time_steps};
 use restore::net::kernels::Kernels;
 use restore::speed::{Sample, Workload, time_workload};
 use restore::{Preset, RestorerConfig};

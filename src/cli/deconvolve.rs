@@ -20,13 +20,13 @@ pub struct DeconvolveArgs {
     pub out: PathBuf,
     /// A single fixed Wiener constant (default: the bank's largest, which improves typical
     /// photos at the paper's noise; the bank's median often makes them worse).
-    #[arg(long, value_parser = metasplat::flags::wiener_k, allow_negative_numbers = true)]
+    #[arg(long, value_parser = metasplat::settings::values::wiener_k, allow_negative_numbers = true)]
     pub k: Option<f32>,
     /// Also write all 13 adaptive filters of the MAFG bank into this directory.
     #[arg(long)]
     pub bank: Option<PathBuf>,
     /// Sensor size (px) the grid was made for; default G·K.
-    #[arg(long, value_parser = metasplat::flags::sensor_px)]
+    #[arg(long, value_parser = metasplat::settings::values::sensor_px)]
     pub sensor_px: Option<usize>,
     /// A clean image to report PSNR against (input and every output).
     #[arg(long)]
@@ -38,11 +38,11 @@ pub fn run(a: DeconvolveArgs) -> Result<()> {
     if let Some(r) = &a.reference {
         inputs.push(("--reference", r));
     }
-    metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
-    metasplat::guard::refuse_unwritable_image("--out", &a.out)?;
+    metasplat::output::guard::refuse_overwrite("--out", &a.out, &inputs)?;
+    metasplat::output::guard::refuse_unwritable_image("--out", &a.out)?;
     if let Some(bank) = &a.bank {
-        metasplat::guard::refuse_overwrite("--bank", bank, &inputs)?;
-        metasplat::guard::refuse_file_as_folder("--bank", bank)?;
+        metasplat::output::guard::refuse_overwrite("--bank", bank, &inputs)?;
+        metasplat::output::guard::refuse_file_as_folder("--bank", bank)?;
     }
     let native = PsfGrid::load_npy(&a.psf)?;
     let blurred = Image::load(&a.input)?;

@@ -8,9 +8,9 @@ use aberration::image::save_rgb8_png;
 use aberration::optics::SimConfig;
 use anyhow::{Context, Result};
 use clap::Args;
-use metasplat::outputs::RunSummary;
-use metasplat::procedural::{ProceduralOptions, write_capture};
+use metasplat::output::RunSummary;
 use metasplat::settings::RunRequest;
+use metasplat::splats::procedural::{ProceduralOptions, write_capture};
 use metasplat::train::config::Mode;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -57,7 +57,7 @@ fn refuse_foreign_folder(out: &Path) -> Result<()> {
     if !out.exists() {
         return Ok(());
     }
-    metasplat::guard::refuse_file_as_folder("--out", out)?;
+    metasplat::output::guard::refuse_file_as_folder("--out", out)?;
     let empty = std::fs::read_dir(out)
         .with_context(|| format!("--out {}", out.display()))?
         .next()
@@ -102,7 +102,11 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let psf_path = a.out.join("psf.npy");
     psf.save_npy(&psf_path)?;
     save_rgb8_png(
-        &metasplat::plot::psf_figure(&psf, Some(cfg.wavelengths_nm), Some(cfg.max_field_deg)),
+        &metasplat::output::plot::psf_figure(
+            &psf,
+            Some(cfg.wavelengths_nm),
+            Some(cfg.max_field_deg),
+        ),
         &a.out.join("psf.png"),
     )?;
 
@@ -150,7 +154,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
             args.spiral = 4;
         }
         let (summary, log) = train_run(&args, true)?;
-        curves.push(metasplat::plot::Series {
+        curves.push(metasplat::output::plot::Series {
             name: format!("3DGS {mode}"),
             points: log
                 .iter()
@@ -161,13 +165,13 @@ pub fn run(a: DemoArgs) -> Result<()> {
     }
     // Both modes on one plot, with the level of the photos they learn from.
     if let Some(observed) = results.first().and_then(|r| r.1.observed_psnr) {
-        curves.push(metasplat::plot::Series {
+        curves.push(metasplat::output::plot::Series {
             name: "aberrated input".into(),
             points: vec![(0.0, observed), (iters as f64, observed)],
         });
     }
     let plot = a.out.join(DEMO_PLOT);
-    metasplat::plot::line_plot(
+    metasplat::output::plot::line_plot(
         &plot,
         "held-out PSNR: plain against aberration-aware 3DGS",
         "training step",
@@ -210,7 +214,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     for (mode, _, dir) in &results {
         println!(
             "{mode}: {} (PLY), {}/test/*_compare.png (photo | render | clean), {}/spiral/",
-            dir.join(metasplat::outputs::PLY_FILE).display(),
+            dir.join(metasplat::output::PLY_FILE).display(),
             dir.display(),
             dir.display()
         );

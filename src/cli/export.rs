@@ -28,7 +28,7 @@ pub fn run(a: ExportArgs) -> Result<()> {
     if !is_checkpoint {
         splat::formats::files::Format::of(&a.input).context("--in")?;
     }
-    metasplat::guard::refuse_overwrite("--out", &a.out, &[("--in", &a.input)])?;
+    metasplat::output::guard::refuse_overwrite("--out", &a.out, &[("--in", &a.input)])?;
     let mut g = if is_checkpoint {
         let state = metasplat::train::checkpoint::load(&a.input)?;
         println!(

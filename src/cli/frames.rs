@@ -45,7 +45,7 @@ impl FrameFolders {
             }
             let mut reads = inputs.to_vec();
             reads.push(("--in", f));
-            metasplat::guard::refuse_overwrite("--out", &t, &reads)?;
+            metasplat::output::guard::refuse_overwrite("--out", &t, &reads)?;
         }
         Ok(folders)
     }

@@ -9,7 +9,6 @@ mod export;
 mod frames;
 mod progress;
 mod psf;
-mod psf_mismatch;
 mod render;
 mod restorer;
 mod scene;

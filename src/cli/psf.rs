@@ -48,25 +48,25 @@ pub struct LensArgs {
     #[arg(long, value_enum, default_value_t = DispersionArg::MetaAtom)]
     pub dispersion: DispersionArg,
     /// Design wavelength (nm) of the hyperbolic profile and of --dispersion scaled.
-    #[arg(long, default_value_t = 452.0, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 452.0, value_parser = metasplat::settings::values::positive, allow_negative_numbers = true)]
     pub design_nm: f64,
     /// Lens aperture diameter (µm).
-    #[arg(long, default_value_t = 500.0, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 500.0, value_parser = metasplat::settings::values::positive, allow_negative_numbers = true)]
     pub aperture_um: f64,
     /// Focal length (µm).
-    #[arg(long, default_value_t = 1000.0, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 1000.0, value_parser = metasplat::settings::values::positive, allow_negative_numbers = true)]
     pub focal_um: f64,
     /// Meta-atom pitch (µm), also the propagation sampling.
-    #[arg(long, default_value_t = 0.35, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 0.35, value_parser = metasplat::settings::values::positive, allow_negative_numbers = true)]
     pub pitch_um: f64,
     /// Side of the angular-spectrum grid in samples.
     #[arg(long, default_value_t = 3000, value_parser = clap::value_parser!(u64).range(16..=8192))]
     pub fft_size: u64,
     /// Sensor pixel at the focal plane (µm): 5.86 µm behind a ×8.1 relay.
-    #[arg(long, default_value_t = 5.86 / 8.1, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 5.86 / 8.1, value_parser = metasplat::settings::values::positive, allow_negative_numbers = true)]
     pub sensor_pitch_um: f64,
     /// Field angle at the grid corners (degrees).
-    #[arg(long, default_value_t = 20.0, value_parser = metasplat::flags::field_angle, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 20.0, value_parser = metasplat::settings::values::field_angle, allow_negative_numbers = true)]
     pub max_field_deg: f64,
     /// Sub-samples per pixel side when integrating the focal plane.
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(1..=16))]
@@ -74,7 +74,7 @@ pub struct LensArgs {
     /// The lens design scaled to this many times its focal length at the same aperture (its
     /// phase scaled inversely, the sensor at the new focal plane): a lens that came out a
     /// little off.
-    #[arg(long, default_value_t = 1.0, value_parser = metasplat::flags::positive, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 1.0, value_parser = metasplat::settings::values::positive, allow_negative_numbers = true)]
     pub focal_scale: f64,
     /// The sensor this far behind the focal plane (µm; negative: in front): defocus.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
@@ -145,16 +145,16 @@ pub fn run(cmd: PsfCommand) -> Result<()> {
         PsfCommand::Simulate(a) => {
             // The lens flags first: the simulation's own refusals name them.
             check_lens(&a.lens.config())?;
-            metasplat::guard::refuse_unwritable_file("--out", &a.out)?;
-            metasplat::guard::refuse_other_extension(
+            metasplat::output::guard::refuse_unwritable_file("--out", &a.out)?;
+            metasplat::output::guard::refuse_other_extension(
                 "--out",
                 &a.out,
                 "npy",
                 "the grid is written as a NumPy array",
             )?;
             if let Some(p) = &a.picture {
-                metasplat::guard::refuse_unwritable_image("--picture", p)?;
-                metasplat::guard::refuse_overwrite("--picture", p, &[("--out", &a.out)])?;
+                metasplat::output::guard::refuse_unwritable_image("--picture", p)?;
+                metasplat::output::guard::refuse_overwrite("--picture", p, &[("--out", &a.out)])?;
             }
             let cfg = a.lens.config();
             let (grid, report) = simulate(&cfg)?;
@@ -162,7 +162,7 @@ pub fn run(cmd: PsfCommand) -> Result<()> {
             println!("wrote {}", a.out.display());
             if let Some(p) = a.picture {
                 save_rgb8_png(
-                    &metasplat::plot::psf_figure(
+                    &metasplat::output::plot::psf_figure(
                         &grid,
                         Some(cfg.wavelengths_nm),
                         Some(cfg.max_field_deg),
@@ -175,10 +175,17 @@ pub fn run(cmd: PsfCommand) -> Result<()> {
             Ok(())
         }
         PsfCommand::Show(a) => {
-            metasplat::guard::refuse_overwrite("--out", &a.out, &[("the PSF file", &a.psf)])?;
-            metasplat::guard::refuse_unwritable_image("--out", &a.out)?;
+            metasplat::output::guard::refuse_overwrite(
+                "--out",
+                &a.out,
+                &[("the PSF file", &a.psf)],
+            )?;
+            metasplat::output::guard::refuse_unwritable_image("--out", &a.out)?;
             let grid = PsfGrid::load_npy(&a.psf)?;
-            save_rgb8_png(&metasplat::plot::psf_figure(&grid, None, None), &a.out)?;
+            save_rgb8_png(
+                &metasplat::output::plot::psf_figure(&grid, None, None),
+                &a.out,
+            )?;
             println!(
                 "{}: {}x{} grid of {} px RGB PSFs; wrote {}",
                 a.psf.display(),

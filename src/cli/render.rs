@@ -4,8 +4,8 @@
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use glam::Vec3;
-use metasplat::device::{Device, DeviceChoice};
-use metasplat::outputs::render_named;
+use metasplat::output::render_named;
+use metasplat::splats::device::{Device, DeviceChoice};
 use std::path::PathBuf;
 
 /// Which views `render --split` renders.
@@ -35,7 +35,7 @@ pub struct RenderArgs {
     #[arg(long)]
     pub video: Option<PathBuf>,
     /// Frames per second of --video (default: the --path file's, else 30).
-    #[arg(long, requires = "video", value_parser = metasplat::flags::positive)]
+    #[arg(long, requires = "video", value_parser = metasplat::settings::values::positive)]
     pub fps: Option<f64>,
     /// Render N frames of the LLFF spiral instead of the capture's cameras.
     #[arg(long, requires = "scene", value_parser = clap::value_parser!(u32).range(1..=10_000))]
@@ -61,7 +61,7 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 30, conflicts_with_all = ["scene", "camera"], value_parser = clap::value_parser!(u32).range(1..=10_000))]
     pub orbit: u32,
     /// Without --scene: one frame from EYE looking at TARGET, as "ex,ey,ez,tx,ty,tz".
-    #[arg(long, conflicts_with = "scene", value_parser = metasplat::flags::camera_pose, allow_hyphen_values = true)]
+    #[arg(long, conflicts_with = "scene", value_parser = metasplat::settings::values::camera_pose, allow_hyphen_values = true)]
     pub camera: Option<[f32; 6]>,
     /// Image size without --scene.
     #[arg(long, default_value_t = 640, conflicts_with = "scene", value_parser = clap::value_parser!(u32).range(8..=8192))]
@@ -70,7 +70,7 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 480, conflicts_with = "scene", value_parser = clap::value_parser!(u32).range(8..=8192))]
     pub height: u32,
     /// Field of view (degrees) across the shorter image side, without --scene.
-    #[arg(long, default_value_t = 50.0, conflicts_with = "scene", value_parser = metasplat::flags::field_angle, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 50.0, conflicts_with = "scene", value_parser = metasplat::settings::values::field_angle, allow_negative_numbers = true)]
     pub fov: f64,
     /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu`.
     #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
@@ -103,7 +103,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
             "--mode, --seed, --no-noise and --sensor-px say how --aberrate blurs the frames; give --aberrate PSF with them"
         );
     }
-    let mut inputs = metasplat::guard::Inputs::of(&inputs);
+    let mut inputs = metasplat::output::guard::Inputs::of(&inputs);
     // The frames' folder, or the video file; and how the video is written, before any work.
     let (target, flag) = match (&a.out, &a.video) {
         (Some(out), _) => (out.clone(), "--out"),
@@ -124,7 +124,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
         bail!("--video {}: is a folder, not a file", target.display());
     }
     if video.is_none() {
-        metasplat::guard::refuse_file_as_folder("--out", &target)?;
+        metasplat::output::guard::refuse_file_as_folder("--out", &target)?;
     }
     let camera_path = a
         .path
@@ -167,21 +167,19 @@ pub fn run(a: RenderArgs) -> Result<()> {
         (_, Some(path)) => path
             .cameras
             .iter()
-            .map(|c| (c.name.clone(), metasplat::convert::splat_camera(c)))
+            .map(|c| (c.name.clone(), metasplat::splats::convert::splat_camera(c)))
             .collect(),
         (Some(capture), None) => {
             let cams = match (a.spiral, a.through_cameras, &views) {
                 (Some(n), _, _) => {
-                    metasplat::spiral::spiral(&capture.cameras, &capture.bounds, n as usize)
+                    scenes::spiral::spiral(&capture.cameras, &capture.bounds, n as usize)
                 }
-                (None, Some(n), _) => {
-                    metasplat::spiral::through_cameras(&capture.cameras, n as usize)
-                }
+                (None, Some(n), _) => scenes::spiral::through_cameras(&capture.cameras, n as usize),
                 (None, None, Some(v)) => v.iter().map(|&i| capture.cameras[i].clone()).collect(),
                 (None, None, None) => capture.cameras.clone(),
             };
             cams.iter()
-                .map(|c| (c.name.clone(), metasplat::convert::splat_camera(c)))
+                .map(|c| (c.name.clone(), metasplat::splats::convert::splat_camera(c)))
                 .collect()
         }
         (None, None) => free_cameras(&a, &model)?,

@@ -66,7 +66,7 @@ pub struct TrainRestorerArgs {
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=1024))]
     pub batch: u64,
     /// Peak AdamW learning rate, in (0, 1].
-    #[arg(long, default_value_t = 3e-4, value_parser = metasplat::flags::learning_rate, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 3e-4, value_parser = metasplat::settings::values::learning_rate, allow_negative_numbers = true)]
     pub lr: f64,
     /// Seed of the network, the crops and the noise.
     #[arg(long, default_value_t = 0)]
@@ -75,7 +75,7 @@ pub struct TrainRestorerArgs {
     #[arg(long, default_value_t = 250)]
     pub val_every: usize,
     /// Validate on centred crops of this side during training (whole images: 0).
-    #[arg(long, default_value_t = 128, value_parser = metasplat::flags::val_crop)]
+    #[arg(long, default_value_t = 128, value_parser = metasplat::settings::values::val_crop)]
     pub val_crop: usize,
     /// Start from these weights (same config, any PSF grid: fine-tuning to another lens) with
     /// a new optimizer and schedule.
@@ -97,7 +97,7 @@ pub struct TrainRestorerArgs {
     #[arg(long)]
     pub resume: bool,
     /// Stop after about this many minutes with a checkpoint (continue later with --resume).
-    #[arg(long, value_parser = metasplat::flags::non_negative, allow_negative_numbers = true)]
+    #[arg(long, value_parser = metasplat::settings::values::non_negative, allow_negative_numbers = true)]
     pub minutes: Option<f64>,
     /// Re-aberrate the training photos (new noise, new random PSF positions) every N steps;
     /// 0: never.
@@ -253,7 +253,7 @@ pub struct RestoreArgs {
     #[arg(long)]
     pub resume: bool,
     /// Sensor size (px) the grid was made for; default G·K.
-    #[arg(long, value_parser = metasplat::flags::sensor_px)]
+    #[arg(long, value_parser = metasplat::settings::values::sensor_px)]
     pub sensor_px: Option<usize>,
     /// A clean image to report PSNR/SSIM against.
     #[arg(long)]
@@ -419,7 +419,7 @@ fn run_train(a: TrainRestorerArgs) -> Result<()> {
     if let Some(i) = &a.init {
         inputs.push(("--init", i));
     }
-    metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
+    metasplat::output::guard::refuse_overwrite("--out", &a.out, &inputs)?;
     if a.out.is_dir() {
         bail!(
             "--out {} is a folder; name the weights file to write",
@@ -789,8 +789,8 @@ fn run_eval(a: EvalArgs) -> Result<()> {
     if let Some(out) = &a.out {
         let mut inputs = a.net.inputs();
         inputs.push(("--val", a.val.as_path()));
-        metasplat::guard::refuse_overwrite("--out", out, &inputs)?;
-        metasplat::guard::refuse_file_as_folder("--out", out)?;
+        metasplat::output::guard::refuse_overwrite("--out", out, &inputs)?;
+        metasplat::output::guard::refuse_file_as_folder("--out", out)?;
     }
     // Blurred to one scale, the photos are restored by the shipped network for it.
     let (native, restorer) = a.net.load(|_| a.psf_px.map(|p| p as usize | 1))?;
@@ -953,8 +953,8 @@ pub fn run_restore(a: RestoreArgs) -> Result<()> {
     if let Some(r) = &a.reference {
         inputs.push(("--reference", r));
     }
-    metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
-    metasplat::guard::refuse_unwritable_image("--out", &a.out)?;
+    metasplat::output::guard::refuse_overwrite("--out", &a.out, &inputs)?;
+    metasplat::output::guard::refuse_unwritable_image("--out", &a.out)?;
     let blurred =
         Image::load(&a.input).with_context(|| format!("cannot read {}", a.input.display()))?;
     let (native, restorer) = a
@@ -1131,7 +1131,7 @@ fn run_restore_gif(a: RestoreArgs) -> Result<()> {
     }
     let mut inputs = a.net.inputs();
     inputs.push(("--in", a.input.as_path()));
-    metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
+    metasplat::output::guard::refuse_overwrite("--out", &a.out, &inputs)?;
     let file =
         base::input::open(&a.input).with_context(|| format!("--in {}", a.input.display()))?;
     let decoder = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(file))
@@ -1217,7 +1217,7 @@ fn run_restore_video(a: RestoreArgs) -> Result<()> {
     let format = super::video::format_for_flag("--out", &a.out)?;
     let mut inputs = a.net.inputs();
     inputs.push(("--in", a.input.as_path()));
-    metasplat::guard::refuse_overwrite("--out", &a.out, &inputs)?;
+    metasplat::output::guard::refuse_overwrite("--out", &a.out, &inputs)?;
     let parts = PathBuf::from(format!("{}.parts", a.out.display()));
     if parts.exists() && !a.resume {
         bail!(

@@ -73,7 +73,7 @@ pub struct InfoArgs {
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
     /// Every N-th image is held out for testing (0: none).
-    #[arg(long, default_value_t = 8, value_parser = metasplat::flags::llffhold)]
+    #[arg(long, default_value_t = 8, value_parser = metasplat::settings::values::llffhold)]
     pub llffhold: usize,
 }
 
@@ -95,16 +95,16 @@ pub fn run(cmd: SceneCommand) -> Result<()> {
         }
         SceneCommand::Aberrate(a) => aberrate(a),
         SceneCommand::Procedural(a) => {
-            let o = metasplat::procedural::ProceduralOptions {
+            let o = metasplat::splats::procedural::ProceduralOptions {
                 width: a.width,
                 height: a.height,
                 views: a.views as usize,
                 seed: a.seed,
             };
             let dir = if a.around {
-                metasplat::procedural::write_capture_around(&a.out, &o)
+                metasplat::splats::procedural::write_capture_around(&a.out, &o)
             } else {
-                metasplat::procedural::write_capture(&a.out, &o)
+                metasplat::splats::procedural::write_capture(&a.out, &o)
             }
             .with_context(|| format!("cannot write {}", a.out.display()))?;
             println!(
@@ -120,14 +120,15 @@ pub fn run(cmd: SceneCommand) -> Result<()> {
 }
 
 fn aberrate(a: SceneAberrateArgs) -> Result<()> {
-    metasplat::guard::refuse_overwrite(
+    metasplat::output::guard::refuse_overwrite(
         "--out",
         &a.out,
         &[("--scene", &a.scene), ("--psf", &a.psf)],
     )?;
     super::refuse_aberrated_source("--scene", &a.scene)?;
     let capture = super::open_scene(&a.scene, a.downsample, a.keep_distortion)?;
-    let mut inputs = metasplat::guard::Inputs::of(&[("--scene", &a.scene), ("--psf", &a.psf)]);
+    let mut inputs =
+        metasplat::output::guard::Inputs::of(&[("--scene", &a.scene), ("--psf", &a.psf)]);
     inputs.add_capture(&capture);
     inputs.refuse("--out", &a.out)?;
     let options = scenes::AberrateOptions {

@@ -4,13 +4,13 @@ use std::path::Path;
 
 use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
-use metasplat::outputs::{self, RunSummary};
+use metasplat::output::{self, RunSummary};
 use metasplat::run;
+use metasplat::settings::MaskUse;
 use metasplat::settings::{Background, MaskChoice, RunRequest, StrategyChoice, Toggle};
 use metasplat::train::coarse::Coarse;
 use metasplat::train::config::{Mode, Strategy};
 use metasplat::train::eval::Against;
-use metasplat::train::object::MaskUse;
 use metasplat::train::{self, Event};
 
 /// Makes the run's missing `I_ac` images with a bar of views done and time left (a line
@@ -232,7 +232,7 @@ pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::
                 data.train.len()
             ),
         }
-        match data.evaluated_against() {
+        match metasplat::train::eval::reference(&data.test) {
             Some(Against::Photos) if data.imaging.is_some() => println!(
                 "no clean images: held-out views are compared with their photos, which are aberrated, so the PSNR counts the blur too"
             ),
@@ -414,14 +414,14 @@ fn print_summary(dir: &Path, s: &RunSummary, outcome: &train::Outcome) {
         s.model_bytes as f64 / 1e6,
         s.sh_degree,
         outcome.final_pruned,
-        dir.join(outputs::PLY_FILE).display()
+        dir.join(output::PLY_FILE).display()
     );
     if let Some(change) = s.psf_change {
         println!(
             "The refined PSF grid moved {:.2} % from the supplied one (mean over grid cells of the relative L2 distance): {} and {} (supplied above, refined below).",
             100.0 * change,
-            dir.join(outputs::PSF_REFINED_FILE).display(),
-            dir.join(outputs::PSF_REFINED_PICTURE).display()
+            dir.join(output::PSF_REFINED_FILE).display(),
+            dir.join(output::PSF_REFINED_PICTURE).display()
         );
         if let Some(w) = &s.psf_warp {
             println!("Learnt: {}.", w.sentence());
@@ -456,7 +456,7 @@ fn print_outputs(dir: &Path, scene: &Path, downsample: u32, splats: usize) {
                 format!("{name}/ ({n} files)")
             } else {
                 let bytes = e.metadata().map_or(0, |m| m.len());
-                if name == outputs::PLY_FILE && splats > 0 {
+                if name == output::PLY_FILE && splats > 0 {
                     format!(
                         "{name} ({}, {} B per splat)",
                         size(bytes),
@@ -475,7 +475,7 @@ fn print_outputs(dir: &Path, scene: &Path, downsample: u32, splats: usize) {
     );
     println!(
         "Look at the result: metasplat view {} --scene {} --downsample {downsample} --run {}",
-        shell_word(&dir.join(outputs::PLY_FILE)),
+        shell_word(&dir.join(output::PLY_FILE)),
         shell_word(scene),
         shell_word(dir)
     );

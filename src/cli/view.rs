@@ -4,8 +4,8 @@
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use glam::Vec3;
+use metasplat::output::view::{CaptureComparison, RunWatch};
 use metasplat::settings::{DataOptions, RestorerChoice};
-use metasplat::view::{CaptureComparison, RunWatch};
 use std::path::PathBuf;
 
 #[derive(Args)]
@@ -35,10 +35,10 @@ pub struct ViewArgs {
     #[arg(long, requires = "scene", conflicts_with = "camera")]
     pub at: Option<String>,
     /// Open at EYE looking at TARGET, as "ex,ey,ez,tx,ty,tz".
-    #[arg(long, value_parser = metasplat::flags::camera_pose, allow_hyphen_values = true)]
+    #[arg(long, value_parser = metasplat::settings::values::camera_pose, allow_hyphen_values = true)]
     pub camera: Option<[f32; 6]>,
     /// Field of view (degrees) of the free camera, across the shorter side of the window.
-    #[arg(long, default_value_t = 50.0, value_parser = metasplat::flags::field_angle, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 50.0, value_parser = metasplat::settings::values::field_angle, allow_negative_numbers = true)]
     pub fov: f64,
     /// Window size; at a capture camera with --screenshot, the capture's image size.
     #[arg(long, value_parser = clap::value_parser!(u32).range(64..=8192))]
@@ -86,7 +86,7 @@ pub fn run(mut a: ViewArgs) -> Result<()> {
         if let Some(r) = &a.run {
             inputs.push(("--run", r.as_path()));
         }
-        metasplat::guard::refuse_overwrite("--screenshot", shot, &inputs)?;
+        metasplat::output::guard::refuse_overwrite("--screenshot", shot, &inputs)?;
     }
     let mut watch = a.run.as_deref().map(RunWatch::new);
     let (model, source) = match (&a.file, watch.as_mut()) {
@@ -126,7 +126,7 @@ pub fn run(mut a: ViewArgs) -> Result<()> {
             if let Some(path) = a
                 .run
                 .as_ref()
-                .map(|r| r.join(metasplat::outputs::PSF_REFINED_FILE))
+                .map(|r| r.join(metasplat::output::PSF_REFINED_FILE))
                 .filter(|p| p.is_file())
             {
                 c.with_refined_psf(&path)?;
@@ -146,7 +146,7 @@ pub fn run(mut a: ViewArgs) -> Result<()> {
             .enumerate()
             .map(|(i, cam)| viewer::CaptureView {
                 name: cam.name.clone(),
-                camera: metasplat::convert::splat_camera(cam),
+                camera: metasplat::splats::convert::splat_camera(cam),
                 held_out: cap.split.test.contains(&i),
             })
             .collect()

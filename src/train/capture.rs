@@ -9,9 +9,9 @@ use glam::Vec3;
 use scenes::aberrated::{self, AberrationRecord};
 use scenes::{Capture, OpenOptions, Resolution};
 
-use crate::convert::{image_to_pixels, pixels_to_image, rgb_to_pixels, splat_camera};
 use crate::error::{Result, TrainError};
 use crate::settings::DataOptions;
+use crate::splats::convert::{image_to_pixels, pixels_to_image, rgb_to_pixels, splat_camera};
 use crate::train::iac::{IacSource, OpenedRestorer, open_restorer};
 
 /// The smallest image side a capture trains at.

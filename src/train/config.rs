@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 use splat::optim::LearningRates;
 
+use crate::settings::MaskUse;
 pub use crate::settings::Mode;
 use crate::settings::{
     Background, Iters, LambdaFade, MaskChoice, StrategyChoice, Toggle, TrainSettings,
@@ -11,7 +12,6 @@ use crate::settings::{
 use crate::train::coarse::Coarse;
 use crate::train::data::Dataset;
 use crate::train::iac::IacSource;
-use crate::train::object::MaskUse;
 use crate::train::psf_refine::PsfRefineConfig;
 use crate::train::stop::StopRule;
 
@@ -71,13 +71,8 @@ impl Recipe {
             densify_until: iters / 2,
             densify_every,
             // Room for the recovery after each reset, and for pruning between two.
-            opacity_reset_every: opacity_reset.then(|| {
-                scale(
-                    3000.0,
-                    (4 * densify_every).max(2 * crate::train::densify::adaptive::RESET_RECOVERY),
-                    3000,
-                )
-            }),
+            opacity_reset_every: opacity_reset
+                .then(|| scale(3000.0, (4 * densify_every).max(2 * RESET_RECOVERY), 3000)),
             sh_every: scale(1000.0, 100, 1000),
             grad_threshold: 2e-4,
             percent_dense: 0.01,
@@ -337,6 +332,12 @@ fn capture_fingerprint_with(data: &Dataset, hash: impl Fn(&[u8]) -> String) -> S
 /// the end of densification): early on the stand-in speeds the fit up, later the model would
 /// learn its ringing. Measured on two scenes at four lengths (RESULTS.md, all-around section).
 pub const STAND_IN_HOLD: u64 = 1000;
+
+/// Steps after an opacity reset before transparency is grounds for pruning. Recovering from
+/// the reset takes a number of Adam steps set by the opacity learning rate, not by the run's
+/// length: 3DGS leaves one densification interval of 100 steps, and a schedule scaled to a
+/// short run left a quarter of that, so the next prune removed most of the model.
+pub const RESET_RECOVERY: u64 = 100;
 
 /// The paper's weight of `L(render, I_ac)` for LLFF scenes with its trained restorer.
 pub const PAPER_LAMBDA: f32 = 0.75;

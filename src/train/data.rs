@@ -146,11 +146,6 @@ impl Dataset {
     pub fn cache_dir(&self) -> Option<&Path> {
         self.cache.as_deref()
     }
-
-    /// What held-out evaluation compares with (None: no held-out views).
-    pub fn evaluated_against(&self) -> Option<crate::train::eval::Against> {
-        crate::train::eval::reference(&self.test)
-    }
 }
 
 /// Loads a capture for training in `mode`, `I_ac` included. Errors name the file and the

@@ -7,10 +7,11 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use splat::{Gaussians, RenderSettings};
 
-use crate::device::Device;
 use crate::error::{Result, TrainError};
+use crate::settings::MaskUse;
+use crate::splats::device::Device;
 use crate::train::data::View;
-use crate::train::object::{MaskUse, over, psnr_in_mask};
+use crate::train::object::{over, psnr_in_mask};
 use std::borrow::Cow;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -11,11 +11,13 @@ pub mod densify;
 pub mod eval;
 pub mod iac;
 pub mod iac_cache;
+pub mod levels;
 pub mod object;
 pub mod objective;
 pub mod psf_refine;
 pub mod sh;
 pub mod stop;
+pub mod timing;
 
 use std::path::Path;
 use std::time::Instant;
@@ -27,8 +29,8 @@ use splat::gpu::GpuTrainer;
 use splat::optim::{Adam, ExponentialLr};
 use splat::{CpuTrainer, Gaussians, PixelGradients, Regularisers, RenderSettings, SplatTrainer};
 
-use crate::device::Device;
 use crate::error::{Result, TrainError};
+use crate::splats::device::Device;
 use checkpoint::{Progress, State};
 use config::{Strategy, TrainConfig};
 use data::Dataset;
@@ -196,8 +198,9 @@ fn fresh_start(config: &TrainConfig, data: &Dataset, densify: &DensifyStrategy) 
             return Err(TrainError::file(&data.capture.root, "no initial points"));
         }
         None => {
-            let cloud = crate::init::within_budget(&data.points, config.max_splats, config.seed);
-            let mut g = crate::init::from_points(&cloud, 0);
+            let cloud =
+                crate::splats::init::within_budget(&data.points, config.max_splats, config.seed);
+            let mut g = crate::splats::init::from_points(&cloud, 0);
             densify.prepare_initial(&mut g);
             g
         }
@@ -237,7 +240,7 @@ struct Run<'a> {
     object: Option<ObjectTargets>,
     /// `--coarse-to-fine`: the training views and lens of each smaller resolution, coarsest
     /// first (empty without it).
-    levels: Vec<coarse::Level>,
+    levels: Vec<levels::Level>,
 }
 
 impl<'a> Run<'a> {
@@ -268,7 +271,7 @@ impl<'a> Run<'a> {
         };
         Ok(Run {
             object: ObjectTargets::for_run(config, data)?,
-            levels: coarse::Level::for_run(config, data)?,
+            levels: levels::Level::for_run(config, data)?,
             config,
             data,
             device,
@@ -297,7 +300,7 @@ impl<'a> Run<'a> {
         &'b self,
         index: usize,
         background: Vec3,
-        level: Option<&'b coarse::Level>,
+        level: Option<&'b levels::Level>,
     ) -> std::borrow::Cow<'b, data::View> {
         let (view, object) = match level {
             Some(l) => (&l.train[index], &l.object),
@@ -310,7 +313,7 @@ impl<'a> Run<'a> {
     }
 
     /// The coarse level step `step` trains at; None: full size.
-    fn level_at(&self, step: u64) -> Option<&coarse::Level> {
+    fn level_at(&self, step: u64) -> Option<&levels::Level> {
         let factor = self.config.coarse.as_ref()?.factor_at(step);
         self.levels.iter().find(|l| l.factor == factor)
     }
@@ -322,7 +325,7 @@ impl<'a> Run<'a> {
         &'b self,
         step: u64,
         psf: Option<&'b PsfRefinement>,
-        level: Option<&'b coarse::Level>,
+        level: Option<&'b levels::Level>,
     ) -> Objective<'b> {
         let lambda = self.config.lambda_at(step);
         match level {

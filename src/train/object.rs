@@ -13,32 +13,12 @@
 use std::borrow::Cow;
 
 use glam::Vec3;
-use serde::{Deserialize, Serialize};
-
 use rayon::prelude::*;
 
 use crate::error::Result;
+use crate::settings::MaskUse;
 use crate::train::config::TrainConfig;
 use crate::train::data::{Dataset, View};
-
-/// What masks mean, as a run records it (`config.json`'s `masks`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "snake_case")]
-pub enum MaskUse {
-    /// Pixels outside a mask leave the loss: what shows there is unknown, not empty.
-    Loss,
-    /// The object alone: outside its mask every view shows the background.
-    Object,
-}
-
-impl std::fmt::Display for MaskUse {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            MaskUse::Loss => "loss",
-            MaskUse::Object => "object",
-        })
-    }
-}
 
 /// `image` over `background` where the mask leaves it out: `m·image + (1 − m)·background`.
 pub fn over(image: &[Vec3], mask: &[f32], background: Vec3) -> Vec<Vec3> {

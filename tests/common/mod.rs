@@ -7,7 +7,7 @@ pub mod cli;
 use std::path::{Path, PathBuf};
 
 use aberration::optics::{SimConfig, simulate_grid};
-use metasplat::procedural::{ProceduralOptions, write_capture};
+use metasplat::splats::procedural::{ProceduralOptions, write_capture};
 
 /// Writes the procedural capture `o` to `dir/clean`, simulates a small lens (a 3×3 grid of
 /// 21 px PSFs) to `dir/psf.npy` and aberrates the capture through it into `dir/aberrated`.

@@ -8,13 +8,7 @@ use splat::{Gaussians, RenderOutput};
 
 use super::{Budget, DensifyState, Edit, carry, prune};
 use crate::error::Result;
-use crate::train::config::Recipe;
-
-/// Steps after an opacity reset before transparency is grounds for pruning. Recovering from
-/// the reset takes a number of Adam steps set by the opacity learning rate, not by the run's
-/// length: 3DGS leaves one densification interval of 100 steps, and a schedule scaled to a
-/// short run left a quarter of that, so the next prune removed most of the model.
-pub const RESET_RECOVERY: u64 = 100;
+use crate::train::config::{RESET_RECOVERY, Recipe};
 
 /// The strategy's settings, fixed for a run: the recipe's thresholds and schedule, the splat
 /// budget and the scene's extent. The hooks read them and change only a [`DensifyState`].

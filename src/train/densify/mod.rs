@@ -256,3 +256,21 @@ fn prune(
     }
     Ok(count)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_splat_budget_follows_the_pixel_count() {
+        let b = Budget {
+            max: 95_000,
+            coarse: crate::train::coarse::Coarse::for_capture(2, 700, 504, 378),
+        };
+        assert_eq!(
+            [0, 699, 700, 1399, 1400].map(|s| b.at(s)),
+            [5937, 5937, 23_750, 23_750, 95_000]
+        );
+        assert_eq!(Budget::fixed(7).at(0), 7);
+    }
+}

@@ -166,18 +166,6 @@ pub fn camera_pose(s: &str) -> Result<[f32; 6], String> {
     Ok(v)
 }
 
-/// A background choice: `auto` or a [`colour`].
-pub fn background(s: &str) -> Result<crate::settings::Background, String> {
-    use crate::settings::Background;
-    if s.trim() == "auto" {
-        Ok(Background::Auto)
-    } else if s.trim() == "random" {
-        Ok(Background::Random)
-    } else {
-        colour(s).map(Background::Colour)
-    }
-}
-
 /// A background colour: `black`, `white`, or `R,G,B` with each channel in [0, 1].
 pub fn colour(s: &str) -> Result<[f32; 3], String> {
     match s.trim() {
@@ -233,14 +221,5 @@ mod tests {
         for bad in ["1,2", "0.5,0.5,1.5", "grey", "0,0,nan", "0,0,0,0"] {
             assert!(colour(bad).is_err(), "{bad}");
         }
-        assert_eq!(
-            background("auto").unwrap(),
-            crate::settings::Background::Auto
-        );
-        assert_eq!(
-            background("random").unwrap(),
-            crate::settings::Background::Random
-        );
-        assert!(background("randomly").is_err());
     }
 }

@@ -12,8 +12,8 @@ use tracing::span::Id;
 use tracing_subscriber::layer::{Context, Layer, SubscriberExt};
 use tracing_subscriber::registry::LookupSpan;
 
-use crate::device::Device;
 use crate::error::{Result, TrainError};
+use crate::splats::device::Device;
 use crate::train::config::TrainConfig;
 use crate::train::data::Dataset;
 

@@ -18,8 +18,8 @@ use scenes::{BitDepth, Bounds, Camera, LlffWriter, Rigid};
 use splat::model::logit;
 use splat::{Gaussians, RenderSettings};
 
-use crate::convert::{pixels_to_rgb, splat_camera};
 use crate::error::{Result, TrainError};
+use crate::splats::convert::{pixels_to_rgb, splat_camera};
 
 #[derive(Clone, Debug)]
 pub struct ProceduralOptions {

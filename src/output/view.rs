@@ -9,7 +9,7 @@ use glam::Vec3;
 use viewer::{CompareSource, LiveSource, Panel};
 
 use crate::error::Result;
-use crate::outputs::{CHECKPOINT_FILE, PLY_FILE};
+use crate::output::{CHECKPOINT_FILE, PLY_FILE};
 use crate::settings::DataOptions;
 use crate::train::data::{CaptureModel, View};
 

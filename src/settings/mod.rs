@@ -6,13 +6,15 @@
 //! Each default exists once: in the clap attribute of its field here, or, where it depends
 //! on the capture, in [`crate::train::config::TrainConfig::build`].
 
+pub mod values;
+
 use std::path::PathBuf;
 
 use clap::{Args, FromArgMatches};
 
 use serde::{Deserialize, Serialize};
 
-use crate::device::DeviceChoice;
+use crate::splats::device::DeviceChoice;
 
 /// The paper's three rows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -276,6 +278,19 @@ pub enum Background {
     Random,
 }
 
+impl std::str::FromStr for Background {
+    type Err = String;
+
+    /// `auto`, `random` or a [`values::colour`].
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim() {
+            "auto" => Ok(Background::Auto),
+            "random" => Ok(Background::Random),
+            _ => values::colour(s).map(Background::Colour),
+        }
+    }
+}
+
 /// What the capture's masks mean, as asked for.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum MaskChoice {
@@ -305,7 +320,7 @@ pub struct TrainSettings {
     pub mode: Mode,
     /// Weight of L(render, I_ac) in aware mode; default 0.75 (the paper's) with a trained
     /// restorer, 0.25 with the Wiener stand-in.
-    #[arg(long, value_parser = crate::flags::weight, allow_negative_numbers = true)]
+    #[arg(long, value_parser = crate::settings::values::weight, allow_negative_numbers = true)]
     pub lambda: Option<f32>,
     /// When λ falls linearly to zero: `auto` (by the end of densification with the Wiener
     /// stand-in and no --lambda given, else never), `never`, `end` (the last step), a step, or
@@ -339,18 +354,18 @@ pub struct TrainSettings {
     /// Weight of a mean-opacity penalty: splats that no training view needs (floaters seen
     /// only against a black background) fade and are pruned or moved; 0 turns it off
     /// (default: 0.01 with mcmc, 0 with adaptive).
-    #[arg(long, value_parser = crate::flags::weight, allow_negative_numbers = true)]
+    #[arg(long, value_parser = crate::settings::values::weight, allow_negative_numbers = true)]
     pub opacity_reg: Option<f32>,
     /// Weight of a mean-scale penalty, which keeps splats small unless the images need them
     /// large (default: 0.01 with mcmc, 0 with adaptive).
-    #[arg(long, value_parser = crate::flags::weight, allow_negative_numbers = true)]
+    #[arg(long, value_parser = crate::settings::values::weight, allow_negative_numbers = true)]
     pub scale_reg: Option<f32>,
     /// Colour behind the splats, in training and in the run's renders: `auto` (for a capture
     /// taken all around an object, the median colour of the photos' borders, where its
     /// backdrop shows; black otherwise), `black`, `white`, `R,G,B` in [0, 1], or `random`
     /// (a seeded colour each training step, so that no pixel can be matched by showing the
     /// background through splats; renders and evaluation use `auto`'s colour).
-    #[arg(long, default_value = "auto", value_parser = crate::flags::background)]
+    #[arg(long, default_value = "auto", value_parser = str::parse::<Background>)]
     pub background: Background,
     /// What a capture's masks mean: `object` (the object alone: the photos are composited
     /// over the background outside their masks, empty space is learnt as empty, and the
@@ -362,7 +377,7 @@ pub struct TrainSettings {
     pub mask_mode: MaskChoice,
     /// An SH band stays when dropping it raises the training loss by at least this fraction
     /// (default 0.001); 0 keeps every band that lowers it at all.
-    #[arg(long, value_parser = crate::flags::non_negative, allow_negative_numbers = true)]
+    #[arg(long, value_parser = crate::settings::values::non_negative, allow_negative_numbers = true)]
     pub sh_min_gain: Option<f64>,
     /// Held-out evaluation every N steps (default: 10 times per run).
     #[arg(long)]
@@ -457,7 +472,7 @@ pub struct DataOptions {
     #[arg(long, default_value_t = 8, hide_default_value = true, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
     /// Every N-th view is held out for evaluation (0: none).
-    #[arg(long, default_value_t = scenes::LLFFHOLD, value_parser = crate::flags::llffhold, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = scenes::LLFFHOLD, value_parser = crate::settings::values::llffhold, allow_negative_numbers = true)]
     pub llffhold: usize,
     /// PSF grid .npy; must match the capture's own psf.npy when it has one.
     #[arg(long)]
@@ -495,9 +510,37 @@ impl Default for DataOptions {
     }
 }
 
+/// What masks mean, as a run records it (`config.json`'s `masks`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum MaskUse {
+    /// Pixels outside a mask leave the loss: what shows there is unknown, not empty.
+    Loss,
+    /// The object alone: outside its mask every view shows the background.
+    Object,
+}
+
+impl std::fmt::Display for MaskUse {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            MaskUse::Loss => "loss",
+            MaskUse::Object => "object",
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_background_is_auto_random_or_a_colour() {
+        assert_eq!("auto".parse(), Ok(Background::Auto));
+        assert_eq!(" random".parse(), Ok(Background::Random));
+        assert_eq!("white".parse(), Ok(Background::Colour([1.0; 3])));
+        assert!("randomly".parse::<Background>().is_err());
+        assert!("0,0,2".parse::<Background>().is_err());
+    }
 
     #[test]
     fn defaults_come_from_the_arguments() {

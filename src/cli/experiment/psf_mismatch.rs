@@ -15,13 +15,13 @@ use aberration::PsfGrid;
 use aberration::optics::SimConfig;
 use anyhow::{Context, Result};
 use clap::Args;
-use metasplat::outputs::RunSummary;
-use metasplat::plot::{Series, line_plot};
+use metasplat::output::RunSummary;
+use metasplat::output::plot::{Series, line_plot};
 use metasplat::train::config::Mode;
 
-use super::experiment::ExperimentRuns;
-use super::psf::simulate;
-use super::train::train_run;
+use super::runs::ExperimentRuns;
+use crate::cli::psf::simulate;
+use crate::cli::train::train_run;
 
 /// One calibration error.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -176,8 +176,8 @@ pub struct PsfMismatchArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Where to render: `auto`, `cpu`, or `gpu`.
-    #[arg(long, value_enum, default_value_t = metasplat::device::DeviceChoice::Auto)]
-    pub device: metasplat::device::DeviceChoice,
+    #[arg(long, value_enum, default_value_t = metasplat::splats::device::DeviceChoice::Auto)]
+    pub device: metasplat::splats::device::DeviceChoice,
     /// Replace runs already in --out.
     #[arg(long)]
     pub overwrite: bool,
@@ -185,7 +185,7 @@ pub struct PsfMismatchArgs {
     #[arg(long, conflicts_with = "overwrite")]
     pub resume: bool,
     /// Weight of L(render, I_ac) (default: as `train`).
-    #[arg(long, value_parser = metasplat::flags::weight, allow_negative_numbers = true)]
+    #[arg(long, value_parser = metasplat::settings::values::weight, allow_negative_numbers = true)]
     pub lambda: Option<f32>,
     /// The errors, one at a time: focal:PERCENT, lasers, defocus:UM, rotate:DEG,
     /// noise:FRACTION (of each PSF's peak), pedestal:FRACTION (of its energy).
@@ -237,8 +237,8 @@ fn mean(v: &[f64]) -> f64 {
 }
 
 pub fn run(a: PsfMismatchArgs) -> Result<()> {
-    super::experiment::refuse_repeats("--errors", &a.errors)?;
-    super::experiment::refuse_repeats("--variants", &a.variants)?;
+    super::runs::refuse_repeats("--errors", &a.errors)?;
+    super::runs::refuse_repeats("--variants", &a.variants)?;
     let runs = ExperimentRuns {
         scene: a.scene.clone(),
         out: a.out.clone(),
@@ -300,7 +300,7 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
         Ok(train_run(&args, true)?.0)
     };
     let refined_error = |dir: &Path| -> Result<Option<f64>> {
-        let path = dir.join(metasplat::outputs::PSF_REFINED_FILE);
+        let path = dir.join(metasplat::output::PSF_REFINED_FILE);
         if !path.exists() {
             return Ok(None);
         }
@@ -365,7 +365,7 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
             let err = refined_error(&dir)?;
             if err.is_some() {
                 let supplied = PsfGrid::load_npy(&wrong)?.for_image(w, h, record.sensor_px)?;
-                let refined = PsfGrid::load_npy(&dir.join(metasplat::outputs::PSF_REFINED_FILE))?;
+                let refined = PsfGrid::load_npy(&dir.join(metasplat::output::PSF_REFINED_FILE))?;
                 aberration::image::save_rgb8_png(
                     &aberration::picture::psf_grids_picture(&[&supplied, &refined, &truth_here]),
                     &dir.join("psf_supplied_refined_true.png"),

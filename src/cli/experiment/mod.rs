@@ -3,16 +3,16 @@
 //! one table (PSNR/SSIM against the clean images, minutes, splats) plus test PSNR reached
 //! against training time: the speed-against-error report of the main job.
 
-use super::psf::{print_report, simulate};
+mod psf_mismatch;
+mod runs;
+
 use super::train::train_run;
-use aberration::optics::SimConfig;
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
-use metasplat::plot::{Series, line_plot};
-use metasplat::settings::RunRequest;
+use metasplat::output::plot::{Series, line_plot};
 use metasplat::train::config::Mode;
+use runs::{ExperimentRuns, refuse_repeats};
 use std::fmt::Write as _;
-use std::path::PathBuf;
 
 #[derive(Subcommand)]
 pub enum ExperimentCommand {
@@ -24,7 +24,7 @@ pub enum ExperimentCommand {
     /// Aware training with a mis-calibrated PSF grid, one error at a time (focal length, the
     /// calibration lasers' wavelengths, defocus, rotation, measurement noise, a pedestal),
     /// with and without --refine-psf.
-    PsfMismatch(super::psf_mismatch::PsfMismatchArgs),
+    PsfMismatch(psf_mismatch::PsfMismatchArgs),
 }
 
 /// A splat budget: a count, or `unbounded` (3DGS densification without a cap).
@@ -58,57 +58,6 @@ impl std::fmt::Display for Budget {
 /// The cap an `unbounded` run gets: more than densification reaches on any capture we train.
 const UNBOUNDED: u64 = 100_000_000;
 
-/// What every experiment's runs share: the capture, where they go, and how they train.
-#[derive(Args)]
-pub struct ExperimentRuns {
-    /// The clean capture.
-    #[arg(long)]
-    pub scene: PathBuf,
-    /// The experiment folder: the aberrated copy, every run, the table and the plot.
-    #[arg(long)]
-    pub out: PathBuf,
-    /// PSF grid; default: simulate the paper's 9x9 grid.
-    #[arg(long)]
-    pub psf: Option<PathBuf>,
-    /// Training steps of every run.
-    #[arg(long, default_value_t = 3000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
-    pub iters: u64,
-    /// Use the capture's images_N/ (1: images/), else its images/ shrunk N times at load.
-    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
-    pub downsample: u32,
-    /// Seed of the aberration noise and of every run.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu`.
-    #[arg(long, value_enum, default_value_t = metasplat::device::DeviceChoice::Auto)]
-    pub device: metasplat::device::DeviceChoice,
-    /// Replace runs already in --out (otherwise a folder holding a run is refused).
-    #[arg(long)]
-    pub overwrite: bool,
-    /// Densification strategy of every run (as `train --strategy`).
-    #[arg(long, value_enum, default_value_t = metasplat::settings::StrategyChoice::Auto)]
-    pub strategy: metasplat::settings::StrategyChoice,
-    /// The first steps of every run at smaller resolutions (as `train --coarse-to-fine`).
-    #[arg(long, default_value = "auto")]
-    pub coarse_to_fine: metasplat::settings::CoarseToFine,
-    /// What the capture's masks mean to every run (as `train --mask-mode`).
-    #[arg(long, value_enum, default_value_t = metasplat::settings::MaskChoice::Auto)]
-    pub mask_mode: metasplat::settings::MaskChoice,
-    /// Also train plain 3DGS on the clean photos with the same settings: the ceiling every
-    /// mode is measured against (`--ceiling false` leaves it out).
-    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
-    pub ceiling: bool,
-    /// Continue the runs already in --out from their checkpoints (a finished one is only
-    /// evaluated again): an interrupted experiment goes on where it stopped, and a run trained
-    /// on its own into its folder (with this experiment's settings) joins the table.
-    #[arg(long, conflicts_with = "overwrite")]
-    pub resume: bool,
-    /// Keep the photos as taken when the cameras have lens distortion (as `train
-    /// --keep-distortion`; by default they are undistorted at load).
-    #[arg(long)]
-    pub keep_distortion: bool,
-}
-
 #[derive(Args)]
 pub struct BudgetArgs {
     #[command(flatten)]
@@ -126,7 +75,7 @@ pub struct LlffArgs {
     #[command(flatten)]
     pub runs: ExperimentRuns,
     /// Weight of L(render, I_ac) in aware mode (default: as `train`).
-    #[arg(long, value_parser = metasplat::flags::weight, allow_negative_numbers = true)]
+    #[arg(long, value_parser = metasplat::settings::values::weight, allow_negative_numbers = true)]
     pub lambda: Option<f32>,
     /// Modes to run, in order.
     #[arg(long, value_enum, value_delimiter = ',', default_values_t = Mode::ALL.to_vec())]
@@ -137,157 +86,8 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
     match cmd {
         ExperimentCommand::Llff(a) => llff(a),
         ExperimentCommand::Budget(a) => budget(a),
-        ExperimentCommand::PsfMismatch(a) => super::psf_mismatch::run(a),
+        ExperimentCommand::PsfMismatch(a) => psf_mismatch::run(a),
     }
-}
-
-/// Makes (once) the aberrated copy of `scene` under `out`, simulating the PSF grid when none
-/// is given, and returns its path with the lock that keeps `out` this experiment's alone.
-fn aberrated_capture(
-    scene: &std::path::Path,
-    out: &std::path::Path,
-    psf: Option<&std::path::Path>,
-    downsample: u32,
-    seed: u64,
-    keep_distortion: bool,
-) -> Result<(PathBuf, base::FolderLock)> {
-    let mut inputs = vec![("--scene", scene)];
-    if let Some(p) = psf {
-        inputs.push(("--psf", p));
-    }
-    metasplat::guard::refuse_overwrite("--out", out, &inputs)?;
-    metasplat::guard::refuse_file_as_folder("--out", out)?;
-    // Every input is read and checked before --out is made: the capture (unless an earlier
-    // run already made the aberrated copy) and the PSF grid given.
-    let aberrated = out.join("aberrated");
-    let capture = if aberrated.join(scenes::aberrated::RECORD_FILE).exists() {
-        refuse_other_copy(
-            &aberrated,
-            scene,
-            &psf.map_or(out.join("psf.npy"), Into::into),
-            seed,
-            keep_distortion,
-        )?;
-        None
-    } else {
-        super::refuse_aberrated_source("--scene", scene)?;
-        let capture = super::open_scene(scene, downsample, keep_distortion)?;
-        if capture.split.train.is_empty() {
-            anyhow::bail!(
-                "--scene {}: {} view(s) leave no training views once every {}th is held out for testing; use a capture with more views",
-                scene.display(),
-                capture.len(),
-                scenes::LLFFHOLD
-            );
-        }
-        super::decode_all(&capture)?;
-        Some(capture)
-    };
-    if let Some(p) = psf {
-        aberration::PsfGrid::load_npy(p)?;
-    }
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let lock = base::FolderLock::folder(out, "experiment")?;
-    let psf_path = match psf {
-        Some(p) => p.to_path_buf(),
-        None => {
-            let path = out.join("psf.npy");
-            if !path.exists() {
-                let (psf, report) = simulate(&SimConfig::default())?;
-                print_report(&report);
-                psf.save_npy(&path)?;
-            }
-            path
-        }
-    };
-    if let Some(capture) = capture {
-        let options = scenes::AberrateOptions {
-            seed,
-            ..Default::default()
-        };
-        let made = scenes::make_aberrated(&capture, &psf_path, &aberrated, &options, &|| {})?;
-        println!(
-            "aberrated {} images {}x{} ({} px PSFs): {:.2} dB vs clean{}",
-            made.images,
-            made.width,
-            made.height,
-            made.psf_px,
-            made.mean_psnr,
-            if made.masked {
-                "; masked: composited over black outside the masks before the blur"
-            } else {
-                ""
-            }
-        );
-    }
-    Ok((aberrated, lock))
-}
-
-/// Refuses an aberrated copy, made by an earlier experiment into the same --out, that is not
-/// the one this experiment asks for (another capture, noise seed or PSF grid): its runs would
-/// train on other photos than the ones named, and the table would mix them.
-fn refuse_other_copy(
-    aberrated: &std::path::Path,
-    scene: &std::path::Path,
-    psf: &std::path::Path,
-    seed: u64,
-    keep_distortion: bool,
-) -> Result<()> {
-    let Some(record) = scenes::aberrated::AberrationRecord::read(aberrated)? else {
-        return Ok(());
-    };
-    // The record keeps the source as given: from another working folder it may not resolve,
-    // and then it cannot be told apart.
-    let same_place =
-        |a: &std::path::Path, b: &std::path::Path| match (a.canonicalize(), b.canonicalize()) {
-            (Ok(a), Ok(b)) => a == b,
-            _ => true,
-        };
-    let mut differs = Vec::new();
-    if !same_place(std::path::Path::new(&record.source), scene) {
-        differs.push(format!(
-            "from {}, not --scene {}",
-            record.source,
-            scene.display()
-        ));
-    }
-    if record.seed != seed {
-        differs.push(format!("with --seed {}, not {seed}", record.seed));
-    }
-    if let (Some(want), Ok(bytes)) = (&record.psf_checksum, std::fs::read(psf))
-        && !base::hash::names(want, &bytes)
-    {
-        differs.push(format!("through another PSF grid than {}", psf.display()));
-    }
-    // Only a capture with distortion is undistorted, so only a copy that was undistorted
-    // can tell.
-    if record.undistorted && keep_distortion {
-        differs.push("from undistorted photos, not with --keep-distortion".to_string());
-    }
-    if differs.is_empty() {
-        return Ok(());
-    }
-    anyhow::bail!(
-        "{} was made by an earlier experiment {}: this one would train on other photos than it names; use another --out, or delete {} to make it again",
-        aberrated.display(),
-        differs.join(", "),
-        aberrated.display()
-    )
-}
-
-/// Refuses a list flag that names one value twice: both would train into one run folder.
-pub(super) fn refuse_repeats<T: PartialEq + std::fmt::Display>(
-    flag: &str,
-    values: &[T],
-) -> Result<()> {
-    for (i, v) in values.iter().enumerate() {
-        if values[..i].contains(v) {
-            anyhow::bail!(
-                "{flag} names {v} twice: each value trains one run into its own folder, so name it once"
-            );
-        }
-    }
-    Ok(())
 }
 
 fn budget(a: BudgetArgs) -> Result<()> {
@@ -311,7 +111,7 @@ fn budget(a: BudgetArgs) -> Result<()> {
         println!("Training {} with a budget of {b} splats.", a.mode);
         let (summary, log) = train_run(&args, false)?;
         let ply_bytes =
-            std::fs::metadata(run_dir.join(metasplat::outputs::PLY_FILE)).map_or(0, |m| m.len());
+            std::fs::metadata(run_dir.join(metasplat::output::PLY_FILE)).map_or(0, |m| m.len());
         let ceiling = if a.runs.ceiling {
             let mut clean = a
                 .runs
@@ -392,73 +192,6 @@ fn budget(a: BudgetArgs) -> Result<()> {
     )?;
     println!("Wrote {}/budget.md and budget.png.", a.runs.out.display());
     Ok(())
-}
-
-impl ExperimentRuns {
-    /// The aberrated copy of the capture the runs train on (made once under --out).
-    pub(super) fn aberrated(&self) -> Result<(PathBuf, base::FolderLock)> {
-        aberrated_capture(
-            &self.scene,
-            &self.out,
-            self.psf.as_deref(),
-            self.downsample,
-            self.seed,
-            self.keep_distortion,
-        )
-    }
-
-    /// Refuses, before the aberrated copy or the PSF grid is made, a ceiling run that would
-    /// be refused once they are.
-    fn check_ceiling(&self, request: &RunRequest) -> Result<()> {
-        metasplat::run::check(request).with_context(|| {
-            format!(
-                "the ceiling run (plain 3DGS on the clean photos of {}) would be refused",
-                self.scene.display()
-            )
-        })
-    }
-
-    /// Plain 3DGS on the clean capture (`--scene` itself) into `run_dir`, with the settings
-    /// every other run has.
-    fn ceiling_run(&self, run_dir: PathBuf) -> RunRequest {
-        let mut args = self.run(&self.scene, run_dir, Mode::Plain);
-        args.data.iac_cache = None;
-        args
-    }
-
-    /// A run of `mode` on the aberrated capture into `run_dir`.
-    pub(super) fn run(
-        &self,
-        aberrated: &std::path::Path,
-        run_dir: PathBuf,
-        mode: Mode,
-    ) -> RunRequest {
-        let (resume, overwrite) = match (
-            self.resume,
-            run_dir.join(metasplat::outputs::CHECKPOINT_FILE).exists(),
-        ) {
-            (true, true) => (true, false),
-            // A run stopped before its first checkpoint left nothing to continue: it starts
-            // again.
-            (true, false) => (false, run_dir.exists()),
-            (false, _) => (false, self.overwrite),
-        };
-        let mut args = RunRequest::new(aberrated, run_dir);
-        args.data.downsample = self.downsample;
-        args.data.seed = self.seed;
-        args.data.keep_distortion = self.keep_distortion;
-        // The runs restore the same views: one I_ac cache serves them all.
-        args.data.iac_cache = Some(self.out.join(metasplat::train::iac_cache::CACHE_DIR));
-        args.device = self.device;
-        args.overwrite = overwrite;
-        args.resume = resume;
-        args.training.mode = mode;
-        args.training.iters = metasplat::settings::Iters::Steps(self.iters);
-        args.training.strategy = self.strategy;
-        args.training.mask_mode = self.mask_mode;
-        args.training.coarse_to_fine = self.coarse_to_fine;
-        args
-    }
 }
 
 /// How close to its final held-out PSNR a run counts as having arrived, coarse and fine.

@@ -1,5 +1,10 @@
 //! Everything a finished run leaves in its folder: the PLY, metrics, the log, test-view
-//! renders beside their clean and aberrated images, and the spiral frames.
+//! renders beside their clean and aberrated images, and the spiral frames; where outputs may
+//! go ([`guard`]), the plots ([`plot`]) and what the viewer reads from a run ([`view`]).
+
+pub mod guard;
+pub mod plot;
+pub mod view;
 
 use std::path::{Path, PathBuf};
 
@@ -8,9 +13,9 @@ use glam::Vec3;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::convert::{pixels_to_image, save_pixels, splat_camera};
-use crate::device::Device;
 use crate::error::{Result, TrainError};
+use crate::splats::convert::{pixels_to_image, save_pixels, splat_camera};
+use crate::splats::device::Device;
 use crate::train::config::TrainConfig;
 use crate::train::data::Dataset;
 use crate::train::eval::{self, Metrics};
@@ -233,7 +238,7 @@ pub fn write_run(
                 ],
             };
             save_rgb8_png(
-                &crate::plot::label_panels(&side_by_side(&row, w, h), w, GAP, &labels),
+                &crate::output::plot::label_panels(&side_by_side(&row, w, h), w, GAP, &labels),
                 &test_dir.join(format!("{}_compare.png", v.name)),
             )?;
             Ok(())
@@ -243,7 +248,7 @@ pub fn write_run(
         let spiral_dir = staging.path().join("spiral");
         std::fs::create_dir_all(&spiral_dir).map_err(|e| TrainError::io(&spiral_dir, e))?;
         let path =
-            crate::spiral::spiral(&data.capture.cameras, &data.capture.bounds, spiral_frames);
+            scenes::spiral::spiral(&data.capture.cameras, &data.capture.bounds, spiral_frames);
         render_frames(model, &outcome.settings, &path, &spiral_dir, device)?;
     }
     for name in ["test", "spiral"] {
@@ -261,7 +266,7 @@ pub fn write_run(
         Some(m) if m.against == crate::train::eval::Against::Clean => {
             let (mut sum, mut in_mask) = (0.0, Vec::new());
             // On the object, the photo is scored as a render that learnt nothing outside it.
-            let masks = config.masks.map(|_| crate::train::object::MaskUse::Loss);
+            let masks = config.masks.map(|_| crate::settings::MaskUse::Loss);
             for v in &data.test {
                 // Against::Clean: every held-out view has its clean image.
                 let clean = v.clean.as_deref().ok_or_else(|| {
@@ -370,7 +375,7 @@ pub fn render_named(
 /// What the PSNR-vs-time picture draws: the held-out PSNR at each evaluation and, when the
 /// capture has clean images, the aberrated input's PSNR as a flat line over the same time,
 /// the level training must beat. Empty when nothing was evaluated.
-pub fn log_series(log: &[LogRow], observed_psnr: Option<f64>) -> Vec<crate::plot::Series> {
+pub fn log_series(log: &[LogRow], observed_psnr: Option<f64>) -> Vec<crate::output::plot::Series> {
     let points: Vec<(f64, f64)> = log
         .iter()
         .filter_map(|r| r.test_psnr.map(|p| (r.seconds, p)))
@@ -378,12 +383,12 @@ pub fn log_series(log: &[LogRow], observed_psnr: Option<f64>) -> Vec<crate::plot
     let Some(&(last, _)) = points.last() else {
         return Vec::new();
     };
-    let mut series = vec![crate::plot::Series {
+    let mut series = vec![crate::output::plot::Series {
         name: "held-out PSNR".into(),
         points,
     }];
     if let Some(p) = observed_psnr.filter(|p| p.is_finite()) {
-        series.push(crate::plot::Series {
+        series.push(crate::output::plot::Series {
             name: "the aberrated input".into(),
             points: vec![(0.0, p), (last, p)],
         });
@@ -397,7 +402,7 @@ pub fn plot_log(dir: &Path, log: &[LogRow], observed_psnr: Option<f64>) -> Resul
     if series.is_empty() {
         return Ok(());
     }
-    crate::plot::line_plot(
+    crate::output::plot::line_plot(
         &dir.join(PSNR_PLOT),
         "held-out PSNR vs training time",
         "training time (s)",
