@@ -242,6 +242,7 @@ fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String
             ));
         }
     }
+    config.decisions = crate::train::decisions::explain(&config, &request.training, &data);
     Ok((data, config, device, device_note))
 }
 

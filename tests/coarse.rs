@@ -214,6 +214,18 @@ fn the_cli_starts_coarse_by_default_and_says_so() {
         config["coarse"]["levels"][0],
         serde_json::json!({"factor": 2, "until": 4})
     );
+    // The decision is recorded in config.json as it was printed.
+    let decided = |config: &serde_json::Value, setting: &str| {
+        config["decisions"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .find(|d| d["setting"] == setting)
+            .cloned()
+    };
+    let coarse = decided(&config, "coarse_to_fine").expect("a coarse_to_fine decision");
+    assert_eq!(coarse["value"], "1");
+    assert!(text.contains(coarse["why"].as_str().unwrap()), "{text}");
     let (text, config) = train("off", &["--coarse-to-fine", "off"]);
     assert!(!text.contains("Coarse to fine"), "{text}");
     assert!(config.get("coarse").is_none(), "{config}");
@@ -230,6 +242,16 @@ fn the_cli_starts_coarse_by_default_and_says_so() {
     assert_eq!(
         (config.get("coarse"), &config["iters"]),
         (None, &serde_json::json!(60))
+    );
+    // The resumed run's own decisions are recorded (they differ from the checkpoint's, which
+    // a resume does not count as other settings).
+    assert_eq!(decided(&config, "coarse_to_fine").unwrap()["value"], "off");
+    assert!(
+        decided(&config, "iters").unwrap()["why"]
+            .as_str()
+            .unwrap()
+            .starts_with("The run is extended to 60 steps"),
+        "{config}"
     );
     // Three levels asked for: 64 px leave room for one of at least 32 px.
     let (text, _) = train("deep", &["--coarse-to-fine", "3:5"]);

@@ -234,6 +234,10 @@ pub struct TrainConfig {
     /// size (absent from the configs of runs without it, so their fingerprints stay).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub coarse: Option<Coarse>,
+    /// What the run decided for its capture and why ([`crate::train::decisions::explain`]):
+    /// a record, not a setting (a resume compares everything else).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub decisions: Vec<crate::train::decisions::Decision>,
 }
 
 /// Steps the schedules of an `--iters auto` run are made for: 150 per training view (how
@@ -556,6 +560,7 @@ impl TrainConfig {
             ),
             recipe,
             stop: None,
+            decisions: Vec::new(),
         };
         if settings.iters == Iters::Auto {
             // No stop while splats are still added and removed, or while λ still falls.

@@ -7,6 +7,7 @@ pub mod checkpoint;
 pub mod coarse;
 pub mod config;
 pub mod data;
+pub mod decisions;
 pub mod densify;
 pub mod eval;
 pub mod iac;
@@ -172,6 +173,7 @@ pub fn config_differences(a: &TrainConfig, b: &TrainConfig) -> Vec<String> {
         save_at: Vec::new(),
         checkpoint_every: 0,
         eval_every: 0,
+        decisions: Vec::new(),
         ..c.clone()
     };
     let (a, b) = (same_length(a), same_length(b));
