@@ -1475,6 +1475,14 @@ fn hostile_run_files() {
     };
     let v3 = versioned(b"METASPLAT-RESTORER 3\n", base::hash::xxh3);
     let v2 = versioned(b"METASPLAT-RESTORER 2\n", base::hash::fnv1a64);
+    // Version 4 (safetensors) as `restorer train` writes it now, from the same network.
+    let v4 = {
+        let device = restore::Compute::Cpu.device().unwrap();
+        let (net, header) = restore::weights::load(&shipped_path, &device, None, None).unwrap();
+        let path = d.join("v4.safetensors");
+        restore::weights::save(&net, &header, &path).unwrap();
+        std::fs::read(&path).unwrap()
+    };
     let photo = d.join("photo.png");
     image::RgbImage::from_fn(32, 32, |x, y| {
         image::Rgb([(x * 7) as u8, (y * 7) as u8, 50])
@@ -1485,7 +1493,7 @@ fn hostile_run_files() {
     std::fs::write(&psf, npy(&psf_dict("(9, 5, 5, 3)"), &f32s(&psf_values()))).unwrap();
     let bad = d.join("bad.bin");
     let mut weights: Vec<(String, Vec<u8>)> = vec![("empty".into(), vec![])];
-    for (version, v) in [("", &v3), ("version 2, ", &v2)] {
+    for (version, v) in [("", &v3), ("version 2, ", &v2), ("version 4, ", &v4)] {
         for cut in [10, 21, 29, 200, v.len() / 2, v.len() - 1] {
             weights.push((format!("{version}cut at {cut}"), v[..cut].to_vec()));
         }

@@ -2,16 +2,24 @@
 //! schedule, the step reached, the batch sampler's position and AdamW's moments. Written beside
 //! the weights file (`W.state`) at every checkpoint, after the weights, with a hash of them so
 //! a pair from two different checkpoints is refused rather than silently mixed.
+//!
+//! Layout: a safetensors file whose metadata holds the state's JSON under `metasplat`, the
+//! format under `format` and, under `crc32`, the CRC-32 of the JSON and of the one tensor,
+//! `optimizer` (u8): burn's AdamW record as burnpack bytes (burn's optimizer records have no
+//! named-tensor store, so the moments travel as one blob). The earlier layout (magic line,
+//! u64 header length, JSON, record, no checksum) still loads.
 
 use crate::error::{RestoreError, Result};
 use crate::train::Schedule;
 use burn::optim::OptimizerRecord;
 use burn::tensor::Bytes;
 use serde::{Deserialize, Serialize};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
+/// The earlier layout's first line; still read.
 const MAGIC: &[u8] = b"METASPLAT-RESTORER-STATE 1\n";
+const FORMAT: &str = "metasplat-restorer-state 2";
+const OPTIMIZER: &str = "optimizer";
 
 /// The schedule and position of a run; the optimizer's moments travel beside it as burnpack.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -47,19 +55,81 @@ fn bad(path: &Path, message: impl Into<String>) -> RestoreError {
     }
 }
 
+/// CRC-32 of the state's JSON and of the optimizer bytes.
+fn crc(json: &str, record: &[u8]) -> String {
+    let mut h = crc32fast::Hasher::new();
+    h.update(json.as_bytes());
+    h.update(&(record.len() as u64).to_le_bytes());
+    h.update(record);
+    format!("{:08x}", h.finalize())
+}
+
 /// Writes the state and the optimizer record to `path` (temporary name, then rename).
 pub fn save(state: &TrainState, optim: OptimizerRecord, path: &Path) -> Result<()> {
-    let json = serde_json::to_vec(state).map_err(|e| bad(path, e.to_string()))?;
+    let json = serde_json::to_string(state).map_err(|e| bad(path, e.to_string()))?;
     let record = optim
         .into_bytes()
         .map_err(|e| bad(path, format!("cannot serialise the optimizer state: {e}")))?;
-    base::write_atomically(path, |w| {
-        w.write_all(MAGIC)?;
-        w.write_all(&(json.len() as u64).to_le_bytes())?;
-        w.write_all(&json)?;
-        w.write_all(&record)
-    })
-    .map_err(|e| RestoreError::Io(path.to_path_buf(), e))
+    let metadata = std::collections::HashMap::from([
+        ("format".to_string(), FORMAT.to_string()),
+        ("crc32".to_string(), crc(&json, &record)),
+        ("metasplat".to_string(), json),
+    ]);
+    let view =
+        safetensors::tensor::TensorView::new(safetensors::Dtype::U8, vec![record.len()], &record)
+            .map_err(|e| bad(path, e.to_string()))?;
+    let bytes = safetensors::serialize([(OPTIMIZER, view)], Some(metadata))
+        .map_err(|e| bad(path, e.to_string()))?;
+    base::write_bytes_atomically(path, &bytes).map_err(|e| RestoreError::Io(path.to_path_buf(), e))
+}
+
+/// The state's JSON and the optimizer bytes of a state file, the checksum checked.
+fn split<'a>(bytes: &'a [u8], path: &Path) -> Result<(std::borrow::Cow<'a, str>, &'a [u8])> {
+    if bytes.starts_with(MAGIC) {
+        if bytes.len() < MAGIC.len() + 8 {
+            return Err(bad(path, "truncated header"));
+        }
+        let start = MAGIC.len() + 8;
+        let n = u64::from_le_bytes(bytes[MAGIC.len()..start].try_into().expect("8 bytes"));
+        if n > (bytes.len() - start) as u64 {
+            return Err(bad(path, "truncated header"));
+        }
+        let n = n as usize;
+        let json = std::str::from_utf8(&bytes[start..start + n])
+            .map_err(|e| bad(path, format!("bad header: {e}")))?;
+        return Ok((json.into(), &bytes[start + n..]));
+    }
+    let not_state = |why: String| {
+        bad(
+            path,
+            format!(
+                "not a metasplat restorer training state ({why}: damaged, truncated or with bytes appended?)"
+            ),
+        )
+    };
+    let file =
+        safetensors::SafeTensors::deserialize(bytes).map_err(|e| not_state(e.to_string()))?;
+    let (_, meta) =
+        safetensors::SafeTensors::read_metadata(bytes).map_err(|e| not_state(e.to_string()))?;
+    let meta = meta.metadata().clone().unwrap_or_default();
+    let (Some(FORMAT), Some(json), Some(stored)) = (
+        meta.get("format").map(String::as_str),
+        meta.get("metasplat"),
+        meta.get("crc32"),
+    ) else {
+        return Err(not_state(format!("its metadata does not name '{FORMAT}'")));
+    };
+    let record = file
+        .tensor(OPTIMIZER)
+        .map_err(|e| not_state(e.to_string()))?
+        .data();
+    if crc(json, record) != *stored {
+        return Err(bad(
+            path,
+            "checksum mismatch: the state is damaged, truncated or has bytes changed",
+        ));
+    }
+    Ok((json.clone().into(), record))
 }
 
 /// Reads the state of the run whose weights are at `weights`, and checks that the two files
@@ -75,17 +145,9 @@ pub fn load(weights: &Path) -> Result<(TrainState, OptimizerRecord)> {
             ),
         )
     })?;
-    if !bytes.starts_with(MAGIC) || bytes.len() < MAGIC.len() + 8 {
-        return Err(bad(&path, "not a metasplat restorer training state"));
-    }
-    let start = MAGIC.len() + 8;
-    let n = u64::from_le_bytes(bytes[MAGIC.len()..start].try_into().expect("8 bytes"));
-    if n > (bytes.len() - start) as u64 {
-        return Err(bad(&path, "truncated header"));
-    }
-    let n = n as usize;
-    let state: TrainState = serde_json::from_slice(&bytes[start..start + n])
-        .map_err(|e| bad(&path, format!("bad header: {e}")))?;
+    let (json, record) = split(&bytes, &path)?;
+    let state: TrainState =
+        serde_json::from_str(&json).map_err(|e| bad(&path, format!("bad header: {e}")))?;
     if state.step > state.schedule.steps || state.rng_word_pos.parse::<u128>().is_err() {
         return Err(bad(
             &path,
@@ -109,7 +171,7 @@ pub fn load(weights: &Path) -> Result<(TrainState, OptimizerRecord)> {
             ),
         ));
     }
-    let optim = OptimizerRecord::from_bytes(Bytes::from_bytes_vec(bytes[start + n..].to_vec()))
+    let optim = OptimizerRecord::from_bytes(Bytes::from_bytes_vec(record.to_vec()))
         .map_err(|e| bad(&path, format!("bad optimizer state: {e}")))?;
     Ok((state, optim))
 }

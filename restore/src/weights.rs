@@ -1,21 +1,37 @@
-//! The weights file: a short JSON header (configuration, the PSF grid the network was trained
-//! for, how it was made) followed by burn's burnpack record. One file, written atomically.
+//! The weights file: the network's tensors with a short JSON header (configuration, the PSF
+//! grid the network was trained for, how it was made). One file, written atomically.
 //!
-//! Layout: magic line, u64 header length, JSON header, record, and (version 3) the XXH3
-//! checksum of everything before it, little-endian. Older files still load: version 2 ends in
-//! an FNV-1a checksum, version 1 (such as the shipped `tiny.bin`) has none. Where there is a
-//! checksum, a flipped byte or appended bytes are refused naming the file.
+//! Layout (version 4): a safetensors file, readable from numpy and PyTorch
+//! (`safetensors.numpy.load_file`), whose tensors are the network's parameters named by
+//! their path in the module (burn's store) and whose metadata holds the header under
+//! `metasplat`, the format under `format` and, under `crc32`, the CRC-32 of the header and
+//! of every tensor (name, length, bytes) in name order, and under `param_ids` each tensor's
+//! parameter id (burn's, which AdamW's state is keyed by, so a resumed training run finds its
+//! moments). Older files still load: magic line,
+//! u64 header length, JSON header, burn's burnpack record and (version 3) the XXH3 checksum of
+//! everything before it; version 2 ends in an FNV-1a checksum, version 1 (such as the shipped
+//! `tiny.bin`) has none. Where there is a checksum, a flipped byte or appended bytes are
+//! refused naming the file.
 
 use crate::config::RestorerConfig;
 use crate::error::{RestoreError, Result};
 use crate::net::RestorerNet;
 use aberration::PsfGrid;
 use burn::module::{Module, ModuleVisitor, Param};
-use burn::store::ModuleRecord;
+use burn::store::{ModuleRecord, ModuleSnapshot, SafetensorsStore};
 use burn::tensor::{Bytes, Device, Tensor};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+/// The format a version 4 (safetensors) file names in its metadata.
+const FORMAT: &str = "metasplat-restorer 4";
+const FORMAT_KEY: &str = "format";
+const HEADER_KEY: &str = "metasplat";
+const CRC_KEY: &str = "crc32";
+const IDS_KEY: &str = "param_ids";
+/// Every version before 4 starts with this.
+const MAGIC_PREFIX: &[u8] = b"METASPLAT-RESTORER ";
+/// The third version, ending in an XXH3 checksum; still read.
 const MAGIC: &[u8] = b"METASPLAT-RESTORER 3\n";
 /// The second version, ending in an FNV-1a checksum; still read.
 const MAGIC_V2: &[u8] = b"METASPLAT-RESTORER 2\n";
@@ -168,32 +184,112 @@ pub fn save(net: &RestorerNet, header: &Header, path: &Path) -> Result<String> {
             ),
         ));
     }
-    let json = serde_json::to_vec(header).map_err(|e| bad(path, e.to_string()))?;
-    let record = net
-        .clone()
-        .into_record()
-        .into_bytes()
-        .map_err(|e| bad(path, format!("cannot serialise the record: {e}")))?;
-    let mut bytes = Vec::with_capacity(MAGIC.len() + 8 + json.len() + record.len() + CHECKSUM);
-    bytes.extend_from_slice(MAGIC);
-    bytes.extend_from_slice(&(json.len() as u64).to_le_bytes());
-    bytes.extend_from_slice(&json);
-    bytes.extend_from_slice(&record);
-    let sum = base::hash::xxh3(&bytes);
-    bytes.extend_from_slice(&sum.to_le_bytes());
+    let json = serde_json::to_string(header).map_err(|e| bad(path, e.to_string()))?;
+    let mut store = SafetensorsStore::from_bytes(None);
+    net.save_into(&mut store)
+        .map_err(|e| bad(path, format!("cannot collect the tensors: {e}")))?;
+    let raw = store
+        .get_bytes()
+        .map_err(|e| bad(path, format!("cannot serialise the tensors: {e}")))?;
+    let ids: std::collections::BTreeMap<String, u64> = net
+        .collect(None, None, false)
+        .into_iter()
+        .filter_map(|t| Some((t.name, t.param_id?)))
+        .collect();
+    let ids = serde_json::to_string(&ids).map_err(|e| bad(path, e.to_string()))?;
+    let bytes = with_header(&raw, &json, &ids).map_err(|e| bad(path, e))?;
     base::write_bytes_atomically(path, &bytes)
         .map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
     Ok(fingerprint(&bytes))
 }
 
-/// Reads a weights file: its header and the record bytes.
-pub fn read(path: &Path) -> Result<(Header, Vec<u8>)> {
+/// CRC-32 of the header and of every tensor (name, byte length, bytes), in name order.
+fn crc(header: &str, tensors: &[(String, safetensors::tensor::TensorView<'_>)]) -> u32 {
+    let mut h = crc32fast::Hasher::new();
+    h.update(header.as_bytes());
+    for (name, view) in tensors {
+        h.update(name.as_bytes());
+        h.update(&(view.data().len() as u64).to_le_bytes());
+        h.update(view.data());
+    }
+    h.finalize()
+}
+
+/// The tensors of a safetensors file, in name order.
+fn sorted<'a>(
+    file: &safetensors::SafeTensors<'a>,
+) -> Vec<(String, safetensors::tensor::TensorView<'a>)> {
+    let mut t = file.tensors();
+    t.sort_by(|a, b| a.0.cmp(&b.0));
+    t
+}
+
+/// The safetensors file burn's store wrote (`raw`), again with our metadata: the header, the
+/// format, the parameter ids and the checksum.
+fn with_header(raw: &[u8], header: &str, ids: &str) -> std::result::Result<Vec<u8>, String> {
+    let file = safetensors::SafeTensors::deserialize(raw).map_err(|e| e.to_string())?;
+    let tensors = sorted(&file);
+    let metadata = std::collections::HashMap::from([
+        (FORMAT_KEY.to_string(), FORMAT.to_string()),
+        (HEADER_KEY.to_string(), header.to_string()),
+        (IDS_KEY.to_string(), ids.to_string()),
+        (
+            CRC_KEY.to_string(),
+            format!("{:08x}", crc(header, &tensors)),
+        ),
+    ]);
+    safetensors::serialize(tensors, Some(metadata)).map_err(|e| e.to_string())
+}
+
+/// The tensors of a version 4 file as burn's store applies them, each with the parameter id
+/// it was saved with (a file without ids gives fresh ones).
+fn pack_tensors(bytes: &[u8]) -> std::result::Result<Vec<burn::store::burn_pack::Tensor>, String> {
+    use burn::store::burn_pack::{Bytes as PackBytes, DType};
+    let file = safetensors::SafeTensors::deserialize(bytes).map_err(|e| e.to_string())?;
+    let (_, metadata) =
+        safetensors::SafeTensors::read_metadata(bytes).map_err(|e| e.to_string())?;
+    let ids: std::collections::BTreeMap<String, u64> =
+        match metadata.metadata().as_ref().and_then(|m| m.get(IDS_KEY)) {
+            Some(json) => serde_json::from_str(json).map_err(|e| format!("bad {IDS_KEY}: {e}"))?,
+            None => Default::default(),
+        };
+    file.tensors()
+        .into_iter()
+        .map(|(name, view)| {
+            if view.dtype() != safetensors::Dtype::F32 {
+                return Err(format!("tensor {name} is {:?}, not f32", view.dtype()));
+            }
+            let id = ids.get(&name).copied();
+            Ok(burn::store::burn_pack::Tensor::new(
+                name,
+                DType::F32,
+                view.shape().to_vec(),
+                id,
+                PackBytes::from_bytes_vec(view.data().to_vec()),
+            ))
+        })
+        .collect()
+}
+
+/// The network's parameters as a file holds them.
+pub enum Record {
+    /// Version 4: the whole safetensors file.
+    Safetensors(Vec<u8>),
+    /// Versions 1 to 3: burn's burnpack record.
+    Burnpack(Vec<u8>),
+}
+
+/// Reads a weights file: its header and the record.
+pub fn read(path: &Path) -> Result<(Header, Record)> {
     let bytes = base::input::read(path).map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
     parse(&bytes, path)
 }
 
 /// Splits the bytes of a weights file (`path` names it in errors) into header and record.
-pub fn parse(bytes: &[u8], path: &Path) -> Result<(Header, Vec<u8>)> {
+pub fn parse(bytes: &[u8], path: &Path) -> Result<(Header, Record)> {
+    if !bytes.starts_with(MAGIC_PREFIX) {
+        return parse_safetensors(bytes, path);
+    }
     let checksum: Option<fn(&[u8]) -> u64> = if bytes.starts_with(MAGIC) {
         Some(base::hash::xxh3)
     } else if bytes.starts_with(MAGIC_V2) {
@@ -232,7 +328,46 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<(Header, Vec<u8>)> {
     let header: Header = serde_json::from_slice(&bytes[start..start + n])
         .map_err(|e| bad(path, format!("bad header: {e}")))?;
     header.config.validate().map_err(|e| bad(path, e))?;
-    Ok((header, bytes[start + n..].to_vec()))
+    Ok((header, Record::Burnpack(bytes[start + n..].to_vec())))
+}
+
+/// [`parse`] for a version 4 file: the checksum checked, the header read.
+fn parse_safetensors(bytes: &[u8], path: &Path) -> Result<(Header, Record)> {
+    let not_ours = |why: String| {
+        bad(
+            path,
+            format!("not a metasplat restorer weights file ({why})"),
+        )
+    };
+    let unreadable = |e: safetensors::SafeTensorError| {
+        bad(
+            path,
+            format!(
+                "not a restorer weights file: no metasplat magic line, and not a whole safetensors file ({e}: damaged, truncated or with bytes appended?)"
+            ),
+        )
+    };
+    let file = safetensors::SafeTensors::deserialize(bytes).map_err(unreadable)?;
+    let (_, metadata) = safetensors::SafeTensors::read_metadata(bytes).map_err(unreadable)?;
+    let meta = metadata.metadata().clone().unwrap_or_default();
+    if meta.get(FORMAT_KEY).map(String::as_str) != Some(FORMAT) {
+        return Err(not_ours(format!(
+            "a safetensors file whose metadata does not name the format '{FORMAT}'"
+        )));
+    }
+    let (Some(json), Some(stored)) = (meta.get(HEADER_KEY), meta.get(CRC_KEY)) else {
+        return Err(bad(path, "the metadata has no header or no checksum"));
+    };
+    if format!("{:08x}", crc(json, &sorted(&file))) != *stored {
+        return Err(bad(
+            path,
+            "checksum mismatch: the file is damaged, truncated or has bytes changed",
+        ));
+    }
+    let header: Header =
+        serde_json::from_str(json).map_err(|e| bad(path, format!("bad header: {e}")))?;
+    header.config.validate().map_err(|e| bad(path, e))?;
+    Ok((header, Record::Safetensors(bytes.to_vec())))
 }
 
 /// Loads a network. With `expected`, a file of another configuration is refused naming both;
@@ -262,7 +397,7 @@ pub fn load_bytes(
 
 fn build(
     header: Header,
-    record: Vec<u8>,
+    record: Record,
     path: &Path,
     device: &Device,
     expected: Option<&RestorerConfig>,
@@ -287,16 +422,35 @@ fn build(
     {
         return Err(bad(path, why));
     }
-    let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(record))
-        .map_err(|e| bad(path, format!("bad record: {e}")))?;
-    let net = RestorerNet::new(&header.config, device)
-        .try_load_record(record)
-        .map_err(|e| {
-            bad(
-                path,
-                format!("weights do not fit config '{}': {e}", header.config.name),
-            )
-        })?;
+    let fresh = RestorerNet::new(&header.config, device);
+    let unfit = |e: String| {
+        bad(
+            path,
+            format!("weights do not fit config '{}': {e}", header.config.name),
+        )
+    };
+    let net = match record {
+        Record::Burnpack(record) => {
+            let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(record))
+                .map_err(|e| bad(path, format!("bad record: {e}")))?;
+            fresh
+                .try_load_record(record)
+                .map_err(|e| unfit(e.to_string()))?
+        }
+        Record::Safetensors(bytes) => {
+            let mut net = fresh;
+            let applied = net.apply(pack_tensors(&bytes).map_err(unfit)?, None, None, false);
+            if !applied.is_success() || !applied.missing.is_empty() || !applied.unused.is_empty() {
+                return Err(unfit(format!(
+                    "{} tensors missing, {} unused, {} not applied",
+                    applied.missing.len(),
+                    applied.unused.len(),
+                    applied.errors.len()
+                )));
+            }
+            net
+        }
+    };
     let bad_tensors = non_finite_tensors(&net);
     if bad_tensors > 0 {
         return Err(bad(

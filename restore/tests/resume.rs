@@ -194,10 +194,43 @@ fn a_state_from_another_checkpoint_is_refused_naming_the_file() {
     assert_eq!(back, state);
     assert!(record.is_empty());
 
-    // Truncated: refused, not a panic.
+    // A safetensors file with the state in its metadata; a flipped byte in the optimizer's
+    // bytes or in the JSON is refused by the checksum, naming the file.
     let bytes = std::fs::read(state_path(&missing)).unwrap();
-    std::fs::write(state_path(&missing), &bytes[..bytes.len() / 3]).unwrap();
-    assert!(train_state::load(&missing).is_err());
+    let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
+    let meta = meta.metadata().clone().unwrap();
+    assert_eq!(meta["format"], "metasplat-restorer-state 2");
+    let json = meta["metasplat"].clone();
+    let at = bytes
+        .windows(6)
+        .position(|w| w == b"step\\\"")
+        .unwrap_or(bytes.len() - 1);
+    for at in [bytes.len() - 1, at] {
+        let mut bad = bytes.clone();
+        bad[at] ^= 0x01;
+        std::fs::write(state_path(&missing), &bad).unwrap();
+        let err = train_state::load(&missing).unwrap_err().to_string();
+        assert!(err.contains("w.bin.state"), "{err}");
+    }
+    // The earlier layout (magic line, header length, JSON, burnpack record) still loads.
+    let record = burn::optim::OptimizerRecord::default()
+        .into_bytes()
+        .unwrap();
+    let old = [
+        b"METASPLAT-RESTORER-STATE 1\n".as_slice(),
+        &(json.len() as u64).to_le_bytes(),
+        json.as_bytes(),
+        &record,
+    ]
+    .concat();
+    std::fs::write(state_path(&missing), &old).unwrap();
+    assert_eq!(train_state::load(&missing).unwrap().0, state);
+
+    // Truncated: refused, not a panic.
+    for bytes in [&bytes, &old] {
+        std::fs::write(state_path(&missing), &bytes[..bytes.len() / 3]).unwrap();
+        assert!(train_state::load(&missing).is_err());
+    }
 }
 
 #[test]

@@ -106,19 +106,37 @@ fn weights_of_another_config_or_psf_grid_are_refused_naming_both() {
     assert!(e.contains("do not fit config 'small'"), "{e}");
 }
 
+/// `net` in the layout of version 3 (magic line, u64 header length, JSON header, burnpack
+/// record, XXH3 of what precedes it), made here from burn's record as that version wrote it.
+fn version_3(net: &RestorerNet, header: &Header) -> Vec<u8> {
+    use burn::module::Module;
+    let json = serde_json::to_vec(header).unwrap();
+    let record = net.clone().into_record().into_bytes().unwrap();
+    let mut bytes = b"METASPLAT-RESTORER 3\n".to_vec();
+    bytes.extend_from_slice(&(json.len() as u64).to_le_bytes());
+    bytes.extend_from_slice(&json);
+    bytes.extend_from_slice(&record);
+    let sum = base::hash::xxh3(&bytes);
+    bytes.extend_from_slice(&sum.to_le_bytes());
+    bytes
+}
+
 #[test]
-fn a_flipped_byte_or_appended_bytes_are_refused_and_version_1_still_loads() {
+fn a_flipped_byte_or_appended_bytes_are_refused_and_older_versions_still_load() {
     let device = Device::flex();
     let cfg = RestorerConfig::tiny();
     let net = RestorerNet::new(&cfg, &device);
+    let x = Tensor::<4>::random([1, 39, 32, 32], Distribution::Default, &device);
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("w.bin");
     weights::save(&net, &header(&cfg, &psf_a()), &path).unwrap();
     let good = std::fs::read(&path).unwrap();
-    assert!(weights::load(&path, &device, Some(&cfg), None).is_ok());
-    // A flip in the header, in the record and in the checksum; then appended bytes.
+    let (loaded, _) = weights::load(&path, &device, Some(&cfg), None).unwrap();
+    assert_eq!(outputs(&loaded, &x), outputs(&net, &x));
+    // A flip in the tensors' bytes (the middle, the last byte) is caught by the checksum; one
+    // in the safetensors header is refused too; so are appended bytes. Each names the file.
     let n = good.len();
-    for at in [40, n / 2, n - 1] {
+    for at in [n / 2, n - 1] {
         let mut bad = good.clone();
         bad[at] ^= 0x10;
         let e = weights::parse(&bad, &path).err().unwrap().to_string();
@@ -127,30 +145,87 @@ fn a_flipped_byte_or_appended_bytes_are_refused_and_version_1_still_loads() {
             "byte {at}: {e}"
         );
     }
-    let mut long = good.clone();
-    long.extend_from_slice(b"garbage");
-    let e = weights::parse(&long, &path).err().unwrap().to_string();
-    assert!(e.contains("w.bin") && e.contains("checksum"), "{e}");
-    // The file is version 3 and ends in the XXH3 of what precedes it.
-    assert!(good.starts_with(b"METASPLAT-RESTORER 3\n"));
-    assert_eq!(
-        good[n - 8..],
-        base::hash::xxh3(&good[..n - 8]).to_le_bytes()
-    );
+    for bad in [
+        {
+            let mut b = good.clone();
+            b[40] ^= 0x10;
+            b
+        },
+        [good.as_slice(), b"garbage"].concat(),
+        good[..n - 3].to_vec(),
+    ] {
+        let e = weights::parse(&bad, &path).err().unwrap().to_string();
+        assert!(
+            e.contains("w.bin")
+                && ["checksum", "damaged", "not a metasplat"]
+                    .iter()
+                    .any(|w| e.contains(w)),
+            "{e}"
+        );
+    }
+    // Version 3, as it was written, loads to the same network.
+    let v3 = version_3(&net, &header(&cfg, &psf_a()));
+    let (old, _) = weights::load_bytes(&v3, &path, &device, Some(&cfg), None).unwrap();
+    assert_eq!(outputs(&old, &x), outputs(&net, &x));
+    let m = v3.len();
+    let mut bad = v3.clone();
+    bad[m / 2] ^= 0x10;
+    assert!(weights::parse(&bad, &path).is_err());
     // Version 2: the same body under its magic line, ending in its FNV-1a, still reads, and
     // a flip in it is still caught.
-    let mut v2 = good[..n - 8].to_vec();
+    let mut v2 = v3[..m - 8].to_vec();
     v2[..21].copy_from_slice(b"METASPLAT-RESTORER 2\n");
     let sum = base::hash::fnv1a64(&v2);
     v2.extend_from_slice(&sum.to_le_bytes());
     assert!(weights::load_bytes(&v2, &path, &device, Some(&cfg), None).is_ok());
-    v2[n / 2] ^= 0x10;
+    v2[m / 2] ^= 0x10;
     assert!(weights::parse(&v2, &path).is_err());
     // Version 1: the same bytes without the checksum and with the old magic line.
-    let mut v1 = good[..n - 8].to_vec();
+    let mut v1 = v3[..m - 8].to_vec();
     v1[..21].copy_from_slice(b"METASPLAT-RESTORER 1\n");
     let (h, _) = weights::parse(&v1, &path).unwrap();
     assert_eq!(h.config.name, "tiny");
+}
+
+/// A weights file is a safetensors file other tools read: every parameter a named f32
+/// tensor, the header and the format in its metadata. Another safetensors file is refused as
+/// not ours.
+#[test]
+fn weights_are_a_safetensors_file_with_the_header_in_its_metadata() {
+    let device = Device::flex();
+    let cfg = RestorerConfig::tiny();
+    let net = RestorerNet::new(&cfg, &device);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("w.safetensors");
+    weights::save(&net, &header(&cfg, &psf_a()), &path).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let file = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
+    let meta = meta.metadata().clone().unwrap();
+    assert_eq!(meta["format"], "metasplat-restorer 4");
+    let h: Header = serde_json::from_str(&meta["metasplat"]).unwrap();
+    assert_eq!(h.config.name, "tiny");
+    let values: usize = file
+        .tensors()
+        .iter()
+        .map(|(name, t)| {
+            assert_eq!(t.dtype(), safetensors::Dtype::F32, "{name}");
+            t.shape().iter().product::<usize>()
+        })
+        .sum();
+    use burn::module::Module;
+    assert_eq!(values, net.num_params());
+    // Someone else's safetensors file.
+    let other = safetensors::serialize(
+        file.tensors().into_iter().take(1),
+        Some(std::collections::HashMap::new()),
+    )
+    .unwrap();
+    let e = weights::parse(&other, &path).err().unwrap().to_string();
+    assert!(
+        e.contains("w.safetensors") && e.contains("not a metasplat"),
+        "{e}"
+    );
 }
 
 /// `net` with one weight tensor multiplied by `value` (NaN or infinity).
