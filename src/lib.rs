@@ -3,9 +3,10 @@
 //! The library behind the `metasplat` binary: the aberration-aware training loop
 //! ([`train`]), one run assembled from a request ([`run`]) with its settings ([`settings`]),
 //! the splat side of a run ([`splats`]: initial splats, the procedural scenes, the renderer
-//! it runs on), and what a run writes and shows ([`output`]).
+//! it runs on), what a run writes and shows ([`output`]), and the experiments ([`lab`]).
 
 pub mod error;
+pub mod lab;
 pub mod output;
 pub mod run;
 pub mod settings;

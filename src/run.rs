@@ -50,6 +50,14 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
     })
 }
 
+/// A run from request to outputs with nothing said: prepared, its missing `I_ac` made, then
+/// trained (an experiment's runs, which report through their own table).
+pub fn train_quietly(request: &RunRequest) -> Result<RunSummary> {
+    let mut prepared = prepare(request)?;
+    prepared.restore_iac(&mut |_, _| {})?;
+    Ok(prepared.run(&mut |_| {})?.0)
+}
+
 /// Every check [`prepare`] makes, with nothing written: for a caller that makes other
 /// outputs before this run starts (an experiment's aberrated copy) and must not make them
 /// for a run that would be refused.

@@ -129,22 +129,6 @@ pub fn sensor_flag(sensor_px: Option<usize>, psf: &std::path::Path) -> String {
     }
 }
 
-/// Refuses to make an aberrated capture from one that already is (it holds
-/// `aberration.json`): its blurred photos would become the new clean images and be blurred a
-/// second time.
-pub fn refuse_aberrated_source(flag: &str, scene: &std::path::Path) -> anyhow::Result<()> {
-    let record = scene.join(scenes::aberrated::RECORD_FILE);
-    if record.is_file() {
-        anyhow::bail!(
-            "{flag} {} is already an aberrated capture ({} exists): its photos are blurred, and \
-             aberrating them again would make them the clean images; start from the clean capture",
-            scene.display(),
-            record.display()
-        );
-    }
-    Ok(())
-}
-
 impl Cli {
     /// Whether the command stops at safe points when asked ([`base::interrupt`]): long work
     /// that stages its output or checkpoints. Others (the viewer, one image) keep Ctrl-C's

@@ -125,7 +125,7 @@ fn aberrate(a: SceneAberrateArgs) -> Result<()> {
         &a.out,
         &[("--scene", &a.scene), ("--psf", &a.psf)],
     )?;
-    super::refuse_aberrated_source("--scene", &a.scene)?;
+    metasplat::output::guard::refuse_aberrated_source("--scene", &a.scene)?;
     let capture = super::open_scene(&a.scene, a.downsample, a.keep_distortion)?;
     let mut inputs =
         metasplat::output::guard::Inputs::of(&[("--scene", &a.scene), ("--psf", &a.psf)]);

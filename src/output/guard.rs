@@ -253,6 +253,22 @@ pub fn refuse_other_extension(flag: &str, path: &Path, ext: &str, what: &str) ->
     )))
 }
 
+/// Refuses to make an aberrated capture from one that already is (it holds
+/// `aberration.json`): its blurred photos would become the new clean images and be blurred a
+/// second time.
+pub fn refuse_aberrated_source(flag: &str, scene: &Path) -> Result<()> {
+    let record = scene.join(scenes::aberrated::RECORD_FILE);
+    if record.is_file() {
+        return Err(TrainError::Invalid(format!(
+            "{flag} {} is already an aberrated capture ({} exists): its photos are blurred, and \
+             aberrating them again would make them the clean images; start from the clean capture",
+            scene.display(),
+            record.display()
+        )));
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

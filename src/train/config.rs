@@ -237,7 +237,25 @@ pub struct TrainConfig {
     /// What the run decided for its capture and why ([`crate::train::decisions::explain`]):
     /// a record, not a setting (a resume compares everything else).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub decisions: Vec<crate::train::decisions::Decision>,
+    pub decisions: Vec<Decision>,
+}
+
+/// One decision of a run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Decision {
+    /// The setting decided, as its flag names it without the dashes (`strategy`,
+    /// `background`, …), or what the capture brings (`i_ac`, `undistortion`, `scored`).
+    pub setting: String,
+    /// What it is, briefly.
+    pub value: String,
+    /// The decision and its reason, as the sentence `train` prints.
+    pub why: String,
+}
+
+impl std::fmt::Display for Decision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.why)
+    }
 }
 
 /// Steps the schedules of an `--iters auto` run are made for: 150 per training view (how

@@ -4,31 +4,11 @@
 //! what held-out views are scored against). [`explain`] states them once the config is
 //! final; `train` prints them, `config.json` records them, and no caller derives them again.
 
-use serde::{Deserialize, Serialize};
-
 use crate::settings::{Background, MaskChoice, MaskUse, StrategyChoice, Toggle, TrainSettings};
 use crate::train::coarse::{Coarse, MIN_COARSE_SIDE};
-use crate::train::config::{Mode, Strategy, TrainConfig};
+use crate::train::config::{Decision, Mode, Strategy, TrainConfig};
 use crate::train::data::Dataset;
 use crate::train::eval::{Against, reference};
-
-/// One decision of a run.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Decision {
-    /// The setting decided, as its flag names it without the dashes (`strategy`,
-    /// `background`, …), or what the capture brings (`i_ac`, `undistortion`, `scored`).
-    pub setting: String,
-    /// What it is, briefly.
-    pub value: String,
-    /// The decision and its reason, as the sentence `train` prints.
-    pub why: String,
-}
-
-impl std::fmt::Display for Decision {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.why)
-    }
-}
 
 fn decision(setting: &str, value: impl ToString, why: impl Into<String>) -> Decision {
     Decision {

@@ -3,15 +3,13 @@
 //! one table (PSNR/SSIM against the clean images, minutes, splats) plus test PSNR reached
 //! against training time: the speed-against-error report of the main job.
 
-mod psf_mismatch;
-mod runs;
-
 use super::train::train_run;
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
+use metasplat::lab::psf_mismatch;
+use metasplat::lab::runs::{ExperimentRuns, refuse_repeats};
 use metasplat::output::plot::{Series, line_plot};
 use metasplat::train::config::Mode;
-use runs::{ExperimentRuns, refuse_repeats};
 use std::fmt::Write as _;
 
 #[derive(Subcommand)]
@@ -86,7 +84,15 @@ pub fn run(cmd: ExperimentCommand) -> Result<()> {
     match cmd {
         ExperimentCommand::Llff(a) => llff(a),
         ExperimentCommand::Budget(a) => budget(a),
-        ExperimentCommand::PsfMismatch(a) => psf_mismatch::run(a),
+        ExperimentCommand::PsfMismatch(a) => {
+            let report = psf_mismatch::run(&a, &mut |s| println!("{s}"))?;
+            println!("\n{}", report.table);
+            println!(
+                "wrote {} and the plots beside it",
+                report.table_path.display()
+            );
+            Ok(())
+        }
     }
 }
 
@@ -101,7 +107,7 @@ fn budget(a: BudgetArgs) -> Result<()> {
         clean.training.max_splats = Some(b.0.unwrap_or(UNBOUNDED));
         a.runs.check_ceiling(&clean)?;
     }
-    let (aberrated, _lock) = a.runs.aberrated()?;
+    let (aberrated, _lock) = a.runs.aberrated(&mut |s| println!("{s}"))?;
     let mut rows = Vec::new();
     for &b in &a.budgets {
         let run_dir = a.runs.out.join(format!("budget_{b}"));
@@ -239,7 +245,7 @@ fn llff(a: LlffArgs) -> Result<()> {
     if a.runs.ceiling {
         a.runs.check_ceiling(&ceiling_run())?;
     }
-    let (aberrated, _lock) = a.runs.aberrated()?;
+    let (aberrated, _lock) = a.runs.aberrated(&mut |s| println!("{s}"))?;
     let ceiling = if a.runs.ceiling {
         let args = ceiling_run();
         println!("Training plain on the clean photos (the ceiling).");

@@ -13,15 +13,13 @@ use std::path::{Path, PathBuf};
 
 use aberration::PsfGrid;
 use aberration::optics::SimConfig;
-use anyhow::{Context, Result};
 use clap::Args;
-use metasplat::output::RunSummary;
-use metasplat::output::plot::{Series, line_plot};
-use metasplat::train::config::Mode;
 
 use super::runs::ExperimentRuns;
-use crate::cli::psf::simulate;
-use crate::cli::train::train_run;
+use crate::error::{Result, TrainError};
+use crate::output::RunSummary;
+use crate::output::plot::{Series, line_plot};
+use crate::train::config::Mode;
 
 /// One calibration error.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -98,7 +96,7 @@ impl PsfError {
         self.to_string().replace(':', "")
     }
 
-    fn describe(&self) -> String {
+    pub fn describe(&self) -> String {
         match self {
             Self::Focal(v) => format!("focal length {v:+} %"),
             Self::Lasers => "laser lines 635/532/450 nm".into(),
@@ -120,7 +118,9 @@ impl PsfError {
             Self::Noise(v) => return Ok(aberration::refine::measured(truth, v, 0.0, seed)?),
             Self::Pedestal(v) => return Ok(aberration::refine::measured(truth, 0.0, v, seed)?),
         }
-        Ok(simulate(&c)?.0)
+        c.validate()
+            .map_err(|e| TrainError::Invalid(format!("{self}: {e}")))?;
+        Ok(aberration::optics::simulate_grid(&c, &|_, _| {})?.0)
     }
 
     /// The family it is plotted in, and its place on that plot's axis.
@@ -166,6 +166,11 @@ pub struct PsfMismatchArgs {
     /// The experiment folder: the aberrated copy, the grids, every run, the table and plots.
     #[arg(long)]
     pub out: PathBuf,
+    /// The true PSF grid (default: simulate the paper's). With a grid given, only errors
+    /// made from the grid itself (`noise`, `pedestal`) can be asked for: the others
+    /// simulate the paper's lens.
+    #[arg(long)]
+    pub psf: Option<PathBuf>,
     /// Training steps of every run.
     #[arg(long, default_value_t = 1500, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub iters: u64,
@@ -176,8 +181,8 @@ pub struct PsfMismatchArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Where to render: `auto`, `cpu`, or `gpu`.
-    #[arg(long, value_enum, default_value_t = metasplat::splats::device::DeviceChoice::Auto)]
-    pub device: metasplat::splats::device::DeviceChoice,
+    #[arg(long, value_enum, default_value_t = crate::splats::device::DeviceChoice::Auto)]
+    pub device: crate::splats::device::DeviceChoice,
     /// Replace runs already in --out.
     #[arg(long)]
     pub overwrite: bool,
@@ -185,7 +190,7 @@ pub struct PsfMismatchArgs {
     #[arg(long, conflicts_with = "overwrite")]
     pub resume: bool,
     /// Weight of L(render, I_ac) (default: as `train`).
-    #[arg(long, value_parser = metasplat::settings::values::weight, allow_negative_numbers = true)]
+    #[arg(long, value_parser = crate::settings::values::weight, allow_negative_numbers = true)]
     pub lambda: Option<f32>,
     /// The errors, one at a time: focal:PERCENT, lasers, defocus:UM, rotate:DEG,
     /// noise:FRACTION (of each PSF's peak), pedestal:FRACTION (of its energy).
@@ -206,16 +211,32 @@ pub struct PsfMismatchArgs {
     #[arg(long)]
     pub keep_distortion: bool,
     /// What the refined runs learn (as `train --refine-psf`).
-    #[arg(long, value_enum, default_value_t = metasplat::train::psf_refine::PsfModel::Warp)]
-    pub refine_model: metasplat::train::psf_refine::PsfModel,
+    #[arg(long, value_enum, default_value_t = crate::train::psf_refine::PsfModel::Warp)]
+    pub refine_model: crate::train::psf_refine::PsfModel,
+}
+
+/// What [`run`] wrote: the table (also in `psf_mismatch.md`) and each row's figures.
+#[derive(Clone, Debug)]
+pub struct PsfMismatchReport {
+    /// The markdown table, as written to [`Self::table_path`].
+    pub table: String,
+    pub table_path: PathBuf,
+    /// Aware and restored with the true grid.
+    pub matched: Figures,
+    pub restored: Figures,
+    /// Per error (in the order asked), per variant (in the order asked).
+    pub rows: Vec<Vec<Figures>>,
+    /// Per error, the wrong grid's mean cell error to the truth at the images' scale.
+    pub grid_errors: Vec<f64>,
 }
 
 /// One finished run's figures.
-struct Figures {
-    psnr: f64,
-    ssim: f64,
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Figures {
+    pub psnr: f64,
+    pub ssim: f64,
     /// The refined grid's mean cell error to the truth (refined runs).
-    refined_error: Option<f64>,
+    pub refined_error: Option<f64>,
 }
 
 impl Figures {
@@ -236,41 +257,52 @@ fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len().max(1) as f64
 }
 
-pub fn run(a: PsfMismatchArgs) -> Result<()> {
+/// Runs the experiment `a` asks for: the aberrated copy and the grids (made once under
+/// `--out`), every run, the table and the plots. `say` hears each stage as a sentence.
+pub fn run(a: &PsfMismatchArgs, say: &mut dyn FnMut(String)) -> Result<PsfMismatchReport> {
     super::runs::refuse_repeats("--errors", &a.errors)?;
     super::runs::refuse_repeats("--variants", &a.variants)?;
+    if a.psf.is_some()
+        && let Some(e) = a
+            .errors
+            .iter()
+            .find(|e| !matches!(e, PsfError::Noise(_) | PsfError::Pedestal(_)))
+    {
+        return Err(TrainError::Invalid(format!(
+            "--errors {e}: with --psf given, only noise and pedestal errors can be made (the others simulate the paper's lens, not the grid given)"
+        )));
+    }
     let runs = ExperimentRuns {
         scene: a.scene.clone(),
         out: a.out.clone(),
-        psf: None,
+        psf: a.psf.clone(),
         iters: a.iters,
         downsample: a.downsample,
         seed: a.seed,
         device: a.device,
         overwrite: a.overwrite,
-        strategy: metasplat::settings::StrategyChoice::Auto,
-        mask_mode: metasplat::settings::MaskChoice::Auto,
-        coarse_to_fine: metasplat::settings::CoarseToFine::Auto,
+        strategy: crate::settings::StrategyChoice::Auto,
+        mask_mode: crate::settings::MaskChoice::Auto,
+        coarse_to_fine: crate::settings::CoarseToFine::Auto,
         ceiling: false,
         resume: a.resume,
         keep_distortion: a.keep_distortion,
     };
-    let (aberrated, _lock) = runs.aberrated()?;
-    let true_path = a.out.join("psf.npy");
+    let (aberrated, _lock) = runs.aberrated(say)?;
+    let true_path = a.psf.clone().unwrap_or_else(|| a.out.join("psf.npy"));
     let truth = PsfGrid::load_npy(&true_path)?;
     let record = scenes::aberrated::AberrationRecord::read(&aberrated)?
-        .context("the aberrated copy has no record")?;
+        .ok_or_else(|| TrainError::file(&aberrated, "the aberrated copy has no aberration.json"))?;
     let (w, h) = (record.width as usize, record.height as usize);
     let truth_here = truth.for_image(w, h, record.sensor_px)?;
     let grids = a.out.join("psf");
-    std::fs::create_dir_all(&grids)
-        .with_context(|| format!("cannot create {}", grids.display()))?;
+    std::fs::create_dir_all(&grids).map_err(|e| TrainError::io(&grids, e))?;
     let cfg = SimConfig::default();
     let mut wrong_error = Vec::new();
     for e in &a.errors {
         let path = grids.join(format!("{}.npy", e.slug()));
         if !path.exists() {
-            println!("simulating the grid with {}", e.describe());
+            say(format!("simulating the grid with {}", e.describe()));
             e.grid(&cfg, &truth, a.seed)?.save_npy(&path)?;
         }
         let here = PsfGrid::load_npy(&path)?.for_image(w, h, record.sensor_px)?;
@@ -295,12 +327,12 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
         // The shipped network serves only the default grid: the runs that believe another
         // would get the Wiener stand-in and the matched one the network, and the table would
         // compare restorers, not grids.
-        args.data.restorer = metasplat::settings::RestorerChoice::Wiener;
+        args.data.restorer = crate::settings::RestorerChoice::Wiener;
         args.spiral = 0;
-        Ok(train_run(&args, true)?.0)
+        crate::run::train_quietly(&args)
     };
     let refined_error = |dir: &Path| -> Result<Option<f64>> {
-        let path = dir.join(metasplat::output::PSF_REFINED_FILE);
+        let path = dir.join(crate::output::PSF_REFINED_FILE);
         if !path.exists() {
             return Ok(None);
         }
@@ -310,13 +342,13 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
             &truth_here,
         )?)))
     };
-    println!("training aware with the true grid (matched)");
+    say("training aware with the true grid (matched)".into());
     let matched_dir = a.out.join("run_matched");
     let matched = Figures::of(
         &train(matched_dir.clone(), Mode::Aware, None, None, false)?,
         None,
     );
-    println!("training restored with the true grid");
+    say("training restored with the true grid".into());
     let restored = Figures::of(
         &train(
             a.out.join("run_restored"),
@@ -328,7 +360,7 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
         None,
     );
     let matched_refined = if a.variants.contains(&Variant::Refined) {
-        println!("training aware with the true grid, refined");
+        say("training aware with the true grid, refined".into());
         let dir = a
             .out
             .join(format!("run_matched_refined-{}", a.refine_model));
@@ -342,7 +374,7 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
         let wrong = grids.join(format!("{}.npy", e.slug()));
         let mut row = Vec::new();
         for v in &a.variants {
-            println!("training {e} ({}), {v}", e.describe());
+            say(format!("training {e} ({}), {v}", e.describe()));
             let dir = match v {
                 Variant::Refined => {
                     a.out
@@ -365,7 +397,7 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
             let err = refined_error(&dir)?;
             if err.is_some() {
                 let supplied = PsfGrid::load_npy(&wrong)?.for_image(w, h, record.sensor_px)?;
-                let refined = PsfGrid::load_npy(&dir.join(metasplat::output::PSF_REFINED_FILE))?;
+                let refined = PsfGrid::load_npy(&dir.join(crate::output::PSF_REFINED_FILE))?;
                 aberration::image::save_rgb8_png(
                     &aberration::picture::psf_grids_picture(&[&supplied, &refined, &truth_here]),
                     &dir.join("psf_supplied_refined_true.png"),
@@ -377,11 +409,11 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
                 let g = truth_here.grid();
                 let mut csv = String::from("row,column,supplied_error,refined_error\n");
                 for (i, (b, r)) in before.iter().zip(&after).enumerate() {
-                    writeln!(csv, "{},{},{b:.6},{r:.6}", i / g, i % g)?;
+                    let _ = writeln!(csv, "{},{},{b:.6},{r:.6}", i / g, i % g);
                 }
                 let path = dir.join("psf_cell_errors.csv");
                 base::write_bytes_atomically(&path, csv.as_bytes())
-                    .with_context(|| format!("cannot write {}", path.display()))?;
+                    .map_err(|e| TrainError::io(&path, e))?;
             }
             row.push(Figures::of(&s, err));
         }
@@ -389,7 +421,7 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
     }
 
     let mut table = String::new();
-    writeln!(
+    let _ = writeln!(
         table,
         "Held-out PSNR (dB) / SSIM against the clean images, {} steps, {}x{} images ({} px PSFs), I_ac from the Wiener filter through the grid each run believes; refined runs learn the `{}` model. \"grid error\": mean over grid cells of the relative L2 distance to the true grid at the images' scale.\n",
         a.iters,
@@ -397,15 +429,15 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
         h,
         truth_here.size(),
         a.refine_model
-    )?;
-    writeln!(
+    );
+    let _ = writeln!(
         table,
         "| | aware, true grid | restored, true grid |{}",
         matched_refined
             .as_ref()
             .map_or("", |_| " aware, true grid, refined |")
-    )?;
-    writeln!(
+    );
+    let _ = writeln!(
         table,
         "|---|---:|---:|{}",
         if matched_refined.is_some() {
@@ -413,8 +445,8 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
         } else {
             ""
         }
-    )?;
-    writeln!(
+    );
+    let _ = writeln!(
         table,
         "| PSNR / SSIM | {:.2} / {:.4} | {:.2} / {:.4} |{}",
         matched.psnr,
@@ -428,16 +460,16 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
             m.psnr - matched.psnr,
             m.refined_error.unwrap_or(f64::NAN)
         ))
-    )?;
-    write!(table, "\n| error | grid error |")?;
+    );
+    let _ = write!(table, "\n| error | grid error |");
     for v in &a.variants {
-        write!(table, " {v} |")?;
+        let _ = write!(table, " {v} |");
     }
     if a.variants.contains(&Variant::Refined) {
-        write!(table, " refined grid error | recovered |")?;
+        let _ = write!(table, " refined grid error | recovered |");
     }
-    writeln!(table)?;
-    writeln!(
+    let _ = writeln!(table);
+    let _ = writeln!(
         table,
         "|---|---:|{}",
         "---:|".repeat(
@@ -448,17 +480,17 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
                     0
                 }
         )
-    )?;
+    );
     for ((e, row), grid_err) in a.errors.iter().zip(&results).zip(&wrong_error) {
-        write!(table, "| {} | {grid_err:.4} |", e.describe())?;
+        let _ = write!(table, "| {} | {grid_err:.4} |", e.describe());
         for f in row {
-            write!(
+            let _ = write!(
                 table,
                 " {:.2} ({:+.2}) / {:.4} |",
                 f.psnr,
                 f.psnr - matched.psnr,
                 f.ssim
-            )?;
+            );
         }
         if let (Some(ri), Some(wi)) = (
             a.variants.iter().position(|v| *v == Variant::Refined),
@@ -466,7 +498,7 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
         ) {
             let lost = matched.psnr - row[wi].psnr;
             let won = row[ri].psnr - row[wi].psnr;
-            write!(
+            let _ = write!(
                 table,
                 " {:.4} | {} |",
                 row[ri].refined_error.unwrap_or(f64::NAN),
@@ -475,20 +507,19 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
                 } else {
                     "(no loss)".into()
                 }
-            )?;
+            );
         } else if let Some(ri) = a.variants.iter().position(|v| *v == Variant::Refined) {
-            write!(
+            let _ = write!(
                 table,
                 " {:.4} | |",
                 row[ri].refined_error.unwrap_or(f64::NAN)
-            )?;
+            );
         }
-        writeln!(table)?;
+        let _ = writeln!(table);
     }
-    println!("\n{table}");
     let table_path = a.out.join("psf_mismatch.md");
     base::write_bytes_atomically(&table_path, table.as_bytes())
-        .with_context(|| format!("cannot write {}", table_path.display()))?;
+        .map_err(|e| TrainError::io(&table_path, e))?;
     let mut families: Vec<(&str, &str)> = Vec::new();
     for e in &a.errors {
         if let Some((f, axis, _)) = e.family()
@@ -540,8 +571,14 @@ pub fn run(a: PsfMismatchArgs) -> Result<()> {
             &series,
         )?;
     }
-    println!("wrote {} and the plots beside it", table_path.display());
-    Ok(())
+    Ok(PsfMismatchReport {
+        table,
+        table_path,
+        matched,
+        restored,
+        rows: results,
+        grid_errors: wrong_error,
+    })
 }
 
 #[cfg(test)]

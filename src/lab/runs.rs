@@ -1,13 +1,12 @@
 //! What every experiment's runs share ([`ExperimentRuns`]): the capture, the aberrated copy
 //! made once under `--out`, and the request of each run.
 
-use anyhow::{Context, Result};
 use clap::Args;
-use metasplat::settings::RunRequest;
-use metasplat::train::config::Mode;
 use std::path::PathBuf;
 
-use crate::cli::psf::{print_report, simulate};
+use crate::error::{Result, TrainError};
+use crate::settings::RunRequest;
+use crate::train::config::Mode;
 use aberration::optics::SimConfig;
 
 /// What every experiment's runs share: the capture, where they go, and how they train.
@@ -32,20 +31,20 @@ pub struct ExperimentRuns {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu`.
-    #[arg(long, value_enum, default_value_t = metasplat::splats::device::DeviceChoice::Auto)]
-    pub device: metasplat::splats::device::DeviceChoice,
+    #[arg(long, value_enum, default_value_t = crate::splats::device::DeviceChoice::Auto)]
+    pub device: crate::splats::device::DeviceChoice,
     /// Replace runs already in --out (otherwise a folder holding a run is refused).
     #[arg(long)]
     pub overwrite: bool,
     /// Densification strategy of every run (as `train --strategy`).
-    #[arg(long, value_enum, default_value_t = metasplat::settings::StrategyChoice::Auto)]
-    pub strategy: metasplat::settings::StrategyChoice,
+    #[arg(long, value_enum, default_value_t = crate::settings::StrategyChoice::Auto)]
+    pub strategy: crate::settings::StrategyChoice,
     /// The first steps of every run at smaller resolutions (as `train --coarse-to-fine`).
     #[arg(long, default_value = "auto")]
-    pub coarse_to_fine: metasplat::settings::CoarseToFine,
+    pub coarse_to_fine: crate::settings::CoarseToFine,
     /// What the capture's masks mean to every run (as `train --mask-mode`).
-    #[arg(long, value_enum, default_value_t = metasplat::settings::MaskChoice::Auto)]
-    pub mask_mode: metasplat::settings::MaskChoice,
+    #[arg(long, value_enum, default_value_t = crate::settings::MaskChoice::Auto)]
+    pub mask_mode: crate::settings::MaskChoice,
     /// Also train plain 3DGS on the clean photos with the same settings: the ceiling every
     /// mode is measured against (`--ceiling false` leaves it out).
     #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
@@ -70,13 +69,14 @@ fn aberrated_capture(
     downsample: u32,
     seed: u64,
     keep_distortion: bool,
+    say: &mut dyn FnMut(String),
 ) -> Result<(PathBuf, base::FolderLock)> {
     let mut inputs = vec![("--scene", scene)];
     if let Some(p) = psf {
         inputs.push(("--psf", p));
     }
-    metasplat::output::guard::refuse_overwrite("--out", out, &inputs)?;
-    metasplat::output::guard::refuse_file_as_folder("--out", out)?;
+    crate::output::guard::refuse_overwrite("--out", out, &inputs)?;
+    crate::output::guard::refuse_file_as_folder("--out", out)?;
     // Every input is read and checked before --out is made: the capture (unless an earlier
     // run already made the aberrated copy) and the PSF grid given.
     let aberrated = out.join("aberrated");
@@ -90,31 +90,44 @@ fn aberrated_capture(
         )?;
         None
     } else {
-        crate::cli::refuse_aberrated_source("--scene", scene)?;
-        let capture = crate::cli::open_scene(scene, downsample, keep_distortion)?;
+        crate::output::guard::refuse_aberrated_source("--scene", scene)?;
+        let opened =
+            |e: TrainError| e.context(format!("cannot open the scene {}", scene.display()));
+        let options = scenes::OpenOptions {
+            resolution: scenes::Resolution::Downsample(downsample),
+            undistort: !keep_distortion,
+            ..Default::default()
+        };
+        let capture = scenes::open(scene, &options).map_err(|e| opened(e.into()))?;
         if capture.split.train.is_empty() {
-            anyhow::bail!(
+            return Err(TrainError::Invalid(format!(
                 "--scene {}: {} view(s) leave no training views once every {}th is held out for testing; use a capture with more views",
                 scene.display(),
                 capture.len(),
                 scenes::LLFFHOLD
-            );
+            )));
         }
-        crate::cli::decode_all(&capture)?;
+        capture.check_images().map_err(|e| opened(e.into()))?;
         Some(capture)
     };
     if let Some(p) = psf {
         aberration::PsfGrid::load_npy(p)?;
     }
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
     let lock = base::FolderLock::folder(out, "experiment")?;
     let psf_path = match psf {
         Some(p) => p.to_path_buf(),
         None => {
             let path = out.join("psf.npy");
             if !path.exists() {
-                let (psf, report) = simulate(&SimConfig::default())?;
-                print_report(&report);
+                say("simulating the paper's PSF grid".into());
+                let (psf, report) =
+                    aberration::optics::simulate_grid(&SimConfig::default(), &|_, _| {})?;
+                say(format!(
+                    "simulated {} field angles x 3 wavelengths in {:.1} s",
+                    report.angles_deg.len(),
+                    report.seconds
+                ));
                 psf.save_npy(&path)?;
             }
             path
@@ -126,7 +139,7 @@ fn aberrated_capture(
             ..Default::default()
         };
         let made = scenes::make_aberrated(&capture, &psf_path, &aberrated, &options, &|| {})?;
-        println!(
+        say(format!(
             "aberrated {} images {}x{} ({} px PSFs): {:.2} dB vs clean{}",
             made.images,
             made.width,
@@ -138,7 +151,7 @@ fn aberrated_capture(
             } else {
                 ""
             }
-        );
+        ));
     }
     Ok((aberrated, lock))
 }
@@ -187,32 +200,30 @@ fn refuse_other_copy(
     if differs.is_empty() {
         return Ok(());
     }
-    anyhow::bail!(
+    Err(TrainError::Invalid(format!(
         "{} was made by an earlier experiment {}: this one would train on other photos than it names; use another --out, or delete {} to make it again",
         aberrated.display(),
         differs.join(", "),
         aberrated.display()
-    )
+    )))
 }
 
 /// Refuses a list flag that names one value twice: both would train into one run folder.
-pub(crate) fn refuse_repeats<T: PartialEq + std::fmt::Display>(
-    flag: &str,
-    values: &[T],
-) -> Result<()> {
+pub fn refuse_repeats<T: PartialEq + std::fmt::Display>(flag: &str, values: &[T]) -> Result<()> {
     for (i, v) in values.iter().enumerate() {
         if values[..i].contains(v) {
-            anyhow::bail!(
+            return Err(TrainError::Invalid(format!(
                 "{flag} names {v} twice: each value trains one run into its own folder, so name it once"
-            );
+            )));
         }
     }
     Ok(())
 }
 
 impl ExperimentRuns {
-    /// The aberrated copy of the capture the runs train on (made once under --out).
-    pub(crate) fn aberrated(&self) -> Result<(PathBuf, base::FolderLock)> {
+    /// The aberrated copy of the capture the runs train on (made once under --out); `say`
+    /// hears what was made.
+    pub fn aberrated(&self, say: &mut dyn FnMut(String)) -> Result<(PathBuf, base::FolderLock)> {
         aberrated_capture(
             &self.scene,
             &self.out,
@@ -220,38 +231,34 @@ impl ExperimentRuns {
             self.downsample,
             self.seed,
             self.keep_distortion,
+            say,
         )
     }
 
     /// Refuses, before the aberrated copy or the PSF grid is made, a ceiling run that would
     /// be refused once they are.
-    pub(crate) fn check_ceiling(&self, request: &RunRequest) -> Result<()> {
-        metasplat::run::check(request).with_context(|| {
-            format!(
+    pub fn check_ceiling(&self, request: &RunRequest) -> Result<()> {
+        crate::run::check(request).map_err(|e| {
+            e.context(format!(
                 "the ceiling run (plain 3DGS on the clean photos of {}) would be refused",
                 self.scene.display()
-            )
+            ))
         })
     }
 
     /// Plain 3DGS on the clean capture (`--scene` itself) into `run_dir`, with the settings
     /// every other run has.
-    pub(crate) fn ceiling_run(&self, run_dir: PathBuf) -> RunRequest {
+    pub fn ceiling_run(&self, run_dir: PathBuf) -> RunRequest {
         let mut args = self.run(&self.scene, run_dir, Mode::Plain);
         args.data.iac_cache = None;
         args
     }
 
     /// A run of `mode` on the aberrated capture into `run_dir`.
-    pub(crate) fn run(
-        &self,
-        aberrated: &std::path::Path,
-        run_dir: PathBuf,
-        mode: Mode,
-    ) -> RunRequest {
+    pub fn run(&self, aberrated: &std::path::Path, run_dir: PathBuf, mode: Mode) -> RunRequest {
         let (resume, overwrite) = match (
             self.resume,
-            run_dir.join(metasplat::output::CHECKPOINT_FILE).exists(),
+            run_dir.join(crate::output::CHECKPOINT_FILE).exists(),
         ) {
             (true, true) => (true, false),
             // A run stopped before its first checkpoint left nothing to continue: it starts
@@ -264,12 +271,12 @@ impl ExperimentRuns {
         args.data.seed = self.seed;
         args.data.keep_distortion = self.keep_distortion;
         // The runs restore the same views: one I_ac cache serves them all.
-        args.data.iac_cache = Some(self.out.join(metasplat::train::iac_cache::CACHE_DIR));
+        args.data.iac_cache = Some(self.out.join(crate::train::iac_cache::CACHE_DIR));
         args.device = self.device;
         args.overwrite = overwrite;
         args.resume = resume;
         args.training.mode = mode;
-        args.training.iters = metasplat::settings::Iters::Steps(self.iters);
+        args.training.iters = crate::settings::Iters::Steps(self.iters);
         args.training.strategy = self.strategy;
         args.training.mask_mode = self.mask_mode;
         args.training.coarse_to_fine = self.coarse_to_fine;
