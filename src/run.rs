@@ -53,9 +53,15 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
 /// A run from request to outputs with nothing said: prepared, its missing `I_ac` made, then
 /// trained (an experiment's runs, which report through their own table).
 pub fn train_quietly(request: &RunRequest) -> Result<RunSummary> {
+    Ok(train_quietly_with_log(request)?.0)
+}
+
+/// [`train_quietly`], with the run's training log.
+pub fn train_quietly_with_log(request: &RunRequest) -> Result<(RunSummary, Vec<train::LogRow>)> {
     let mut prepared = prepare(request)?;
     prepared.restore_iac(&mut |_, _| {})?;
-    Ok(prepared.run(&mut |_| {})?.0)
+    let (summary, outcome) = prepared.run(&mut |_| {})?;
+    Ok((summary, outcome.log))
 }
 
 /// Every check [`prepare`] makes, with nothing written: for a caller that makes other

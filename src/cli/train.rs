@@ -12,10 +12,10 @@ use metasplat::train::{self, Event};
 
 /// Makes the run's missing `I_ac` images with a bar of views done and time left (a line
 /// every tenth of them away from a terminal).
-fn restore_iac(prepared: &mut run::PreparedRun, quiet: bool) -> Result<()> {
+fn restore_iac(prepared: &mut run::PreparedRun, quiet: bool) -> metasplat::Result<()> {
     let total = prepared.data.pending.len();
     if total == 0 {
-        return Ok(prepared.restore_iac(&mut |_, _| {})?);
+        return prepared.restore_iac(&mut |_, _| {});
     }
     let pb = if quiet {
         ProgressBar::hidden()
@@ -44,7 +44,10 @@ fn restore_iac(prepared: &mut run::PreparedRun, quiet: bool) -> Result<()> {
 
 /// Trains one run and writes its folder; shared by `train`, `experiment` and `demo`, which
 /// differ only in what they print. Returns what went into `metrics.json` and the training log.
-pub fn train_run(a: &RunRequest, quiet: bool) -> Result<(RunSummary, Vec<train::LogRow>)> {
+pub fn train_run(
+    a: &RunRequest,
+    quiet: bool,
+) -> metasplat::Result<(RunSummary, Vec<train::LogRow>)> {
     let mut prepared = run::prepare(a)?;
     let (data, config) = (&prepared.data, &prepared.config);
     let t = &a.training;
@@ -328,7 +331,8 @@ fn shell_word(path: &std::path::Path) -> String {
 }
 
 pub fn run(a: RunRequest) -> Result<()> {
-    train_run(&a, false).map(|_| ())
+    train_run(&a, false)?;
+    Ok(())
 }
 
 #[cfg(test)]
