@@ -4,6 +4,7 @@
 //! so the binary can show each run's progress while the job decides what is trained.
 
 pub mod budget;
+pub mod demo;
 pub mod llff;
 pub mod psf_mismatch;
 pub mod runs;
