@@ -106,6 +106,11 @@ fn the_demo_runs_through_the_library_and_aware_beats_plain() {
     let report = demo::run(&a, &mut metasplat::lab::quiet_runner, &mut |_| {}).unwrap();
     let psnr = |k: usize| report.runs[k].1.metrics.as_ref().unwrap().mean_psnr;
     assert_eq!(report.runs.len(), 2);
-    assert!(psnr(1) > psnr(0) + 0.5, "aware {} plain {}", psnr(1), psnr(0));
+    assert!(
+        psnr(1) > psnr(0) + 0.5,
+        "aware {} plain {}",
+        psnr(1),
+        psnr(0)
+    );
     assert!(report.plot.is_file() && report.psf_picture.is_file());
 }

@@ -23,6 +23,7 @@ pub mod train_state;
 pub mod video;
 pub mod weights;
 
+pub use burn::tensor::Device;
 pub use compute::Compute;
 pub use config::{Guidance, Preset, RestorerConfig};
 pub use error::{RestoreError, Result};

@@ -1,0 +1,148 @@
+//! What the restorer commands share: the network options (weights, tiling) and scoring.
+
+use aberration::{Image, PsfGrid};
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use restore::Restorer;
+use restore::data::{list_images, load_photo};
+use std::path::{Path, PathBuf};
+
+/// How large images are cut for the network.
+#[derive(Args)]
+pub struct Tiling {
+    /// Tile side in px (a multiple of the config's padding unit); default: the largest that
+    /// fits the memory budget (512 for `tiny`).
+    #[arg(long)]
+    pub tile: Option<usize>,
+    /// Overlap of neighbouring tiles in px, blended by linear ramps.
+    #[arg(long)]
+    pub overlap: Option<usize>,
+}
+
+impl Tiling {
+    pub(crate) fn apply(&self, r: Restorer) -> Result<Restorer> {
+        let (tile, overlap) = (
+            self.tile.unwrap_or(r.tile),
+            self.overlap.unwrap_or(r.overlap),
+        );
+        r.with_tiling(tile, overlap)
+            .with_context(|| format!("--tile {tile} --overlap {overlap}"))
+    }
+}
+
+/// A trained restorer and the PSF grid it restores through, as `restorer eval` and `restore`
+/// load them.
+#[derive(Args)]
+pub struct Inference {
+    /// Restorer weights; without it, the network shipped in the binary
+    /// (`restore/weights/tiny.bin`, else the general `family_tiny_2.bin`), when one serves this
+    /// PSF grid.
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
+    /// PSF grid (`.npy`, from `psf simulate`) the images were aberrated with.
+    #[arg(long)]
+    pub psf: PathBuf,
+    /// `cpu`, or `vulkan` in a build with `--features vulkan`.
+    #[arg(long, default_value = "cpu")]
+    pub backend: restore::Compute,
+    /// Restore through this grid even when the weights do not cover its lens (to measure them
+    /// there); without it such weights are refused, saying what they cover.
+    #[arg(long)]
+    pub any_grid: bool,
+    #[command(flatten)]
+    pub tiling: Tiling,
+}
+
+impl Inference {
+    /// The native PSF grid and the restorer loaded on the chosen backend with its tiling;
+    /// without --weights, the shipped one that serves the grid with PSFs `psf_px` wide at the
+    /// images' size (None: at any size).
+    pub(crate) fn load(
+        &self,
+        psf_px: impl FnOnce(&PsfGrid) -> Option<usize>,
+    ) -> Result<(PsfGrid, Restorer)> {
+        let native = PsfGrid::load_npy(&self.psf)
+            .with_context(|| format!("cannot read {}", self.psf.display()))?;
+        let psf_px = psf_px(&native);
+        let device = self.backend.device().context("--backend")?;
+        let net = match (&self.weights, self.any_grid) {
+            (Some(w), false) => Restorer::load_on(w, &native, device)
+                .with_context(|| format!("--weights with --psf {}", self.psf.display()))?,
+            (Some(w), true) => Restorer::load_any_grid_on(w, device)
+                .with_context(|| format!("--weights {}", w.display()))?,
+            (None, any_grid) => {
+                match restore::shipped::for_capture_on(&native, psf_px, device.clone())? {
+                    restore::shipped::Choice::Network(net, why, _) => {
+                        println!("Using {why}.");
+                        *net
+                    }
+                    restore::shipped::Choice::Declined(why) if any_grid => {
+                        let general = restore::shipped::GENERAL;
+                        println!(
+                            "Using {} outside what it covers (--any-grid): {why}.",
+                            general.name
+                        );
+                        Restorer::from_bytes_any_grid_on(
+                            general.bytes,
+                            Path::new(general.name),
+                            device,
+                        )?
+                    }
+                    restore::shipped::Choice::Declined(why) => bail!(
+                        "--weights: none given, and {why} (--psf {}); train one with `metasplat restorer train`, or pass --any-grid to measure it there",
+                        self.psf.display()
+                    ),
+                }
+            }
+        };
+        Ok((native, self.tiling.apply(net)?))
+    }
+
+    /// The files this reads, for the output-aliasing guard.
+    pub(crate) fn inputs(&self) -> Vec<(&'static str, &Path)> {
+        let mut v = vec![("--psf", self.psf.as_path())];
+        if let Some(w) = &self.weights {
+            v.push(("--weights", w.as_path()));
+        }
+        v
+    }
+}
+
+pub(crate) fn metric(a: &Image, b: &Image) -> Result<(f64, f64)> {
+    Ok(aberration::compare(a, b)?)
+}
+
+/// Sums of one method's scores over the photos: PSNR and SSIM on RGB, and PSNR on the luma
+/// channel, the paper's figure.
+#[derive(Clone, Copy, Default)]
+pub(crate) struct Score {
+    pub(crate) psnr: f64,
+    pub(crate) ssim: f64,
+    pub(crate) psnr_y: f64,
+}
+
+impl Score {
+    pub(crate) fn add(&mut self, image: &Image, clean: &Image) -> Result<()> {
+        let (p, s) = metric(image, clean)?;
+        let mut clamped = image.clone();
+        clamped.clamp01();
+        self.psnr += p;
+        self.ssim += s;
+        self.psnr_y += base::metrics::psnr_y_planar(&clamped.data, &clean.data)?;
+        Ok(())
+    }
+}
+
+pub(crate) fn load_folder(dir: &Path, min_side: usize) -> Result<Vec<(String, Image)>> {
+    let paths = list_images(dir)?;
+    paths
+        .iter()
+        .map(|p| {
+            let name = p
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            Ok((name, load_photo(p, min_side)?))
+        })
+        .collect()
+}
