@@ -86,7 +86,104 @@ pub struct RenderArgs {
     pub imaging: super::aberrate::ImagingArgs,
 }
 
+/// Everything `render` checked and read before it writes: where the frames go, how, the
+/// model, the cameras and the lens of an aberrated twin.
+struct RenderPlan {
+    target: PathBuf,
+    video: Option<super::video::VideoFormat>,
+    fps: f64,
+    capture: Option<scenes::Capture>,
+    views: Option<Vec<usize>>,
+    cameras: Vec<(String, splat::Camera)>,
+    lens: Option<aberration::ImagingModel>,
+    model: splat::Gaussians,
+    device: Device,
+    note: String,
+}
+
 pub fn run(a: RenderArgs) -> Result<()> {
+    let plan = plan(&a)?;
+    let start = std::time::Instant::now();
+    println!("{}", plan.note);
+    // All or nothing: the frames go to a staging folder beside --out and move in at the end,
+    // so a failure (a full disk) leaves no partial frame set.
+    let target = &plan.target;
+    let parent = match target.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&parent)
+        .with_context(|| format!("cannot create {}", parent.display()))?;
+    // One render into --out at a time; the lock sits beside it, so that --out appears only
+    // with its frames.
+    let _lock = base::FolderLock::beside(target, "render")?;
+    // Into a folder that exists, also the lock a training run there holds: no frames land
+    // in a run folder while the run writes it.
+    let _folder_lock = if target.is_dir() {
+        Some(base::FolderLock::folder(target, "render")?)
+    } else {
+        None
+    };
+    // A killed render's staging folder is removed before this one stages its own.
+    base::remove_orphans(&parent);
+    let staging = tempfile::Builder::new()
+        .prefix(&format!("{}frames-", base::temp_prefix()))
+        .tempdir_in(&parent)
+        .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
+    let (frames_dir, truth_dir) = stage_folders(&plan, staging.path(), &parent)?;
+    let settings = splat::RenderSettings {
+        sh_degree: plan.model.sh_degree,
+        ..Default::default()
+    };
+    let staged = render_named(
+        &plan.model,
+        &settings,
+        &plan.cameras,
+        &frames_dir,
+        &plan.device,
+    )?;
+    let size = plan
+        .cameras
+        .first()
+        .map_or((0, 0), |c| (c.1.width, c.1.height));
+    if let Some(format) = &plan.video {
+        super::video::encode(format, &staged, plan.fps, target)?;
+        let fps = super::video::written_fps(format, plan.fps)?;
+        println!(
+            "{} splats (SH degree {}) rendered to {} frames {}x{} and written as {} at {fps} frames per second{} in {:.2} s",
+            plan.model.len(),
+            plan.model.sh_degree,
+            staged.len(),
+            size.0,
+            size.1,
+            target.display(),
+            match format {
+                super::video::VideoFormat::Gif => "",
+                super::video::VideoFormat::Ffmpeg(_) => " through ffmpeg",
+            },
+            start.elapsed().as_secs_f64(),
+        );
+        return Ok(());
+    }
+    let said = move_in(&a, &plan, &staged, staging.path(), truth_dir.as_deref())?;
+    println!(
+        "{} splats (SH degree {}) rendered to {} images {}x{} in {:.2} s under {}",
+        plan.model.len(),
+        plan.model.sh_degree,
+        staged.len(),
+        size.0,
+        size.1,
+        start.elapsed().as_secs_f64(),
+        target.display()
+    );
+    for line in said {
+        println!("{line}");
+    }
+    Ok(())
+}
+
+/// Every check `render` makes and everything it reads, before anything is written.
+fn plan(a: &RenderArgs) -> Result<RenderPlan> {
     splat::formats::files::Format::of(&a.ply).context("--in")?;
     let mut inputs = vec![("--in", a.ply.as_path())];
     if let Some(s) = &a.scene {
@@ -182,7 +279,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
                 .map(|c| (c.name.clone(), metasplat::splats::convert::splat_camera(c)))
                 .collect()
         }
-        (None, None) => free_cameras(&a, &model)?,
+        (None, None) => free_cameras(a, &model)?,
     };
     // The lens of the aberrated twin, planned for the frames' size before any is rendered.
     let lens = match &a.aberrate {
@@ -205,49 +302,37 @@ pub fn run(a: RenderArgs) -> Result<()> {
             *name = format!("frame{k:05}");
         }
     }
-    let settings = splat::RenderSettings {
-        sh_degree: model.sh_degree,
-        ..Default::default()
+    Ok(RenderPlan {
+        target,
+        video,
+        fps,
+        capture,
+        views,
+        cameras,
+        lens,
+        model,
+        device,
+        note,
+    })
+}
+
+/// The staging folders: with --split, renders/ and gt/ (the ground truth written now); with
+/// --aberrate, clean/; else the staging folder itself. Returns the frames' folder and the
+/// ground truth's.
+fn stage_folders(
+    plan: &RenderPlan,
+    staging: &std::path::Path,
+    parent: &std::path::Path,
+) -> Result<(PathBuf, Option<PathBuf>)> {
+    let made = |dir: PathBuf| -> Result<PathBuf> {
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
+        Ok(dir)
     };
-    let start = std::time::Instant::now();
-    println!("{note}");
-    // All or nothing: the frames go to a staging folder beside --out and move in at the end,
-    // so a failure (a full disk) leaves no partial frame set.
-    let parent = match target.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    std::fs::create_dir_all(&parent)
-        .with_context(|| format!("cannot create {}", parent.display()))?;
-    // One render into --out at a time; the lock sits beside it, so that --out appears only
-    // with its frames.
-    let _lock = base::FolderLock::beside(&target, "render")?;
-    // Into a folder that exists, also the lock a training run there holds: no frames land
-    // in a run folder while the run writes it.
-    let _folder_lock = if target.is_dir() {
-        Some(base::FolderLock::folder(&target, "render")?)
-    } else {
-        None
-    };
-    // A killed render's staging folder is removed before this one stages its own.
-    base::remove_orphans(&parent);
-    let staging = tempfile::Builder::new()
-        .prefix(&format!("{}frames-", base::temp_prefix()))
-        .tempdir_in(&parent)
-        .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
-    // With --split, renders/ and gt/ inside --out; with --aberrate, clean/ and aberrated/;
-    // else the frames themselves.
-    let (frames_dir, truth_dir) = match (&capture, &views) {
-        _ if lens.is_some() => {
-            let clean = staging.path().join("clean");
-            std::fs::create_dir_all(&clean)
-                .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
-            (clean, None)
-        }
+    Ok(match (&plan.capture, &plan.views) {
+        _ if plan.lens.is_some() => (made(staging.join("clean"))?, None),
         (Some(capture), Some(views)) => {
-            let truth = staging.path().join("gt");
-            std::fs::create_dir_all(&truth)
-                .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
+            let truth = made(staging.join("gt"))?;
             for &i in views {
                 let photo = match scenes::aberrated::load_clean_image(capture, i)? {
                     Some(clean) => clean,
@@ -256,41 +341,32 @@ pub fn run(a: RenderArgs) -> Result<()> {
                 let to = truth.join(format!("{}.png", capture.cameras[i].name));
                 scenes::images::write_png(&to, &photo, scenes::BitDepth::Eight)?;
             }
-            let renders = staging.path().join("renders");
-            std::fs::create_dir_all(&renders)
-                .with_context(|| format!("cannot stage frames in {}", parent.display()))?;
-            (renders, Some(truth))
+            (made(staging.join("renders"))?, Some(truth))
         }
-        _ => (staging.path().to_path_buf(), None),
-    };
-    let staged = render_named(&model, &settings, &cameras, &frames_dir, &device)?;
-    if let Some(format) = &video {
-        super::video::encode(format, &staged, fps, &target)?;
-        let fps = super::video::written_fps(format, fps)?;
-        println!(
-            "{} splats (SH degree {}) rendered to {} frames {}x{} and written as {} at {fps} frames per second{} in {:.2} s",
-            model.len(),
-            model.sh_degree,
-            staged.len(),
-            cameras.first().map_or(0, |c| c.1.width),
-            cameras.first().map_or(0, |c| c.1.height),
-            target.display(),
-            match format {
-                super::video::VideoFormat::Gif => "",
-                super::video::VideoFormat::Ffmpeg(_) => " through ffmpeg",
-            },
-            start.elapsed().as_secs_f64(),
-        );
-        return Ok(());
-    }
-    let out = &target;
-    let twin = lens
+        _ => (staging.to_path_buf(), None),
+    })
+}
+
+/// The staged frames into --out (or its renders/ beside gt/, or its clean/ beside
+/// aberrated/, the twin made now), then their ground truth or their blur; returns the
+/// sentences that say where.
+fn move_in(
+    a: &RenderArgs,
+    plan: &RenderPlan,
+    staged: &[PathBuf],
+    staging: &std::path::Path,
+    truth_dir: Option<&std::path::Path>,
+) -> Result<Vec<String>> {
+    let out = &plan.target;
+    let mut said = Vec::new();
+    let twin = plan
+        .lens
         .as_ref()
-        .map(|model| aberrated_twin(model, &staged, staging.path(), a.imaging.seed))
+        .map(|model| aberrated_twin(model, staged, staging, a.imaging.seed))
         .transpose()?;
     // The frames into --out (or its renders/ beside gt/, or its clean/ beside aberrated/),
     // then their ground truth or their blur.
-    let frames_to = match (&truth_dir, &twin) {
+    let frames_to = match (truth_dir, &twin) {
         (Some(_), _) => out.join("renders"),
         (None, Some(_)) => out.join("clean"),
         (None, None) => out.clone(),
@@ -304,7 +380,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
             )
         })
         .collect();
-    if let Some(truth) = &truth_dir {
+    if let Some(truth) = truth_dir {
         for e in std::fs::read_dir(truth).with_context(|| format!("{}", truth.display()))? {
             let f = e?.path();
             let to = out.join("gt").join(f.file_name().expect("a frame file"));
@@ -326,37 +402,27 @@ pub fn run(a: RenderArgs) -> Result<()> {
         std::fs::rename(&from, &to)
             .with_context(|| format!("cannot move a frame to {}", to.display()))?;
     }
-    println!(
-        "{} splats (SH degree {}) rendered to {} images {}x{} in {:.2} s under {}",
-        model.len(),
-        model.sh_degree,
-        staged.len(),
-        cameras.first().map_or(0, |c| c.1.width),
-        cameras.first().map_or(0, |c| c.1.height),
-        start.elapsed().as_secs_f64(),
-        out.display()
-    );
     if let Some((_, mean, px)) = &twin {
-        println!(
+        said.push(format!(
             "Their aberrated twin, through {px} px PSFs ({} mode, noise seeded per frame; {mean:.2} dB against the clean frames), is in {}/aberrated/ beside them in {}/clean/.",
             a.imaging.mode,
             out.display(),
             out.display()
-        );
+        ));
     }
-    if let (Some(capture), Some(_)) = (&capture, &truth_dir) {
+    if let (Some(capture), Some(_)) = (&plan.capture, truth_dir) {
         let truth = if capture.root.join(scenes::aberrated::CLEAN_DIR).is_dir() {
             "the clean images"
         } else {
             "the photos"
         };
-        println!(
+        said.push(format!(
             "The renders are in {}/renders/ and {truth} beside them in {}/gt/, one name per view.",
             out.display(),
             out.display()
-        );
+        ));
     }
-    Ok(())
+    Ok(said)
 }
 
 /// `render --aberrate`: the staged frames through `model` into `staging`/aberrated/, noise
