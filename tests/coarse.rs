@@ -227,6 +227,13 @@ fn the_cli_starts_coarse_by_default_and_says_so() {
     let coarse = decided(&config, "coarse_to_fine").expect("a coarse_to_fine decision");
     assert_eq!(coarse["value"], "1");
     assert!(text.contains(coarse["why"].as_str().unwrap()), "{text}");
+    // What `view --run` reads back and says.
+    let read = metasplat::output::view::decisions(&tmp.path().join("auto"));
+    assert!(
+        read.iter()
+            .any(|d| d.setting == "coarse_to_fine" && d.why == coarse["why"]),
+        "{read:?}"
+    );
     let (text, config) = train("off", &["--coarse-to-fine", "off"]);
     assert!(!text.contains("Coarse to fine"), "{text}");
     assert!(config.get("coarse").is_none(), "{config}");

@@ -60,7 +60,9 @@ pub struct ViewArgs {
     pub compare: bool,
 }
 
-pub fn run(mut a: ViewArgs) -> Result<()> {
+/// The scene file and the run folder as meant (a run folder given as the file is followed, as
+/// --run does), and a screenshot refused where it would replace an input.
+fn resolve_inputs(a: &mut ViewArgs) -> Result<()> {
     if a.file.is_none() {
         a.file = a.input.take();
     }
@@ -88,8 +90,13 @@ pub fn run(mut a: ViewArgs) -> Result<()> {
         }
         metasplat::output::guard::refuse_overwrite("--screenshot", shot, &inputs)?;
     }
-    let mut watch = a.run.as_deref().map(RunWatch::new);
-    let (model, source) = match (&a.file, watch.as_mut()) {
+    Ok(())
+}
+
+/// The splats to show and where they came from: the scene file, or the run's newest
+/// checkpoint or PLY.
+fn load_model(a: &ViewArgs, watch: Option<&mut RunWatch>) -> Result<(splat::Gaussians, String)> {
+    let (model, source) = match (&a.file, watch) {
         (Some(f), _) => (super::progress::read_splats(f)?, f.display().to_string()),
         (None, Some(w)) => match w.check() {
             Some(Ok((g, what))) => {
@@ -112,7 +119,13 @@ pub fn run(mut a: ViewArgs) -> Result<()> {
     if model.is_empty() {
         bail!("{source}: the scene has no splats");
     }
-    let comparison = match &a.scene {
+    Ok((model, source))
+}
+
+/// The capture the renders are compared with (--scene), through the run's refined PSF grid
+/// when it has one.
+fn open_comparison(a: &ViewArgs) -> Result<Option<CaptureComparison>> {
+    Ok(match &a.scene {
         Some(dir) => {
             let downsample = super::downsample_for(dir, a.downsample);
             let options = DataOptions {
@@ -138,20 +151,13 @@ pub fn run(mut a: ViewArgs) -> Result<()> {
             Some(c)
         }
         None => None,
-    };
-    let captures: Vec<viewer::CaptureView> = comparison.as_ref().map_or(Vec::new(), |c| {
-        let cap = c.capture();
-        cap.cameras
-            .iter()
-            .enumerate()
-            .map(|(i, cam)| viewer::CaptureView {
-                name: cam.name.clone(),
-                camera: metasplat::splats::convert::splat_camera(cam),
-                held_out: cap.split.test.contains(&i),
-            })
-            .collect()
-    });
-    let start = match (&a.at, a.camera) {
+    })
+}
+
+/// Where the view opens: at --at, looking as --camera says, at the capture's first held-out
+/// camera, or framing the splats.
+fn start_view(a: &ViewArgs, captures: &[viewer::CaptureView]) -> Result<viewer::Start> {
+    Ok(match (&a.at, a.camera) {
         (Some(at), _) => {
             let i = captures
                 .iter()
@@ -175,7 +181,33 @@ pub fn run(mut a: ViewArgs) -> Result<()> {
             viewer::Start::Capture(captures.iter().position(|c| c.held_out).unwrap_or(0))
         }
         (None, None) => viewer::Start::Framing,
-    };
+    })
+}
+
+pub fn run(mut a: ViewArgs) -> Result<()> {
+    resolve_inputs(&mut a)?;
+    let mut watch = a.run.as_deref().map(RunWatch::new);
+    let (model, source) = load_model(&a, watch.as_mut())?;
+    // What the run decided for its capture, as `train` said it.
+    if let Some(run) = &a.run {
+        for d in metasplat::output::view::decisions(run) {
+            println!("{d}");
+        }
+    }
+    let comparison = open_comparison(&a)?;
+    let captures: Vec<viewer::CaptureView> = comparison.as_ref().map_or(Vec::new(), |c| {
+        let cap = c.capture();
+        cap.cameras
+            .iter()
+            .enumerate()
+            .map(|(i, cam)| viewer::CaptureView {
+                name: cam.name.clone(),
+                camera: metasplat::splats::convert::splat_camera(cam),
+                held_out: cap.split.test.contains(&i),
+            })
+            .collect()
+    });
+    let start = start_view(&a, &captures)?;
     let default_size = match (&start, &a.screenshot) {
         (viewer::Start::Capture(i), Some(_)) => {
             [captures[*i].camera.width, captures[*i].camera.height]

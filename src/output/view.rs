@@ -224,3 +224,15 @@ impl LiveSource for RunWatch {
         self.check()
     }
 }
+
+/// What the run in `dir` decided for its capture and why, as its `config.json` records them
+/// ([`crate::train::decisions`]); none when it has no such record.
+pub fn decisions(dir: &Path) -> Vec<crate::train::config::Decision> {
+    let Ok(bytes) = base::input::read(&dir.join(crate::output::CONFIG_FILE)) else {
+        return Vec::new();
+    };
+    serde_json::from_slice::<serde_json::Value>(&bytes)
+        .ok()
+        .and_then(|v| serde_json::from_value(v.get("decisions")?.clone()).ok())
+        .unwrap_or_default()
+}
