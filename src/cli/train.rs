@@ -42,6 +42,115 @@ fn restore_iac(prepared: &mut run::PreparedRun, quiet: bool) -> metasplat::Resul
     Ok(())
 }
 
+/// A run's progress as `train` shows it: a bar whose message follows the steps, a line for
+/// each rare event, and away from a terminal (nohup, a batch queue: the bar hidden) a line
+/// per evaluation, so the log can be followed.
+struct Shown {
+    pb: ProgressBar,
+    lines: bool,
+    iters: u64,
+    last_test: Option<f64>,
+    /// The latest routine edit (a band kept, densification), shown in the bar's message.
+    last_edit: String,
+    /// Step, loss, training PSNR, splats and seconds of the latest step.
+    last_step: (u64, f64, f64, usize, f64),
+}
+
+impl Shown {
+    fn new(quiet: bool, mode: metasplat::settings::Mode, iters: u64) -> Self {
+        let pb = if quiet {
+            ProgressBar::hidden()
+        } else {
+            ProgressBar::new(iters)
+        };
+        pb.set_style(
+            ProgressStyle::with_template(
+                "{prefix:>8} [{bar:30}] {pos}/{len} {msg} {per_sec} ETA {eta}",
+            )
+            .expect("static template")
+            .progress_chars("=> "),
+        );
+        pb.set_prefix(mode.to_string());
+        Self {
+            lines: pb.is_hidden() && !quiet,
+            pb,
+            iters,
+            last_test: None,
+            last_edit: String::new(),
+            last_step: (0, 0.0, 0.0, 0, 0.0),
+        }
+    }
+
+    fn on(&mut self, e: Event) {
+        let pb = &self.pb;
+        match e {
+            Event::Step {
+                step,
+                loss,
+                splats,
+                sh_degree,
+                seconds,
+            } => {
+                self.last_step = (step, loss.total as f64, loss.psnr, splats, seconds);
+                pb.set_position(step);
+                if step % 10 == 0 {
+                    let parts = match loss.restored {
+                        Some(r) => format!("L_abr {:.4} L_ac {r:.4}", loss.main),
+                        None => format!("loss {:.4}", loss.total),
+                    };
+                    let test = self
+                        .last_test
+                        .map_or(String::new(), |p: f64| format!(" test {p:.2} dB"));
+                    pb.set_message(format!(
+                        "{parts} train {:.2} dB{test} | {splats} splats SH{sh_degree}{}",
+                        loss.psnr, self.last_edit
+                    ));
+                }
+            }
+            Event::Evaluated { step, metrics } => {
+                self.last_test = Some(metrics.mean_psnr);
+                if self.lines {
+                    let (at, loss, train_db, splats, seconds) = self.last_step;
+                    let rate = if seconds > 0.0 {
+                        at as f64 / seconds
+                    } else {
+                        0.0
+                    };
+                    println!(
+                        "Step {step} of {}: loss {loss:.4}, train {train_db:.2} dB, held-out {:.2} dB (SSIM {:.4}), {splats} splats, {rate:.1} steps/s.",
+                        self.iters, metrics.mean_psnr, metrics.mean_ssim
+                    );
+                }
+            }
+            // A band that stays is routine; one raised or dropped changes the model.
+            Event::Sh {
+                step,
+                event: event @ train::sh::ShEvent::Kept { .. },
+            } => self.last_edit = format!(" | step {step}: {event}"),
+            Event::Sh { step, event } => {
+                super::progress::say(pb, format!("Step {step}: {event}."));
+            }
+            Event::Densified { step, edit, .. } => {
+                self.last_edit = format!(" | step {step}: {edit}");
+            }
+            Event::Unseen { step, done } => {
+                self.last_edit = format!(" | step {step}: {done}");
+            }
+            Event::Checkpoint { .. } | Event::Logged { .. } => {}
+            Event::Stopping { step, end, reason } => {
+                pb.set_length(end);
+                super::progress::say(
+                    pb,
+                    format!("Step {step}: {reason}; a final phase to step {end}."),
+                );
+            }
+            Event::Snapshot { step, .. } => {
+                super::progress::say(pb, format!("Step {step}: kept the splats (--save-at)."));
+            }
+        }
+    }
+}
+
 /// Trains one run and writes its folder; shared by `train`, `experiment` and `demo`, which
 /// differ only in what they print. Returns what went into `metrics.json` and the training log.
 pub fn train_run(
@@ -86,92 +195,10 @@ pub fn train_run(
         println!("{note}");
     }
 
-    let pb = if quiet {
-        ProgressBar::hidden()
-    } else {
-        ProgressBar::new(prepared.config.iters)
-    };
-    pb.set_style(
-        ProgressStyle::with_template(
-            "{prefix:>8} [{bar:30}] {pos}/{len} {msg} {per_sec} ETA {eta}",
-        )
-        .expect("static template")
-        .progress_chars("=> "),
-    );
-    pb.set_prefix(t.mode.to_string());
-    let mut last_test = None;
-    // Frequent events go into the bar's message; rare ones get a line of their own.
-    let mut last_edit = String::new();
-    // Away from a terminal (nohup, a batch queue) the bar is hidden: each evaluation prints a
-    // line instead, so the log can be followed.
-    let lines = pb.is_hidden() && !quiet;
-    let iters = prepared.config.iters;
-    let mut last_step = (0u64, 0.0f64, 0.0f64, 0usize, 0.0f64);
-    let mut on_event = |e: Event| match e {
-        Event::Step {
-            step,
-            loss,
-            splats,
-            sh_degree,
-            seconds,
-        } => {
-            last_step = (step, loss.total as f64, loss.psnr, splats, seconds);
-            pb.set_position(step);
-            if step % 10 == 0 {
-                let parts = match loss.restored {
-                    Some(r) => format!("L_abr {:.4} L_ac {r:.4}", loss.main),
-                    None => format!("loss {:.4}", loss.total),
-                };
-                let test = last_test.map_or(String::new(), |p: f64| format!(" test {p:.2} dB"));
-                pb.set_message(format!(
-                    "{parts} train {:.2} dB{test} | {splats} splats SH{sh_degree}{last_edit}",
-                    loss.psnr
-                ));
-            }
-        }
-        Event::Evaluated { step, metrics } => {
-            last_test = Some(metrics.mean_psnr);
-            if lines {
-                let (at, loss, train_db, splats, seconds) = last_step;
-                let rate = if seconds > 0.0 {
-                    at as f64 / seconds
-                } else {
-                    0.0
-                };
-                println!(
-                    "Step {step} of {iters}: loss {loss:.4}, train {train_db:.2} dB, held-out {:.2} dB (SSIM {:.4}), {splats} splats, {rate:.1} steps/s.",
-                    metrics.mean_psnr, metrics.mean_ssim
-                );
-            }
-        }
-        // A band that stays is routine; one raised or dropped changes the model.
-        Event::Sh {
-            step,
-            event: event @ train::sh::ShEvent::Kept { .. },
-        } => last_edit = format!(" | step {step}: {event}"),
-        Event::Sh { step, event } => {
-            super::progress::say(&pb, format!("Step {step}: {event}."));
-        }
-        Event::Densified { step, edit, .. } => {
-            last_edit = format!(" | step {step}: {edit}");
-        }
-        Event::Unseen { step, done } => {
-            last_edit = format!(" | step {step}: {done}");
-        }
-        Event::Checkpoint { .. } | Event::Logged { .. } => {}
-        Event::Stopping { step, end, reason } => {
-            pb.set_length(end);
-            super::progress::say(
-                &pb,
-                format!("Step {step}: {reason}; a final phase to step {end}."),
-            );
-        }
-        Event::Snapshot { step, .. } => {
-            super::progress::say(&pb, format!("Step {step}: kept the splats (--save-at)."));
-        }
-    };
+    let mut shown = Shown::new(quiet, t.mode, prepared.config.iters);
+    let mut on_event = |e: Event| shown.on(e);
     let (summary, outcome) = prepared.run(&mut on_event)?;
-    pb.finish_and_clear();
+    shown.pb.finish_and_clear();
     if !quiet {
         print_summary(&a.out, &summary, &outcome);
         print_outputs(&a.out, &a.scene, a.data.downsample, summary.splats);
