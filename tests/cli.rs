@@ -2515,3 +2515,22 @@ fn render_aberrate_makes_a_clean_and_aberrated_clip_pair() {
     );
     assert!(!refused.exists() && !d.join("clip.gif").exists());
 }
+
+/// `bench step --refine-psf` outside aware mode is refused before any scene is read or any
+/// step timed.
+#[test]
+fn bench_step_refuses_refine_psf_outside_aware_mode_first() {
+    let err = fails(&[
+        "bench",
+        "step",
+        "--scene",
+        "/nonexistent/scene",
+        "--mode",
+        "plain",
+        "--refine-psf",
+    ]);
+    assert!(
+        err.contains("--refine-psf") && !err.contains("nonexistent"),
+        "{err}"
+    );
+}

@@ -221,6 +221,9 @@ fn step(a: StepArgs) -> Result<()> {
     if a.threads.iter().any(|&t| t == 0 || t > 1024) {
         bail!("--threads: thread counts are 1 to 1024");
     }
+    if a.refine_psf && a.mode != Mode::Aware {
+        bail!("--refine-psf: only aware steps blur through the PSF grid");
+    }
     let initial = a
         .ply
         .as_ref()
@@ -270,8 +273,63 @@ fn step(a: StepArgs) -> Result<()> {
         .iter()
         .map(|&t| time_steps(&data, &config, &device, t))
         .collect::<Result<Vec<_>, _>>()?;
+    print_step_table(&runs);
+    if a.refine_psf {
+        time_refinement(&a, &data, &config, &device)?;
+    }
+    Ok(())
+}
+
+/// The same steps with the PSF grid refined on every step, beside plain aware ones.
+fn time_refinement(
+    a: &StepArgs,
+    data: &data::Dataset,
+    config: &TrainConfig,
+    device: &Device,
+) -> Result<()> {
+    let defaults = metasplat::train::psf_refine::PsfRefineConfig::for_iters(
+        a.steps,
+        metasplat::train::psf_refine::PsfModel::Warp,
+    );
+    let refining = TrainConfig {
+        refine_psf: Some(metasplat::train::psf_refine::PsfRefineConfig {
+            from: 0,
+            every: 1,
+            ..defaults
+        }),
+        ..config.clone()
+    };
+    println!(
+        "\nThe same steps with the PSF grid refined on every step, beside the plain aware ones (medians of alternated rounds):"
+    );
+    for &t in &a.threads {
+        let (mut plain, mut refined, mut gradient, mut update) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for _ in 0..3 {
+            plain.push(time_steps(data, config, device, t)?.step);
+            let r = time_steps(data, &refining, device, t)?;
+            gradient.push(r.phase("PSF gradient"));
+            update.push(r.phase("PSF update"));
+            refined.push(r.step);
+        }
+        let (p, r) = (median(plain), median(refined));
+        let (gr, up) = (median(gradient), median(update));
+        let g = gr + up;
+        println!(
+            "{t} thread{}: aware {p:.1} ms, with the PSF refined {r:.1} ms (+{:.0} %); the PSF gradient takes {gr:.1} ms and the update {up:.1} ms, so updating every {} steps (the default) adds {:.0} %.",
+            if t == 1 { "" } else { "s" },
+            100.0 * (r - p) / p,
+            defaults.every,
+            100.0 * g / defaults.every.max(1) as f64 / p
+        );
+    }
+    Ok(())
+}
+
+/// Milliseconds per step by phase, one column per thread count.
+fn print_step_table(runs: &[StepTimes]) {
     let mut names: Vec<&str> = Vec::new();
-    for r in &runs {
+    for r in runs {
         for (name, _) in &r.phases {
             if !names.contains(name) {
                 names.push(name);
@@ -279,7 +337,7 @@ fn step(a: StepArgs) -> Result<()> {
         }
     }
     print!("{:<40}", "ms per step (wall)");
-    for r in &runs {
+    for r in runs {
         print!(
             "{:>14}",
             format!(
@@ -292,7 +350,7 @@ fn step(a: StepArgs) -> Result<()> {
     println!();
     let row = |name: &str, value: &dyn Fn(&StepTimes) -> f64| {
         print!("{name:<40}");
-        for r in &runs {
+        for r in runs {
             let v = value(r);
             print!("{:>14}", format!("{v:.1} ({:.0} %)", 100.0 * v / r.step));
         }
@@ -303,7 +361,7 @@ fn step(a: StepArgs) -> Result<()> {
     }
     row("hooks and the rest", &|r| r.other());
     print!("{:<40}", "whole step");
-    for r in &runs {
+    for r in runs {
         print!("{:>14}", format!("{:.1}", r.step));
     }
     println!();
@@ -316,46 +374,4 @@ fn step(a: StepArgs) -> Result<()> {
             one.step / last.step
         );
     }
-    if a.refine_psf {
-        if a.mode != Mode::Aware {
-            bail!("--refine-psf: only aware steps blur through the PSF grid");
-        }
-        let defaults = metasplat::train::psf_refine::PsfRefineConfig::for_iters(
-            a.steps,
-            metasplat::train::psf_refine::PsfModel::Warp,
-        );
-        let refining = TrainConfig {
-            refine_psf: Some(metasplat::train::psf_refine::PsfRefineConfig {
-                from: 0,
-                every: 1,
-                ..defaults
-            }),
-            ..config.clone()
-        };
-        println!(
-            "\nThe same steps with the PSF grid refined on every step, beside the plain aware ones (medians of alternated rounds):"
-        );
-        for &t in &a.threads {
-            let (mut plain, mut refined, mut gradient, mut update) =
-                (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-            for _ in 0..3 {
-                plain.push(time_steps(&data, &config, &device, t)?.step);
-                let r = time_steps(&data, &refining, &device, t)?;
-                gradient.push(r.phase("PSF gradient"));
-                update.push(r.phase("PSF update"));
-                refined.push(r.step);
-            }
-            let (p, r) = (median(plain), median(refined));
-            let (gr, up) = (median(gradient), median(update));
-            let g = gr + up;
-            println!(
-                "{t} thread{}: aware {p:.1} ms, with the PSF refined {r:.1} ms (+{:.0} %); the PSF gradient takes {gr:.1} ms and the update {up:.1} ms, so updating every {} steps (the default) adds {:.0} %.",
-                if t == 1 { "" } else { "s" },
-                100.0 * (r - p) / p,
-                defaults.every,
-                100.0 * g / defaults.every.max(1) as f64 / p
-            );
-        }
-    }
-    Ok(())
 }
