@@ -82,7 +82,6 @@ fn a_shrunk_view_is_what_its_shrunk_camera_sees() {
         restored: Some(full.clone()),
         clean: None,
         mask: Some(vec![1.0; full.len()]),
-        known_background: None,
     };
     let small = shrink_view(&view, w, h, 2);
     assert_eq!((small.camera.width, small.camera.height), (w / 2, h / 2));

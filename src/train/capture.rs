@@ -125,18 +125,6 @@ pub struct View {
     /// Per-pixel weight in the loss (1 keeps, 0 leaves out), from the capture's `masks/` or
     /// the photo's alpha; None: every pixel counts.
     pub mask: Option<Vec<f32>>,
-    /// Where the view is known to show the background alone (object mode through the lens:
-    /// [`crate::train::object`]); None elsewhere.
-    pub known_background: Option<KnownBackground>,
-}
-
-/// Pixels of a training view known to show only the background, and its colour: outside an
-/// object's mask, the clean scene of an `object` run is empty whatever the lens did.
-#[derive(Clone, Debug, PartialEq)]
-pub struct KnownBackground {
-    /// How surely each pixel is background: `1 − mask`.
-    pub weight: Vec<f32>,
-    pub colour: Vec3,
 }
 
 /// A capture with its imaging model and its source of `I_ac`.
@@ -302,7 +290,6 @@ impl CaptureModel {
             restored: None,
             clean,
             mask,
-            known_background: None,
         })
     }
 

@@ -92,7 +92,6 @@ pub fn shrink_view(view: &View, width: u32, height: u32, n: u32) -> View {
                 .map(|p| p.x)
                 .collect()
         }),
-        known_background: None,
     }
 }
 

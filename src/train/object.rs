@@ -17,7 +17,6 @@ use rayon::prelude::*;
 
 use crate::error::Result;
 use crate::settings::MaskUse;
-use crate::train::capture::KnownBackground;
 use crate::train::config::TrainConfig;
 use crate::train::data::{Dataset, View};
 
@@ -160,12 +159,6 @@ impl ObjectTargets {
             // mask, which is what `loss` mode compares.
             (true, _, None) => return Cow::Borrowed(view),
         };
-        // Through the lens the blurred term cannot tell a faint glow just outside the object
-        // from the object's own halo; the mask can: the clean scene is empty there.
-        let known_background = self.through_lens.then(|| KnownBackground {
-            weight: m.iter().map(|&k| 1.0 - k).collect(),
-            colour: background,
-        });
         Cow::Owned(View {
             name: view.name.clone(),
             camera: view.camera.clone(),
@@ -173,7 +166,6 @@ impl ObjectTargets {
             restored,
             clean: None,
             mask: weight,
-            known_background,
         })
     }
 }

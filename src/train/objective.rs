@@ -10,7 +10,6 @@ use splat::loss::photometric_loss;
 
 use crate::error::{Result, TrainError};
 use crate::settings::Mode;
-use crate::train::capture::KnownBackground;
 use crate::train::data::View;
 
 /// Loss parts of one view.
@@ -45,48 +44,6 @@ pub fn composite(image: &[Vec3], target: &[Vec3], mask: &[f32]) -> Vec<Vec3> {
         .zip(mask)
         .map(|((i, t), m)| *i * *m + *t * (1.0 - *m))
         .collect()
-}
-
-/// Weight of the known-background term in aware object runs, against `L_abr`'s 1: the L1
-/// part of a photometric term ([`splat::loss`]) at full weight.
-pub fn known_background_weight() -> f32 {
-    std::env::var("METASPLAT_KB_WEIGHT")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(1.0)
-}
-
-/// `Σ w·|r − c|₁ / 3N` over the pixels a view knows to show the background `c` (weight `w`),
-/// with its gradient: the sharp render held to the empty scene outside an object's mask.
-pub fn known_background_term(rendered: &[Vec3], known: &KnownBackground) -> (f32, Vec<Vec3>) {
-    let n = 3.0 * rendered.len().max(1) as f64;
-    let c = known.colour;
-    let value: f64 = rendered
-        .iter()
-        .zip(&known.weight)
-        .map(|(r, &w)| w as f64 * (*r - c).abs().element_sum() as f64)
-        .sum::<f64>()
-        / n;
-    let grad = rendered
-        .iter()
-        .zip(&known.weight)
-        .map(|(r, &w)| {
-            let d = *r - c;
-            // sign(0) = 0: a pixel at the background colour is not pushed either way.
-            Vec3::new(sign(d.x), sign(d.y), sign(d.z)) * (w / n as f32)
-        })
-        .collect();
-    (value as f32, grad)
-}
-
-fn sign(v: f32) -> f32 {
-    if v > 0.0 {
-        1.0
-    } else if v < 0.0 {
-        -1.0
-    } else {
-        0.0
-    }
 }
 
 impl Objective<'_> {
@@ -172,10 +129,7 @@ impl Objective<'_> {
                 } else {
                     0.0
                 };
-                let v_known = view.known_background.as_ref().map_or(0.0, |k| {
-                    known_background_weight() * known_background_term(rendered, k).0
-                });
-                Ok(v_abr + self.lambda * v_ac + v_known)
+                Ok(v_abr + self.lambda * v_ac)
             }
         }
     }
@@ -253,15 +207,8 @@ impl Objective<'_> {
                         .zip(&g_ac)
                         .for_each(|(a, b)| *a += *b * self.lambda)
                 });
-                let mut v_known = 0.0;
-                if let Some(k) = &view.known_background {
-                    let w = known_background_weight();
-                    let (v, g) = known_background_term(rendered, k);
-                    v_known = w * v;
-                    grad.iter_mut().zip(g).for_each(|(a, b)| *a += b * w);
-                }
                 let parts = LossParts {
-                    total: v_abr + self.lambda * v_ac + v_known,
+                    total: v_abr + self.lambda * v_ac,
                     main: v_abr,
                     restored: Some(v_ac),
                     psnr: p,
