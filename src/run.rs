@@ -51,13 +51,9 @@ pub fn prepare(request: &RunRequest) -> Result<PreparedRun> {
 }
 
 /// A run from request to outputs with nothing said: prepared, its missing `I_ac` made, then
-/// trained (an experiment's runs, which report through their own table).
-pub fn train_quietly(request: &RunRequest) -> Result<RunSummary> {
-    Ok(train_quietly_with_log(request)?.0)
-}
-
-/// [`train_quietly`], with the run's training log.
-pub fn train_quietly_with_log(request: &RunRequest) -> Result<(RunSummary, Vec<train::LogRow>)> {
+/// trained; its summary and training log (an experiment's runs, which report through their own
+/// table; a [`crate::lab::Runner`]).
+pub fn train_quietly(request: &RunRequest) -> Result<(RunSummary, Vec<train::LogRow>)> {
     let mut prepared = prepare(request)?;
     prepared.restore_iac(&mut |_, _| {})?;
     let (summary, outcome) = prepared.run(&mut |_| {})?;

@@ -103,7 +103,7 @@ fn the_demo_runs_through_the_library_and_aware_beats_plain() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
     let a = DemoCli::parse_from(["demo", "--quick", "--out", common::cli::s(&out)]).a;
-    let report = demo::run(&a, &mut metasplat::lab::quiet_runner, &mut |_| {}).unwrap();
+    let report = demo::run(&a, &mut metasplat::run::train_quietly, &mut |_| {}).unwrap();
     let psnr = |k: usize| report.runs[k].1.metrics.as_ref().unwrap().mean_psnr;
     assert_eq!(report.runs.len(), 2);
     assert!(

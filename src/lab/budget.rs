@@ -128,10 +128,7 @@ pub fn run(
         let at = |db| {
             near_final(log, db).map_or("-".to_string(), |(_, t, _)| format!("{:.1}", t / 60.0))
         };
-        let (p, ss) = s
-            .metrics
-            .as_ref()
-            .map_or((f64::NAN, f64::NAN), |m| (m.mean_psnr, m.mean_ssim));
+        let (p, ss) = s.psnr_ssim();
         let _ = writeln!(
             table,
             "| {b} | {} | {p:.2} | {:+.2} | {ss:.4} | {:.0} % | {:.1} | {} / {} | {:.1} | {} | {} | {} |",

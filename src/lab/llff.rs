@@ -115,10 +115,7 @@ pub fn run(a: &LlffArgs, train: &mut Runner, say: &mut dyn FnMut(String)) -> Res
             (name, s)
         }));
     for (name, s) in named {
-        let (p, ss) = s
-            .metrics
-            .as_ref()
-            .map_or((f64::NAN, f64::NAN), |m| (m.mean_psnr, m.mean_ssim));
+        let (p, ss) = s.psnr_ssim();
         let _ = writeln!(
             table,
             "| {name} | {p:.2} | {} | {ss:.4} | {:.1} | {} | {} |{}",

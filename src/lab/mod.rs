@@ -17,11 +17,6 @@ use crate::settings::RunRequest;
 pub type Runner<'a> =
     dyn FnMut(&RunRequest) -> Result<(RunSummary, Vec<crate::train::LogRow>)> + 'a;
 
-/// A [`Runner`] that says nothing: each run prepared, its `I_ac` made, then trained.
-pub fn quiet_runner(request: &RunRequest) -> Result<(RunSummary, Vec<crate::train::LogRow>)> {
-    crate::run::train_quietly_with_log(request)
-}
-
 /// How close to its final held-out PSNR a run counts as having arrived, coarse and fine.
 const NEAR_FINAL_DB: [f64; 2] = [0.5, 0.1];
 

@@ -241,10 +241,7 @@ pub struct Figures {
 
 impl Figures {
     fn of(s: &RunSummary, refined_error: Option<f64>) -> Self {
-        let (psnr, ssim) = s
-            .metrics
-            .as_ref()
-            .map_or((f64::NAN, f64::NAN), |m| (m.mean_psnr, m.mean_ssim));
+        let (psnr, ssim) = s.psnr_ssim();
         Self {
             psnr,
             ssim,
@@ -329,7 +326,7 @@ pub fn run(a: &PsfMismatchArgs, say: &mut dyn FnMut(String)) -> Result<PsfMismat
         // compare restorers, not grids.
         args.data.restorer = crate::settings::RestorerChoice::Wiener;
         args.spiral = 0;
-        crate::run::train_quietly(&args)
+        Ok(crate::run::train_quietly(&args)?.0)
     };
     let refined_error = |dir: &Path| -> Result<Option<f64>> {
         let path = dir.join(crate::output::PSF_REFINED_FILE);

@@ -160,6 +160,16 @@ pub struct RunSummary {
     pub psf_warp: Option<crate::train::psf_refine::WarpSummary>,
 }
 
+impl RunSummary {
+    /// Mean held-out PSNR and SSIM; NaN for a run that was not evaluated (a table cell that
+    /// says so rather than a number).
+    pub fn psnr_ssim(&self) -> (f64, f64) {
+        self.metrics
+            .as_ref()
+            .map_or((f64::NAN, f64::NAN), |m| (m.mean_psnr, m.mean_ssim))
+    }
+}
+
 /// The white gutter between the pictures of a comparison strip, in pixels.
 const GAP: u32 = 6;
 
