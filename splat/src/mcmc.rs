@@ -168,11 +168,18 @@ pub fn noise_gate(opacity: f32) -> f32 {
     1.0 / (1.0 + (-100.0 * ((1.0 - opacity) - 0.995)).exp())
 }
 
-/// Adds the chain's exploration noise to every position: `Σ · n · gate(o) · scaler`, with `Σ`
-/// the Gaussian's covariance and `n ~ N(0, I)`, so transparent Gaussians wander along their
-/// own shape and opaque ones stay. `scaler` is the position learning rate times the noise
-/// rate. Deterministic given `seed`.
-pub fn inject_noise(g: &mut Gaussians, scaler: f32, seed: u64) {
+/// Adds the chain's exploration noise to every position: `Σ · n · gate(o) · scaler / extent²`,
+/// with `Σ` the Gaussian's covariance and `n ~ N(0, I)`, so transparent Gaussians wander along
+/// their own shape and opaque ones stay. `scaler` is the position learning rate (which already
+/// scales with the scene) times the noise rate. Deterministic given `seed`.
+///
+/// The paper's rule `Σ · n · gate · scaler` is not free of units: `Σ` grows with length², the
+/// learning rate with length, so the step grows with length³. gsplat tunes it in a world
+/// normalised to about unit size; dividing by `extent²` gives every scene that world's noise
+/// relative to its size (a scene of extent 5 otherwise moves its splats 25 times as far for
+/// their size, and in a long run the wide transparent ones random-walk away).
+pub fn inject_noise(g: &mut Gaussians, scaler: f32, extent: f32, seed: u64) {
+    let scaler = scaler / (extent * extent);
     let mut rng = SplitMix64::new(seed);
     for i in 0..g.len() {
         let n = rng.normal_vec3();
@@ -239,8 +246,44 @@ mod tests {
                 &[],
             );
         }
-        inject_noise(&mut g, 10.0, 1);
+        inject_noise(&mut g, 10.0, 1.0, 1);
         assert!(g.means[0].length() > 1e-3, "{}", g.means[0]);
         assert!(g.means[1].length() < 1e-6, "{}", g.means[1]);
+    }
+
+    /// The same scene in other units (every length times `c`, so the position learning rate
+    /// and the extent too) gets the same noise in its own units: the step is `c` times as long.
+    #[test]
+    fn noise_is_the_same_in_any_unit_of_length() {
+        let scene = |c: f32| {
+            let mut g = Gaussians::new(0);
+            for (i, o) in [0.001f32, 0.004, 0.02].into_iter().enumerate() {
+                g.push(
+                    Vec3::new(i as f32, 0.5, -1.0) * c,
+                    Vec3::new(0.05, 0.2, 0.1) * c,
+                    [0.9, 0.1, -0.3, 0.2],
+                    logit(o),
+                    Vec3::ZERO,
+                    &[],
+                );
+                g.log_scales[i] = g.log_scales[i].map(f32::ln);
+            }
+            g
+        };
+        let moved = |c: f32| {
+            let mut g = scene(c);
+            let before = g.means.clone();
+            inject_noise(&mut g, 80.0 * c, 5.0 * c, 9);
+            g.means
+                .iter()
+                .zip(&before)
+                .map(|(a, b)| *a - *b)
+                .collect::<Vec<_>>()
+        };
+        let (one, seven) = (moved(1.0), moved(7.0));
+        for (a, b) in one.iter().zip(&seven) {
+            assert!(a.length() > 1e-4, "{a}");
+            assert!((*b - *a * 7.0).length() <= 1e-4 * b.length(), "{a} {b}");
+        }
     }
 }

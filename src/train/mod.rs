@@ -269,6 +269,7 @@ impl<'a> Run<'a> {
                 recipe: m.clone(),
                 budget: budget.clone(),
                 position_lr: position_lr.clone(),
+                extent: data.extent,
             }),
         };
         Ok(Run {

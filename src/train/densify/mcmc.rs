@@ -26,6 +26,8 @@ pub struct Mcmc {
     pub budget: Budget,
     /// The position learning rate's schedule: the noise follows it.
     pub position_lr: ExponentialLr,
+    /// The scene's size, which the noise is measured against.
+    pub extent: f32,
 }
 
 impl Mcmc {
@@ -102,7 +104,12 @@ impl Mcmc {
             });
         }
         if r.noise_lr > 0.0 {
-            inject_noise(model, self.position_lr.at(step) * r.noise_lr, seed ^ NOISE);
+            inject_noise(
+                model,
+                self.position_lr.at(step) * r.noise_lr,
+                self.extent,
+                seed ^ NOISE,
+            );
         }
         Ok(edit)
     }
