@@ -176,40 +176,64 @@ fn version_4_reads_as_its_version_3_twin() {
 #[global_allocator]
 static ALLOCATOR: base::alloc_watch::Watching = base::alloc_watch::Watching;
 
-/// A count within the memory budget over streams that hold a sliver of it (ZSTD expands a
-/// few bytes into megabytes of zeros): refused for the data missing, having reserved about
-/// what the streams hold, not what the header claims.
+/// A version 4 file of `n` splats of degree 0 whose five streams are each the ZSTD frame of
+/// `content(declared size of the stream)`.
+fn v4_file(n: usize, content: impl Fn(usize) -> Vec<u8>) -> Vec<u8> {
+    let sizes = [9 * n, n, 3 * n, 3 * n, 4 * n];
+    let mut out = Vec::new();
+    out.extend(0x5053_474eu32.to_le_bytes());
+    out.extend(4u32.to_le_bytes());
+    out.extend((n as u32).to_le_bytes());
+    out.extend([0u8, 12, 0, 5]);
+    out.extend(32u32.to_le_bytes());
+    out.resize(32, 0);
+    let frames: Vec<Vec<u8>> = sizes
+        .iter()
+        .map(|&size| {
+            ruzstd::encoding::compress_to_vec(
+                &content(size)[..],
+                ruzstd::encoding::CompressionLevel::Fastest,
+            )
+        })
+        .collect();
+    for (size, frame) in sizes.iter().zip(&frames) {
+        out.extend((frame.len() as u64).to_le_bytes());
+        out.extend((*size as u64).to_le_bytes());
+    }
+    for f in frames {
+        out.extend(f);
+    }
+    out
+}
+
+/// Bytes that do not compress.
+fn noise(len: usize, seed: u64) -> Vec<u8> {
+    let mut x = seed;
+    (0..len)
+        .map(|_| {
+            x = x
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (x >> 56) as u8
+        })
+        .collect()
+}
+
+/// A count within the memory budget over streams that hold a sliver of it: refused for the
+/// data missing, having reserved about what the streams hold, not what the header claims.
 #[test]
 fn a_count_far_above_the_data_reserves_what_the_data_holds() {
     const N: usize = 40_000_000;
     const HELD: usize = 1 << 20;
-    let sizes = [9 * N, N, 3 * N, 3 * N, 4 * N];
-    let mut out = Vec::new();
-    out.extend(0x5053_474eu32.to_le_bytes());
-    out.extend(4u32.to_le_bytes());
-    out.extend((N as u32).to_le_bytes());
-    out.extend([0u8, 12, 0, 5]);
-    out.extend(32u32.to_le_bytes());
-    out.resize(32, 0);
-    let frame = ruzstd::encoding::compress_to_vec(
-        &vec![0u8; HELD][..],
-        ruzstd::encoding::CompressionLevel::Fastest,
-    );
-    for size in sizes {
-        out.extend((frame.len() as u64).to_le_bytes());
-        out.extend((size as u64).to_le_bytes());
-    }
-    for _ in sizes {
-        out.extend(&frame);
-    }
-    assert!(out.len() < 4 * HELD / 100, "the bomb is small");
+    let out = v4_file(N, |_| noise(HELD, 7));
+    assert!(out.len() < 6 * HELD, "the file holds about 5 MB");
     base::alloc_watch::largest();
-    let err = parse_spz(std::path::Path::new("bomb.spz"), &out)
+    let err = parse_spz(std::path::Path::new("short.spz"), &out)
         .unwrap_err()
         .to_string();
     let largest = base::alloc_watch::largest();
     assert!(
-        err.contains("bomb.spz") && err.contains(&format!("decompresses to {HELD} bytes")),
+        err.contains("short.spz") && err.contains(&format!("decompresses to {HELD} bytes")),
         "{err}"
     );
     // The header claims 360 MB for the first stream alone.
@@ -222,11 +246,41 @@ fn a_count_far_above_the_data_reserves_what_the_data_holds() {
     let mut over = out.clone();
     over[8..12].copy_from_slice(&50_000_000u32.to_le_bytes());
     over[12] = 3;
-    let err = parse_spz(std::path::Path::new("bomb.spz"), &over)
+    base::alloc_watch::largest();
+    let err = parse_spz(std::path::Path::new("short.spz"), &over)
         .unwrap_err()
         .to_string();
     assert!(err.contains("GiB a splat file may take"), "{err}");
     assert!(base::alloc_watch::largest() < 1 << 20);
+}
+
+/// Streams that really decompress to what a huge header declares (ZSTD turns a few bytes into
+/// 128 KB of zeros): a file of a few kilobytes holding millions of identical splats is refused
+/// before anything is decompressed, while a real scene whose higher SH bands are all zero (the
+/// most compressible legal file) still reads.
+#[test]
+fn a_decompression_bomb_is_refused_before_it_expands() {
+    const N: usize = 5_000_000;
+    let bomb = v4_file(N, |size| vec![0u8; size]);
+    assert!(bomb.len() < 20_000, "{} bytes", bomb.len());
+    base::alloc_watch::largest();
+    let err = parse_spz(std::path::Path::new("bomb.spz"), &bomb)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("bomb.spz") && err.contains("decompression bomb"),
+        "{err}"
+    );
+    assert!(base::alloc_watch::largest() < 1 << 20);
+
+    let mut g = random_scene(5, 20_000, 3, (0.02, 0.3), 1.2);
+    g.sh_rest.iter_mut().for_each(|c| *c = Vec3::ZERO);
+    let v3 = to_spz(&g).unwrap();
+    let p = std::path::Path::new("flat.spz");
+    assert_eq!(
+        parse_spz(p, &to_v4(&v3)).unwrap(),
+        parse_spz(p, &v3).unwrap()
+    );
 }
 
 /// A gzip file of several members (what `cat a.gz b.gz` or a streaming writer makes) is one

@@ -248,6 +248,13 @@ fn check_header(h: &[u8], versions: std::ops::RangeInclusive<u32>) -> Result<Hea
     Ok((version, n as usize, degree, frac))
 }
 
+/// The most a splat file may expand: deflate's own limit (1032:1), which versions 2 and 3 meet
+/// by construction. ZSTD (version 4) expands zeros about 32 000:1, so a 30 KB file could
+/// "hold" 50 M identical splats; real splat data compresses a few times at most (even with every
+/// higher SH coefficient zero), so a file beyond deflate's limit is refused as a decompression
+/// bomb rather than read into gigabytes.
+const MAX_RATIO: u64 = 1032;
+
 /// Versions 2 and 3: one gzip stream, header then the attributes back to back.
 fn read_gzipped(bytes: &[u8]) -> Result<(Header, Vec<u8>), String> {
     // Several gzip members concatenated are one valid stream (RFC 1952), as gunzip reads it.
@@ -259,7 +266,7 @@ fn read_gzipped(bytes: &[u8]) -> Result<(Header, Vec<u8>), String> {
     let expected: usize = stream_sizes(h.0, h.1, h.2).iter().sum();
     // Deflate expands at most 1032:1, so a count the compressed bytes could never hold fails
     // before anything is reserved.
-    if expected as u64 > (bytes.len() as u64).saturating_mul(1032) {
+    if expected as u64 > (bytes.len() as u64).saturating_mul(MAX_RATIO) {
         return Err(format!(
             "{} splats need {expected} bytes after the header, more than the {} compressed bytes can hold",
             h.1,
@@ -345,6 +352,14 @@ fn read_v4(bytes: &[u8]) -> Result<(Header, Vec<u8>), String> {
         return Err(format!(
             "{streams} compressed streams; SH degree {} needs {want}",
             h.2
+        ));
+    }
+    let total: u64 = sizes.iter().take(streams).map(|&s| s as u64).sum();
+    if total > (bytes.len() as u64).saturating_mul(MAX_RATIO) {
+        return Err(format!(
+            "{} splats need {total} bytes, more than {MAX_RATIO} times the file's {} bytes: refused as a decompression bomb (no splat file compresses that far)",
+            h.1,
+            bytes.len()
         ));
     }
     let data_start = toc
