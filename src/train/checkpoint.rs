@@ -292,6 +292,23 @@ pub fn save(
     base::write_bytes_atomically(path, &out).map_err(|e| TrainError::io(path, e))
 }
 
+/// A checkpoint that could not be written (a full disk, most often), said with what is left:
+/// checkpoints are written atomically, so the previous one, if any, is intact and a resume
+/// continues from it once there is room.
+pub fn not_written(e: TrainError, path: &Path, step: u64) -> TrainError {
+    let left = if path.is_file() {
+        format!(
+            "{} still holds the previous checkpoint: make room and run the same command with --resume to continue from it",
+            path.display()
+        )
+    } else {
+        "no earlier checkpoint was written, so a new run starts from step 0".to_string()
+    };
+    TrainError::Invalid(format!(
+        "cannot write the checkpoint of step {step} ({e}); {left}"
+    ))
+}
+
 struct Reader<'a> {
     path: &'a Path,
     bytes: &'a [u8],
@@ -709,4 +726,29 @@ pub fn save_v2(
     let sum = base::hash::fnv1a64(&out);
     out.extend_from_slice(&sum.to_le_bytes());
     base::write_bytes_atomically(path, &out).map_err(|e| TrainError::io(path, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_checkpoint_not_written_says_whether_an_earlier_one_holds_the_run() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("checkpoint.bin");
+        let full = || TrainError::io(&path, std::io::Error::from_raw_os_error(28));
+        let none = not_written(full(), &path, 600).to_string();
+        assert!(
+            none.contains("step 600") && none.contains("from step 0"),
+            "{none}"
+        );
+        assert!(none.contains("No space left"), "{none}");
+        std::fs::write(&path, b"an earlier checkpoint").unwrap();
+        let earlier = not_written(full(), &path, 1200).to_string();
+        assert!(
+            earlier.contains("step 1200") && earlier.contains("--resume"),
+            "{earlier}"
+        );
+        assert!(earlier.contains(&path.display().to_string()), "{earlier}");
+    }
 }

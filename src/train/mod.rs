@@ -555,7 +555,8 @@ impl<'a> Run<'a> {
             && (step % config.checkpoint_every == 0 || last)
         {
             let (model, adam) = t.host()?;
-            checkpoint::save(path, config, p, model, adam)?;
+            checkpoint::save(path, config, p, model, adam)
+                .map_err(|e| checkpoint::not_written(e, path, step))?;
             on_event(Event::Checkpoint { step });
         }
         Ok(())
