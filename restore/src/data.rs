@@ -183,6 +183,21 @@ pub fn list_images(dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(v)
 }
 
+/// The photos of a folder ([`list_images`]), each at least `min_side` on both sides, with their
+/// file names.
+pub fn load_folder(dir: &Path, min_side: usize) -> Result<Vec<(String, Image)>> {
+    list_images(dir)?
+        .iter()
+        .map(|p| {
+            let name = p
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            Ok((name, load_photo(p, min_side)?))
+        })
+        .collect()
+}
+
 /// The folders of a pairs folder: the photos as the lens took them, and the same scenes clean.
 pub const CAPTURED_DIR: &str = "captured";
 pub const CLEAN_DIR: &str = "clean";

@@ -8,7 +8,8 @@ use clap::Args;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use super::network::{Inference, Score, load_folder, metric};
+use super::network::{Inference, Score, metric};
+use restore::data::load_folder;
 
 #[derive(Args)]
 pub struct EvalArgs {

@@ -4,7 +4,6 @@ use aberration::{Image, PsfGrid};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use restore::Restorer;
-use restore::data::{list_images, load_photo};
 use std::path::{Path, PathBuf};
 
 /// How large images are cut for the network.
@@ -131,18 +130,4 @@ impl Score {
         self.psnr_y += base::metrics::psnr_y_planar(&clamped.data, &clean.data)?;
         Ok(())
     }
-}
-
-pub(crate) fn load_folder(dir: &Path, min_side: usize) -> Result<Vec<(String, Image)>> {
-    let paths = list_images(dir)?;
-    paths
-        .iter()
-        .map(|p| {
-            let name = p
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            Ok((name, load_photo(p, min_side)?))
-        })
-        .collect()
 }

@@ -1,0 +1,113 @@
+//! The other commands as library jobs: `restorer train` driven through
+//! `metasplat::jobs::restorer_train` without the binary, its events and its report read.
+
+mod common;
+
+use aberration::optics::{SimConfig, simulate_grid};
+use clap::Parser;
+use metasplat::TrainError;
+use metasplat::jobs::restorer_train::{RestorerEvent, RestorerTrainRequest, prepare};
+use restore::train::Event;
+use std::path::Path;
+
+#[derive(Parser)]
+struct Args {
+    #[command(flatten)]
+    a: RestorerTrainRequest,
+}
+
+fn request(flags: &[&str]) -> RestorerTrainRequest {
+    Args::parse_from(std::iter::once("train").chain(flags.iter().copied())).a
+}
+
+/// Writes `n` smooth photos of `w × h` into `dir`.
+fn photos(dir: &Path, n: u32, w: u32, h: u32) {
+    std::fs::create_dir_all(dir).unwrap();
+    for i in 0..n {
+        let img = image::RgbImage::from_fn(w, h, |x, y| {
+            let v = |a: f32| (127.0 + 120.0 * a.sin()) as u8;
+            image::Rgb([
+                v(x as f32 * 0.11 * (i + 1) as f32),
+                v(y as f32 * 0.07 + i as f32),
+                v((x + y) as f32 * 0.05),
+            ])
+        });
+        img.save(dir.join(format!("p{i}.png"))).unwrap();
+    }
+}
+
+/// Two steps of `tiny`, stopped after the first by a zero-minute budget and resumed: the
+/// events say how it starts and every validation, the report what it reached; a request
+/// that validates on its training photos is refused by `prepare` before anything is
+/// written.
+#[test]
+fn restorer_training_runs_through_the_library_and_reports() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (psf, _) = simulate_grid(&SimConfig::small(21), &|_, _| {}).unwrap();
+    let psf_path = d.join("psf.npy");
+    psf.save_npy(&psf_path).unwrap();
+    let (train, val) = (d.join("train"), d.join("val"));
+    photos(&train, 2, 80, 72);
+    photos(&val, 1, 80, 72);
+    let out = d.join("w.bin");
+    let s = common::cli::s;
+    let flags = [
+        "--images",
+        s(&train),
+        "--val",
+        s(&val),
+        "--psf",
+        s(&psf_path),
+        "--out",
+        s(&out),
+        "--steps",
+        "2",
+        "--batch",
+        "1",
+        "--val-every",
+        "1",
+        "--val-crop",
+        "64",
+    ];
+    let run = |extra: &[&str]| {
+        let all: Vec<&str> = flags.iter().chain(extra).copied().collect();
+        let mut said = Vec::new();
+        let mut vals = Vec::new();
+        let report = prepare(&request(&all), "test")
+            .unwrap()
+            .run(&mut |e| match e {
+                RestorerEvent::Said(line) => said.push(line),
+                RestorerEvent::Step(Event::Val { step, psnr, .. }) => vals.push((*step, *psnr)),
+                _ => {}
+            })
+            .unwrap();
+        (report, said, vals)
+    };
+    let (first, said, vals) = run(&["--minutes", "0"]);
+    assert!(first.stopped_early() && first.reached == 1, "{first:?}");
+    assert!(
+        said.iter().any(|l| l.contains("2 training photos")),
+        "{said:?}"
+    );
+    assert_eq!(vals.len(), 1);
+    assert!(out.is_file() && first.state.is_file());
+    let (second, said, vals) = run(&["--resume"]);
+    assert!(!second.stopped_early() && (second.first, second.reached) == (1, 2));
+    assert!(said.iter().any(|l| l.contains("resuming")), "{said:?}");
+    assert_eq!(vals.iter().map(|v| v.0).collect::<Vec<_>>(), vec![2]);
+    assert!(second.val.0.is_finite() && second.val.0 == vals[0].1);
+    assert_eq!(second.log.len(), 1);
+
+    let other = d.join("other.bin");
+    let mut same = flags.to_vec();
+    same[3] = s(&train);
+    same[7] = s(&other);
+    let err = match prepare(&request(&same), "test") {
+        Err(e @ TrainError::Invalid(_)) => e.to_string(),
+        Err(e) => panic!("another error: {e}"),
+        Ok(_) => panic!("validating on the training photos was accepted"),
+    };
+    assert!(err.contains("hold the same photos"), "{err}");
+    assert!(!other.exists());
+}
