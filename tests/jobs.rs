@@ -1,11 +1,12 @@
-//! The other commands as library jobs: `restorer train` driven through
-//! `metasplat::jobs::restorer_train` without the binary, its events and its report read.
+//! The other commands as library jobs: `restorer train` and `restorer eval` driven through
+//! `metasplat::jobs` without the binary, their events and reports read.
 
 mod common;
 
 use aberration::optics::{SimConfig, simulate_grid};
 use clap::Parser;
 use metasplat::TrainError;
+use metasplat::jobs::restorer_eval::evaluate;
 use metasplat::jobs::restorer_train::{RestorerEvent, RestorerTrainRequest, prepare};
 use restore::train::Event;
 use std::path::Path;
@@ -110,4 +111,46 @@ fn restorer_training_runs_through_the_library_and_reports() {
     };
     assert!(err.contains("hold the same photos"), "{err}");
     assert!(!other.exists());
+
+    // The weights it wrote, evaluated at PSFs mapped to 15 px: every method scored, the
+    // strips written, the photos blurred at the scale asked for.
+    let restorer = restore::Restorer::load(&out, &psf).unwrap();
+    let strips = d.join("strips");
+    let photos = restore::data::load_folder(&val, 1).unwrap();
+    let mut seen = 0;
+    let report = evaluate(
+        &psf,
+        &restorer,
+        &photos,
+        Some(15),
+        Some(&strips),
+        &mut || seen += 1,
+    )
+    .unwrap();
+    assert_eq!((report.photos, seen), (1, 1));
+    assert_eq!(report.mapped_px, (15, 15));
+    let rows = report.rows();
+    assert_eq!(rows.len(), 5, "{rows:?}");
+    assert!(
+        rows.iter().all(|r| r.1.is_finite() && r.2 > 0.0),
+        "{rows:?}"
+    );
+    // The best single K is at least the bank's K = 1e-2 filter scored on its own.
+    let model = aberration::ImagingModel::new(
+        &psf,
+        80,
+        72,
+        aberration::BlurMode::Tiled,
+        Some(psf.sensor_for_psf_px(80, 72, 15)),
+        aberration::NoiseModel::default(),
+    )
+    .unwrap();
+    let blurred = model.capture(&photos[0].1, 0x5EED_0000).unwrap();
+    let (input, _) = aberration::compare(&blurred, &photos[0].1).unwrap();
+    assert!((input - rows[0].1).abs() < 1e-9, "{input} {rows:?}");
+    let k2 = aberration::deconvolve(&blurred, model.psf(), aberration::Regularizer::Fixed(1e-2))
+        .unwrap();
+    assert!(aberration::compare(&k2, &photos[0].1).unwrap().0 <= rows[1].1 + 1e-9);
+    let strip = image::open(strips.join("p0_abr_base_net_clean.png")).unwrap();
+    assert_eq!((strip.width(), strip.height()), (4 * 80, 72));
 }

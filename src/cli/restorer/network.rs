@@ -110,24 +110,3 @@ impl Inference {
 pub(crate) fn metric(a: &Image, b: &Image) -> Result<(f64, f64)> {
     Ok(aberration::compare(a, b)?)
 }
-
-/// Sums of one method's scores over the photos: PSNR and SSIM on RGB, and PSNR on the luma
-/// channel, the paper's figure.
-#[derive(Clone, Copy, Default)]
-pub(crate) struct Score {
-    pub(crate) psnr: f64,
-    pub(crate) ssim: f64,
-    pub(crate) psnr_y: f64,
-}
-
-impl Score {
-    pub(crate) fn add(&mut self, image: &Image, clean: &Image) -> Result<()> {
-        let (p, s) = metric(image, clean)?;
-        let mut clamped = image.clone();
-        clamped.clamp01();
-        self.psnr += p;
-        self.ssim += s;
-        self.psnr_y += base::metrics::psnr_y_planar(&clamped.data, &clean.data)?;
-        Ok(())
-    }
-}
