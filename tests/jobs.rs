@@ -154,3 +154,61 @@ fn restorer_training_runs_through_the_library_and_reports() {
     let strip = image::open(strips.join("p0_abr_base_net_clean.png")).unwrap();
     assert_eq!((strip.width(), strip.height()), (4 * 80, 72));
 }
+
+#[derive(Parser)]
+struct RenderArgs {
+    #[command(flatten)]
+    a: metasplat::jobs::render::RenderRequest,
+}
+
+/// `render --split test` through the library: the report counts the capture's held-out
+/// views, whose renders and ground truth lie side by side under one name each; a request the
+/// job must refuse (a frame rate for a folder of frames) writes nothing.
+#[test]
+fn rendering_runs_through_the_library_and_reports() {
+    let c = common::small_capture(4);
+    let d = c.dir.path();
+    let ply = d.join("scene.ply");
+    splat::formats::ply::write_ply(&ply, &splat::synthetic::random_box_scene(3, 500, 1)).unwrap();
+    let out = d.join("split");
+    let s = common::cli::s;
+    let request = |extra: &[&str]| {
+        let flags = ["--in", s(&ply), "--scene", s(&c.clean), "--downsample", "1"];
+        RenderArgs::parse_from(
+            std::iter::once("render")
+                .chain(flags)
+                .chain(extra.iter().copied()),
+        )
+        .a
+    };
+    let prepared =
+        metasplat::jobs::render::prepare(&request(&["--out", s(&out), "--split", "test"])).unwrap();
+    assert!(!out.exists(), "prepare wrote {}", out.display());
+    let report = prepared.run().unwrap();
+    let capture = metasplat::settings::open_scene(&c.clean, 1, false).unwrap();
+    let test: Vec<&str> = capture
+        .split
+        .test
+        .iter()
+        .map(|&i| capture.cameras[i].name.as_str())
+        .collect();
+    assert_eq!(report.frames, test.len());
+    assert_eq!(report.size, (64, 48));
+    assert!(
+        report.said.iter().any(|l| l.contains("gt/")),
+        "{:?}",
+        report.said
+    );
+    for name in test {
+        for dir in ["renders", "gt"] {
+            assert!(
+                out.join(dir).join(format!("{name}.png")).is_file(),
+                "{dir}/{name}"
+            );
+        }
+    }
+    let again = d.join("again");
+    let err = metasplat::jobs::render::prepare(&request(&["--out", s(&again), "--fps", "24"]));
+    assert!(matches!(&err, Err(e) if e.to_string().contains("--fps 24")));
+    assert!(!again.exists());
+}

@@ -48,7 +48,7 @@ pub fn run(a: DeconvolveArgs) -> Result<()> {
     let blurred = Image::load(&a.input)?;
     let psf = native
         .for_image(blurred.width, blurred.height, a.sensor_px)
-        .with_context(|| super::sensor_flag(a.sensor_px, &a.psf))?;
+        .with_context(|| metasplat::settings::imaging::sensor_flag(a.sensor_px, &a.psf))?;
     let reference = a.reference.as_deref().map(Image::load).transpose()?;
     if let Some(r) = &reference
         && (r.width, r.height) != (blurred.width, blurred.height)

@@ -14,7 +14,6 @@ mod restorer;
 mod scene;
 mod shell;
 mod train;
-mod video;
 mod view;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
@@ -70,40 +69,25 @@ enum Command {
     Man,
 }
 
-/// Opens a capture at `images_{downsample}` (every 8th image held out; photos undistorted
-/// at load unless `keep_distortion`), naming it on failure.
+/// [`metasplat::settings::open_scene`].
 pub fn open_scene(
     dir: &std::path::Path,
     downsample: u32,
     keep_distortion: bool,
 ) -> anyhow::Result<scenes::Capture> {
-    use anyhow::Context;
-    let options = scenes::OpenOptions {
-        resolution: scenes::Resolution::Downsample(downsample),
-        undistort: !keep_distortion,
-        ..Default::default()
-    };
-    scenes::open(dir, &options).with_context(|| format!("cannot open the scene {}", dir.display()))
+    Ok(metasplat::settings::open_scene(
+        dir,
+        downsample,
+        keep_distortion,
+    )?)
 }
 
-/// The downsample to open `dir` at: the one given, else `images_8/` as LLFF captures are
-/// usually trained at, else the least downsampled folder the capture has (`images/` for the
-/// captures the demo and `scene procedural` write), said in a sentence.
+/// [`metasplat::settings::downsample_for`], its choice said.
 pub fn downsample_for(dir: &std::path::Path, given: Option<u32>) -> u32 {
-    if let Some(d) = given {
-        return d;
+    let (d, said) = metasplat::settings::downsample_for(dir, given);
+    if let Some(line) = said {
+        println!("{line}");
     }
-    let found = scenes::capture::image_downsamples(dir);
-    let d = if found.contains(&8) {
-        8
-    } else {
-        found.first().copied().unwrap_or(8)
-    };
-    println!(
-        "Using {}/ of {}.",
-        scenes::llff::image_folder_name(d),
-        dir.display()
-    );
     d
 }
 
@@ -115,18 +99,6 @@ pub fn decode_all(capture: &scenes::Capture) -> anyhow::Result<()> {
     capture
         .check_images()
         .with_context(|| format!("cannot open the scene {}", capture.root.display()))
-}
-
-/// What a PSF grid's mapping onto an image failed with: the `--sensor-px` given, or the
-/// grid's own sensor size when none was.
-pub fn sensor_flag(sensor_px: Option<usize>, psf: &std::path::Path) -> String {
-    match sensor_px {
-        Some(px) => format!("--sensor-px {px}"),
-        None => format!(
-            "the sensor size of --psf {} (set another with --sensor-px)",
-            psf.display()
-        ),
-    }
 }
 
 impl Cli {

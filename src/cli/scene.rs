@@ -55,7 +55,7 @@ pub struct SceneAberrateArgs {
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
     #[command(flatten)]
-    pub imaging: super::aberrate::ImagingArgs,
+    pub imaging: metasplat::settings::imaging::ImagingArgs,
     /// Blur the photos as taken even when the cameras have lens distortion (by default they
     /// are undistorted at load first, and the copy's cameras are pinhole).
     #[arg(long)]

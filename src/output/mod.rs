@@ -4,6 +4,7 @@
 
 pub mod guard;
 pub mod plot;
+pub mod video;
 pub mod view;
 
 use std::path::{Path, PathBuf};

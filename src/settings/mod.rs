@@ -6,6 +6,7 @@
 //! Each default exists once: in the clap attribute of its field here, or, where it depends
 //! on the capture, in [`crate::train::config::TrainConfig::build`].
 
+pub mod imaging;
 pub mod values;
 
 use std::path::PathBuf;
@@ -527,6 +528,44 @@ impl std::fmt::Display for MaskUse {
             MaskUse::Object => "object",
         })
     }
+}
+
+/// Opens a capture at `images_{downsample}` (every 8th image held out; photos undistorted
+/// at load unless `keep_distortion`), naming it on failure.
+pub fn open_scene(
+    dir: &std::path::Path,
+    downsample: u32,
+    keep_distortion: bool,
+) -> crate::Result<scenes::Capture> {
+    let options = scenes::OpenOptions {
+        resolution: scenes::Resolution::Downsample(downsample),
+        undistort: !keep_distortion,
+        ..Default::default()
+    };
+    scenes::open(dir, &options).map_err(|e| {
+        crate::TrainError::from(e).context(format!("cannot open the scene {}", dir.display()))
+    })
+}
+
+/// The downsample to open `dir` at: the one given, else `images_8/` as LLFF captures are
+/// usually trained at, else the least downsampled folder the capture has (`images/` for the
+/// captures the demo and `scene procedural` write), with a sentence saying the choice.
+pub fn downsample_for(dir: &std::path::Path, given: Option<u32>) -> (u32, Option<String>) {
+    if let Some(d) = given {
+        return (d, None);
+    }
+    let found = scenes::capture::image_downsamples(dir);
+    let d = if found.contains(&8) {
+        8
+    } else {
+        found.first().copied().unwrap_or(8)
+    };
+    let said = format!(
+        "Using {}/ of {}.",
+        scenes::llff::image_folder_name(d),
+        dir.display()
+    );
+    (d, Some(said))
 }
 
 #[cfg(test)]

@@ -39,7 +39,7 @@ pub fn run_restore(a: RestoreArgs) -> Result<()> {
     if is_gif(&a.input) {
         return run_restore_gif(a);
     }
-    if crate::cli::video::is_ffmpeg_video(&a.input) {
+    if metasplat::output::video::is_ffmpeg_video(&a.input) {
         return run_restore_video(a);
     }
     if a.resume {
@@ -62,7 +62,7 @@ pub fn run_restore(a: RestoreArgs) -> Result<()> {
         .load(|n| Some(n.mapped_size(blurred.width, blurred.height, a.sensor_px)))?;
     let psf = native
         .for_image(blurred.width, blurred.height, a.sensor_px)
-        .with_context(|| crate::cli::sensor_flag(a.sensor_px, &a.net.psf))?;
+        .with_context(|| metasplat::settings::imaging::sensor_flag(a.sensor_px, &a.net.psf))?;
     if !restorer.header.fits_psf_px(psf.size()) {
         let [lo, hi] = restorer.header.trained_psf_px.unwrap_or([0, 0]);
         println!(
@@ -121,7 +121,7 @@ fn run_restore_folder(a: RestoreArgs) -> Result<()> {
     let (native, restorer) = a.net.load(|n| Some(n.mapped_size(w, h, a.sensor_px)))?;
     let psf = native
         .for_image(w, h, a.sensor_px)
-        .with_context(|| crate::cli::sensor_flag(a.sensor_px, &a.net.psf))?;
+        .with_context(|| metasplat::settings::imaging::sensor_flag(a.sensor_px, &a.net.psf))?;
     io.make_out()?;
     let todo: Vec<&PathBuf> = frames.iter().filter(|f| !io.target(f).exists()).collect();
     let kept = frames.len() - todo.len();
@@ -212,7 +212,7 @@ fn run_restore_gif(a: RestoreArgs) -> Result<()> {
     let (native, restorer) = a.net.load(|n| Some(n.mapped_size(w, h, a.sensor_px)))?;
     let psf = native
         .for_image(w, h, a.sensor_px)
-        .with_context(|| crate::cli::sensor_flag(a.sensor_px, &a.net.psf))?;
+        .with_context(|| metasplat::settings::imaging::sensor_flag(a.sensor_px, &a.net.psf))?;
     let start = std::time::Instant::now();
     let mut out = Vec::with_capacity(frames.len());
     for (i, f) in frames.iter().enumerate() {
@@ -268,13 +268,13 @@ fn run_restore_video(a: RestoreArgs) -> Result<()> {
     if a.reference.is_some() {
         bail!("--reference: a video is restored without one (score it with restorer eval-video)");
     }
-    let Some(ffmpeg) = crate::cli::video::on_path("ffmpeg") else {
+    let Some(ffmpeg) = metasplat::output::video::on_path("ffmpeg") else {
         bail!(
             "--in {}: reading a video needs ffmpeg, which is not on the PATH; install it, or restore the clip as a .gif or as a folder of frames (--in DIR --out DIR)",
             a.input.display()
         );
     };
-    let format = crate::cli::video::format_for_flag("--out", &a.out)?;
+    let format = metasplat::output::video::format_for_flag("--out", &a.out)?;
     let mut inputs = a.net.inputs();
     inputs.push(("--in", a.input.as_path()));
     metasplat::output::guard::refuse_overwrite("--out", &a.out, &inputs)?;
@@ -302,7 +302,7 @@ fn run_restore_video(a: RestoreArgs) -> Result<()> {
                 a.input.display(),
                 ffmpeg.display()
             );
-            let fps = crate::cli::video::decode(&ffmpeg, &a.input, &input_dir)?;
+            let fps = metasplat::output::video::decode(&ffmpeg, &a.input, &input_dir)?;
             base::write_bytes_atomically(&rate_file, fps.to_string().as_bytes())
                 .with_context(|| format!("cannot write {}", rate_file.display()))?;
             fps
@@ -317,7 +317,7 @@ fn run_restore_video(a: RestoreArgs) -> Result<()> {
         ..a
     })?;
     let frames = scenes::images::list_images(&restored_dir)?;
-    crate::cli::video::encode(&format, &frames, fps, &out)?;
+    metasplat::output::video::encode(&format, &frames, fps, &out)?;
     std::fs::remove_dir_all(&parts)
         .with_context(|| format!("cannot remove {}", parts.display()))?;
     println!(

@@ -3,8 +3,14 @@
 //! becomes something to watch without any tool installed. The file is written under a
 //! temporary name beside its place, with an ordinary mode, and renamed there at the end.
 
-use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
+
+use crate::error::{Result, TrainError};
+
+/// An error that says what could not be done, and why.
+fn failed(what: String, why: impl std::fmt::Display) -> TrainError {
+    TrainError::Invalid(format!("{what}: {why}"))
+}
 
 /// How a video file is written.
 pub enum VideoFormat {
@@ -35,7 +41,7 @@ pub fn decode(ffmpeg: &Path, input: &Path, dir: &Path) -> Result<f64> {
         .arg(input)
         .stdin(std::process::Stdio::null())
         .output()
-        .with_context(|| format!("cannot run {}", ffmpeg.display()))?;
+        .map_err(|e| failed(format!("cannot run {}", ffmpeg.display()), e))?;
     let fps = String::from_utf8_lossy(&probe.stderr)
         .split(',')
         .find_map(|part| part.trim().strip_suffix(" fps")?.trim().parse::<f64>().ok())
@@ -48,14 +54,14 @@ pub fn decode(ffmpeg: &Path, input: &Path, dir: &Path) -> Result<f64> {
         .arg(frame_pattern(&dir.join("frame00000.png")))
         .stdin(std::process::Stdio::null())
         .spawn()
-        .with_context(|| format!("cannot run {}", ffmpeg.display()))?;
+        .map_err(|e| failed(format!("cannot run {}", ffmpeg.display()), e))?;
     let status = wait_or_stop(child, ffmpeg)?;
     if !status.success() {
-        bail!(
+        return Err(TrainError::Invalid(format!(
             "{} could not read the frames of {} ({status})",
             ffmpeg.display(),
             input.display()
-        );
+        )));
     }
     Ok(fps)
 }
@@ -70,15 +76,15 @@ pub fn format_for_flag(flag: &str, path: &Path) -> Result<VideoFormat> {
         Some("gif") => Ok(VideoFormat::Gif),
         Some("mp4" | "mov" | "webm" | "mkv") => match on_path("ffmpeg") {
             Some(ffmpeg) => Ok(VideoFormat::Ffmpeg(ffmpeg)),
-            None => bail!(
+            None => Err(TrainError::Invalid(format!(
                 "{flag} {}: writing this format needs ffmpeg, which is not on the PATH; install it, or give a .gif file (written without it)",
                 path.display()
-            ),
+            ))),
         },
-        _ => bail!(
+        _ => Err(TrainError::Invalid(format!(
             "{flag} {}: a video is written as .mp4, .mov, .webm or .mkv (through ffmpeg) or as .gif",
             path.display()
-        ),
+        ))),
     }
 }
 
@@ -90,9 +96,9 @@ pub const GIF_MAX_FPS: f64 = 50.0;
 /// than [`GIF_MAX_FPS`] is refused naming the flag.
 pub fn gif_centiseconds(fps: f64) -> Result<u32> {
     if !(fps.is_finite() && fps > 0.0) || fps > GIF_MAX_FPS {
-        bail!(
+        return Err(TrainError::Invalid(format!(
             "--fps {fps}: a .gif shows at most {GIF_MAX_FPS} frames per second (its frame time is in hundredths of a second, and players slow shorter frames to 1/10 s); write an .mp4 for more"
-        );
+        )));
     }
     Ok((100.0 / fps).round().clamp(2.0, 65535.0) as u32)
 }
@@ -124,18 +130,20 @@ pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) ->
             use image::codecs::gif::{GifEncoder, Repeat};
             let mut bytes = Vec::new();
             {
+                let gif_failed = |e| failed(format!("cannot encode {}", out.display()), e);
                 let mut encoder = GifEncoder::new_with_speed(&mut bytes, 10);
-                encoder.set_repeat(Repeat::Infinite)?;
+                encoder.set_repeat(Repeat::Infinite).map_err(gif_failed)?;
                 let delay = image::Delay::from_numer_denom_ms(10 * gif_centiseconds(fps)?, 1);
                 for f in frames {
                     let img = image::open(f)
-                        .with_context(|| format!("cannot read the frame {}", f.display()))?
+                        .map_err(|e| failed(format!("cannot read the frame {}", f.display()), e))?
                         .to_rgba8();
-                    encoder.encode_frame(image::Frame::from_parts(img, 0, 0, delay))?;
+                    encoder
+                        .encode_frame(image::Frame::from_parts(img, 0, 0, delay))
+                        .map_err(gif_failed)?;
                 }
             }
-            base::write_bytes_atomically(out, &bytes)
-                .with_context(|| format!("cannot write {}", out.display()))?;
+            base::write_bytes_atomically(out, &bytes).map_err(|e| TrainError::io(out, e))?;
         }
         VideoFormat::Ffmpeg(ffmpeg) => {
             let dir = match out.parent() {
@@ -153,8 +161,10 @@ pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) ->
             }
             let temp = builder
                 .tempfile_in(&dir)
-                .with_context(|| format!("cannot write in {}", dir.display()))?;
-            let first = frames.first().context("no frames to encode")?;
+                .map_err(|e| failed(format!("cannot write in {}", dir.display()), e))?;
+            let first = frames
+                .first()
+                .ok_or_else(|| TrainError::Invalid("no frames to encode".into()))?;
             let pattern = frame_pattern(first);
             let child = std::process::Command::new(ffmpeg)
                 .args(["-hide_banner", "-loglevel", "error", "-y", "-framerate"])
@@ -172,26 +182,26 @@ pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) ->
                 // Its own input would be the terminal's: a tool waiting on it never ends.
                 .stdin(std::process::Stdio::null())
                 .spawn()
-                .with_context(|| format!("cannot run {}", ffmpeg.display()))?;
+                .map_err(|e| failed(format!("cannot run {}", ffmpeg.display()), e))?;
             let status = wait_or_stop(child, ffmpeg)?;
             if !status.success() {
-                bail!(
+                return Err(TrainError::Invalid(format!(
                     "{} could not encode {} ({status}); the frames were not kept",
                     ffmpeg.display(),
                     out.display()
-                );
+                )));
             }
             // A tool that says it succeeded but wrote nothing does not make a video.
             let written = temp.as_file().metadata().map_or(0, |m| m.len());
             if written == 0 {
-                bail!(
+                return Err(TrainError::Invalid(format!(
                     "{} exited successfully but wrote nothing for {}; the frames were not kept",
                     ffmpeg.display(),
                     out.display()
-                );
+                )));
             }
             temp.persist(out)
-                .with_context(|| format!("cannot write {}", out.display()))?;
+                .map_err(|e| TrainError::io(out, e.error))?;
         }
     }
     Ok(())
@@ -207,18 +217,17 @@ pub fn wait_or_stop(
     loop {
         if let Some(status) = child
             .try_wait()
-            .with_context(|| format!("cannot wait for {}", tool.display()))?
+            .map_err(|e| failed(format!("cannot wait for {}", tool.display()), e))?
         {
             return Ok(status);
         }
         if base::interrupt::requested() {
             let _ = child.kill();
             let _ = child.wait();
-            return Err(metasplat::TrainError::Interrupted(format!(
+            return Err(TrainError::Interrupted(format!(
                 "stopped while {} encoded the video; nothing was written",
                 tool.display()
-            ))
-            .into());
+            )));
         }
         std::thread::sleep(std::time::Duration::from_millis(50));
     }
