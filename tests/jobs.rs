@@ -1,11 +1,12 @@
-//! The other commands as library jobs: `restorer train` and `restorer eval` driven through
-//! `metasplat::jobs` without the binary, their events and reports read.
+//! The other commands as library jobs: `restorer train`, `restorer eval`, `restore` and
+//! `render` driven through `metasplat::jobs` without the binary, their events and reports read.
 
 mod common;
 
 use aberration::optics::{SimConfig, simulate_grid};
 use clap::Parser;
 use metasplat::TrainError;
+use metasplat::jobs::restore::{RestoreEvent, Restored};
 use metasplat::jobs::restorer_eval::evaluate;
 use metasplat::jobs::restorer_train::{RestorerEvent, RestorerTrainRequest, prepare};
 use restore::train::Event;
@@ -153,6 +154,52 @@ fn restorer_training_runs_through_the_library_and_reports() {
     assert!(aberration::compare(&k2, &photos[0].1).unwrap().0 <= rows[1].1 + 1e-9);
     let strip = image::open(strips.join("p0_abr_base_net_clean.png")).unwrap();
     assert_eq!((strip.width(), strip.height()), (4 * 80, 72));
+
+    // The training photos as a clip's frames, restored with these weights through the
+    // library: a frame event each, and a resumed run that finds them all done.
+    let restored = d.join("restored");
+    let restore_request = |resume: bool| {
+        let mut flags = vec![
+            "restore",
+            "--weights",
+            s(&out),
+            "--psf",
+            s(&psf_path),
+            "--in",
+            s(&train),
+            "--out",
+            s(&restored),
+        ];
+        if resume {
+            flags.push("--resume");
+        }
+        RestoreArgs::parse_from(flags).a
+    };
+    let mut frames = Vec::new();
+    let report = metasplat::jobs::restore::run(&restore_request(false), &mut |e| {
+        if let RestoreEvent::Frame { done, total, .. } = e {
+            frames.push((done, total));
+        }
+    })
+    .unwrap();
+    assert_eq!(frames, vec![(1, 2), (2, 2)]);
+    assert_eq!(
+        (report.kind, report.frames, report.size),
+        (Restored::Frames, 2, (80, 72))
+    );
+    for name in ["p0.png", "p1.png"] {
+        assert!(restored.join(name).is_file(), "{name}");
+    }
+    let again = metasplat::jobs::restore::run(&restore_request(false), &mut |_| {});
+    assert!(matches!(&again, Err(e) if e.to_string().contains("--resume")));
+    let resumed = metasplat::jobs::restore::run(&restore_request(true), &mut |_| {}).unwrap();
+    assert_eq!(resumed.frames, 0);
+}
+
+#[derive(Parser)]
+struct RestoreArgs {
+    #[command(flatten)]
+    a: metasplat::jobs::restore::RestoreRequest,
 }
 
 #[derive(Parser)]

@@ -78,7 +78,7 @@ pub fn run(a: AberrateArgs) -> Result<()> {
 /// with the sensor noise of seed `mix(seed, i)` (a video's noise changes from frame to frame),
 /// so a clean clip (`render --out`) gives its aberrated twin to restore and score.
 fn run_folder(a: AberrateArgs) -> Result<()> {
-    let io = super::frames::FrameFolders::check(
+    let io = metasplat::jobs::frames::FrameFolders::check(
         &a.input,
         &a.out,
         Some("give an empty or new folder"),

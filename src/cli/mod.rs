@@ -6,7 +6,6 @@ mod deconvolve;
 mod demo;
 mod experiment;
 mod export;
-mod frames;
 mod progress;
 mod psf;
 mod render;

@@ -1,6 +1,9 @@
 //! Commands other than splat training as jobs of the library: each is prepared (every check,
 //! nothing written), then run with its events, and ends in a report the binary prints.
 
+pub mod frames;
 pub mod render;
+pub mod restore;
 pub mod restorer_eval;
+pub mod restorer_net;
 pub mod restorer_train;

@@ -8,7 +8,7 @@ use metasplat::jobs::restorer_eval::evaluate;
 use restore::data::load_folder;
 use std::path::{Path, PathBuf};
 
-use super::network::{Inference, metric};
+use metasplat::jobs::restorer_net::Inference;
 
 #[derive(Args)]
 pub struct EvalArgs {
@@ -45,7 +45,10 @@ pub(crate) fn run_eval(a: EvalArgs) -> Result<()> {
     }
     let psf_px = a.psf_px.map(|p| p as usize | 1);
     // Blurred to one scale, the photos are restored by the shipped network for it.
-    let (native, restorer) = a.net.load(|_| psf_px)?;
+    let (native, restorer, said) = a.net.load(|_| psf_px)?;
+    if let Some(line) = said {
+        println!("{line}");
+    }
     let photos = load_folder(&a.val, 1)?;
     let pb = bar(photos.len() as u64, "evaluating");
     let report = evaluate(
@@ -91,7 +94,7 @@ pub(crate) fn run_eval_video(a: EvalVideoArgs) -> Result<()> {
     println!("|---|---:|---:|");
     let (mut p_sum, mut s_sum) = (0.0, 0.0);
     for ((name, r), c) in names.iter().zip(&restored).zip(&clean) {
-        let (p, s) = metric(r, c)?;
+        let (p, s) = aberration::compare(r, c)?;
         p_sum += p;
         s_sum += s;
         println!(

@@ -3,7 +3,6 @@
 
 mod apply;
 mod eval;
-mod network;
 mod train;
 
 use anyhow::Result;

@@ -1,13 +1,15 @@
-//! What the restorer commands share: the network options (weights, tiling) and scoring.
+//! What the restorer commands share: the network options (weights, tiling), loaded with the
+//! sentence that says which network serves and why.
 
-use aberration::{Image, PsfGrid};
-use anyhow::{Context, Result, bail};
+use aberration::PsfGrid;
 use clap::Args;
 use restore::Restorer;
 use std::path::{Path, PathBuf};
 
+use crate::error::{Result, TrainError};
+
 /// How large images are cut for the network.
-#[derive(Args)]
+#[derive(Args, Clone, Debug)]
 pub struct Tiling {
     /// Tile side in px (a multiple of the config's padding unit); default: the largest that
     /// fits the memory budget (512 for `tiny`).
@@ -19,19 +21,19 @@ pub struct Tiling {
 }
 
 impl Tiling {
-    pub(crate) fn apply(&self, r: Restorer) -> Result<Restorer> {
+    pub fn apply(&self, r: Restorer) -> Result<Restorer> {
         let (tile, overlap) = (
             self.tile.unwrap_or(r.tile),
             self.overlap.unwrap_or(r.overlap),
         );
         r.with_tiling(tile, overlap)
-            .with_context(|| format!("--tile {tile} --overlap {overlap}"))
+            .map_err(|e| TrainError::from(e).context(format!("--tile {tile} --overlap {overlap}")))
     }
 }
 
 /// A trained restorer and the PSF grid it restores through, as `restorer eval` and `restore`
 /// load them.
-#[derive(Args)]
+#[derive(Args, Clone, Debug)]
 pub struct Inference {
     /// Restorer weights; without it, the network shipped in the binary
     /// (`restore/weights/tiny.bin`, else the general `family_tiny_2.bin`), when one serves this
@@ -53,60 +55,65 @@ pub struct Inference {
 }
 
 impl Inference {
-    /// The native PSF grid and the restorer loaded on the chosen backend with its tiling;
-    /// without --weights, the shipped one that serves the grid with PSFs `psf_px` wide at the
-    /// images' size (None: at any size).
-    pub(crate) fn load(
+    /// The native PSF grid and the restorer loaded on the chosen backend with its tiling, and
+    /// the sentence that says which shipped network serves and why (without --weights: the
+    /// shipped one that serves the grid with PSFs `psf_px` wide at the images' size; None: at
+    /// any size).
+    pub fn load(
         &self,
         psf_px: impl FnOnce(&PsfGrid) -> Option<usize>,
-    ) -> Result<(PsfGrid, Restorer)> {
-        let native = PsfGrid::load_npy(&self.psf)
-            .with_context(|| format!("cannot read {}", self.psf.display()))?;
+    ) -> Result<(PsfGrid, Restorer, Option<String>)> {
+        let native = PsfGrid::load_npy(&self.psf).map_err(|e| {
+            TrainError::from(e).context(format!("cannot read {}", self.psf.display()))
+        })?;
         let psf_px = psf_px(&native);
-        let device = self.backend.device().context("--backend")?;
+        let device = self
+            .backend
+            .device()
+            .map_err(|e| TrainError::from(e).context("--backend"))?;
+        let mut said = None;
         let net = match (&self.weights, self.any_grid) {
-            (Some(w), false) => Restorer::load_on(w, &native, device)
-                .with_context(|| format!("--weights with --psf {}", self.psf.display()))?,
+            (Some(w), false) => Restorer::load_on(w, &native, device).map_err(|e| {
+                TrainError::from(e).context(format!("--weights with --psf {}", self.psf.display()))
+            })?,
             (Some(w), true) => Restorer::load_any_grid_on(w, device)
-                .with_context(|| format!("--weights {}", w.display()))?,
+                .map_err(|e| TrainError::from(e).context(format!("--weights {}", w.display())))?,
             (None, any_grid) => {
                 match restore::shipped::for_capture_on(&native, psf_px, device.clone())? {
                     restore::shipped::Choice::Network(net, why, _) => {
-                        println!("Using {why}.");
+                        said = Some(format!("Using {why}."));
                         *net
                     }
                     restore::shipped::Choice::Declined(why) if any_grid => {
                         let general = restore::shipped::GENERAL;
-                        println!(
+                        said = Some(format!(
                             "Using {} outside what it covers (--any-grid): {why}.",
                             general.name
-                        );
+                        ));
                         Restorer::from_bytes_any_grid_on(
                             general.bytes,
                             Path::new(general.name),
                             device,
                         )?
                     }
-                    restore::shipped::Choice::Declined(why) => bail!(
-                        "--weights: none given, and {why} (--psf {}); train one with `metasplat restorer train`, or pass --any-grid to measure it there",
-                        self.psf.display()
-                    ),
+                    restore::shipped::Choice::Declined(why) => {
+                        return Err(TrainError::Invalid(format!(
+                            "--weights: none given, and {why} (--psf {}); train one with `metasplat restorer train`, or pass --any-grid to measure it there",
+                            self.psf.display()
+                        )));
+                    }
                 }
             }
         };
-        Ok((native, self.tiling.apply(net)?))
+        Ok((native, self.tiling.apply(net)?, said))
     }
 
     /// The files this reads, for the output-aliasing guard.
-    pub(crate) fn inputs(&self) -> Vec<(&'static str, &Path)> {
+    pub fn inputs(&self) -> Vec<(&'static str, &Path)> {
         let mut v = vec![("--psf", self.psf.as_path())];
         if let Some(w) = &self.weights {
             v.push(("--weights", w.as_path()));
         }
         v
     }
-}
-
-pub(crate) fn metric(a: &Image, b: &Image) -> Result<(f64, f64)> {
-    Ok(aberration::compare(a, b)?)
 }

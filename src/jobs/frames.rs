@@ -2,8 +2,9 @@
 //! the frames of one clip, of one size, each written under its own name as PNG. Every check
 //! is made before any work: no input overwritten, no frame there unless the caller continues.
 
-use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
+
+use crate::error::{Result, TrainError};
 
 pub struct FrameFolders {
     /// The input frames, in name order.
@@ -24,15 +25,16 @@ impl FrameFolders {
         inputs: &[(&str, &Path)],
     ) -> Result<Self> {
         let frames = scenes::images::list_images(input)
-            .with_context(|| format!("--in {}", input.display()))?;
+            .map_err(|e| TrainError::from(e).context(format!("--in {}", input.display())))?;
         if out.is_file() {
-            bail!(
+            return Err(TrainError::Invalid(format!(
                 "--out {}: is a file; a folder of frames goes into a folder",
                 out.display()
-            );
+            )));
         }
-        let size = scenes::images::common_size(&frames)
-            .context("--in: the frames of a clip are of one size")?;
+        let size = scenes::images::common_size(&frames).map_err(|e| {
+            TrainError::from(e).context("--in: the frames of a clip are of one size")
+        })?;
         let folders = Self {
             frames,
             size,
@@ -41,11 +43,15 @@ impl FrameFolders {
         for f in &folders.frames {
             let t = folders.target(f);
             if let (true, Some(what)) = (t.exists(), existing) {
-                bail!("--out {}: {} exists; {what}", out.display(), t.display());
+                return Err(TrainError::Invalid(format!(
+                    "--out {}: {} exists; {what}",
+                    out.display(),
+                    t.display()
+                )));
             }
             let mut reads = inputs.to_vec();
             reads.push(("--in", f));
-            metasplat::output::guard::refuse_overwrite("--out", &t, &reads)?;
+            crate::output::guard::refuse_overwrite("--out", &t, &reads)?;
         }
         Ok(folders)
     }
@@ -58,8 +64,7 @@ impl FrameFolders {
 
     /// Makes the output folder.
     pub fn make_out(&self) -> Result<()> {
-        std::fs::create_dir_all(&self.out)
-            .with_context(|| format!("cannot make {}", self.out.display()))
+        std::fs::create_dir_all(&self.out).map_err(|e| TrainError::io(&self.out, e))
     }
 }
 
