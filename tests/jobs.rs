@@ -259,3 +259,45 @@ fn rendering_runs_through_the_library_and_reports() {
     assert!(matches!(&err, Err(e) if e.to_string().contains("--fps 24")));
     assert!(!again.exists());
 }
+
+#[derive(Parser)]
+struct ExportArgs {
+    #[command(flatten)]
+    a: metasplat::jobs::export::ExportRequest,
+}
+
+/// `export` through the library: the bands cut as asked and the file read back with them;
+/// a degree the scene does not have is refused by `prepare`, with nothing written.
+#[test]
+fn exporting_runs_through_the_library_and_reports() {
+    let dir = tempfile::tempdir().unwrap();
+    let ply = dir.path().join("scene.ply");
+    let scene = splat::synthetic::random_box_scene(5, 300, 2);
+    splat::formats::ply::write_ply(&ply, &scene).unwrap();
+    let s = common::cli::s;
+    let request = |out: &Path, degree: &str| {
+        ExportArgs::parse_from([
+            "export",
+            "--in",
+            s(&ply),
+            "--out",
+            s(out),
+            "--sh-degree",
+            degree,
+        ])
+        .a
+    };
+    let spz = dir.path().join("out/scene.spz");
+    let report = metasplat::jobs::export::prepare(&request(&spz, "1"))
+        .unwrap()
+        .run()
+        .unwrap();
+    assert_eq!((report.splats, report.sh_degree), (300, 1));
+    assert_eq!(report.bytes, std::fs::metadata(&spz).unwrap().len());
+    let back = splat::formats::files::read_splats(&spz).unwrap();
+    assert_eq!((back.len(), back.sh_degree), (300, 1));
+    let glb = dir.path().join("scene.glb");
+    let err = metasplat::jobs::export::prepare(&request(&glb, "3"));
+    assert!(matches!(&err, Err(e) if e.to_string().contains("--sh-degree 3")));
+    assert!(!glb.exists());
+}
