@@ -107,16 +107,11 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-fn restorer(a: RestorerBenchArgs) -> Result<()> {
-    if a.threads.iter().any(|&t| t == 0 || t > 1024) {
-        bail!("--threads: thread counts are 1 to 1024");
-    }
-    let configs: Vec<RestorerConfig> = a
-        .configs
-        .iter()
-        .map(|&p| RestorerConfig::preset(p))
-        .collect();
-    let device = a.backend.device().context("--backend")?;
+/// The workloads `bench restorer` times, every size checked first.
+fn restorer_cases(
+    a: &RestorerBenchArgs,
+    configs: &[RestorerConfig],
+) -> Result<Vec<(RestorerConfig, Workload)>> {
     if a.train_only && a.batch == 0 {
         bail!("--train-only with --batch 0 leaves nothing to time");
     }
@@ -130,7 +125,7 @@ fn restorer(a: RestorerBenchArgs) -> Result<()> {
         }
     }
     let mut cases: Vec<(RestorerConfig, Workload)> = Vec::new();
-    for cfg in &configs {
+    for cfg in configs {
         if !a.train_only {
             for &side in &a.sides {
                 cases.push((cfg.clone(), Workload::Forward { side }));
@@ -152,6 +147,20 @@ fn restorer(a: RestorerBenchArgs) -> Result<()> {
             cases.push((cfg.clone(), w));
         }
     }
+    Ok(cases)
+}
+
+fn restorer(a: RestorerBenchArgs) -> Result<()> {
+    if a.threads.iter().any(|&t| t == 0 || t > 1024) {
+        bail!("--threads: thread counts are 1 to 1024");
+    }
+    let configs: Vec<RestorerConfig> = a
+        .configs
+        .iter()
+        .map(|&p| RestorerConfig::preset(p))
+        .collect();
+    let device = a.backend.device().context("--backend")?;
+    let cases = restorer_cases(&a, &configs)?;
     println!(
         "The restorer's reference and fast kernels, alternated over {} round{}; medians. \
          s/MP is wall seconds per megapixel; GFLOP/s counts the analytic operations (a \
@@ -184,37 +193,47 @@ fn restorer(a: RestorerBenchArgs) -> Result<()> {
                     runs[i].extend(s);
                 }
             }
-            let wall = |r: &[Sample]| median(r.iter().map(|s| s.wall_s).collect());
-            let cpu = |r: &[Sample]| median(r.iter().map(|s| s.cpu_s).collect());
-            let fast = wall(&runs[1]);
-            // With --fast-only the reference was not run: its columns say so.
-            let (reference, speed_up) = if runs[0].is_empty() {
-                ("-".to_string(), "-".to_string())
-            } else {
-                let r = wall(&runs[0]);
-                (format!("{r:.3}"), format!("{:.2}x", r / fast))
-            };
-            let mp = workload.pixels() as f64 / 1e6;
-            let passes = match workload {
-                Workload::Forward { .. } => 1.0,
-                Workload::TrainStep { .. } => 3.0,
-            };
-            let gflop = cfg.analytic_flops_per_pixel() * workload.pixels() as f64 * passes / 1e9;
-            println!(
-                "{:<6} {:<20} {:>7} {:>12} {:>12.3} {:>8} {:>12.3} {:>10.2} {:>10.2}",
-                cfg.name,
-                workload.describe(),
-                threads,
-                reference,
-                fast,
-                speed_up,
-                cpu(&runs[1]),
-                fast / mp,
-                gflop / fast
-            );
+            print_restorer_row(cfg, *workload, threads, &runs);
         }
     }
     Ok(())
+}
+
+/// One row of `bench restorer`'s table: medians of the reference and fast runs.
+fn print_restorer_row(
+    cfg: &RestorerConfig,
+    workload: Workload,
+    threads: usize,
+    runs: &[Vec<Sample>; 2],
+) {
+    let wall = |r: &[Sample]| median(r.iter().map(|s| s.wall_s).collect());
+    let cpu = |r: &[Sample]| median(r.iter().map(|s| s.cpu_s).collect());
+    let fast = wall(&runs[1]);
+    // With --fast-only the reference was not run: its columns say so.
+    let (reference, speed_up) = if runs[0].is_empty() {
+        ("-".to_string(), "-".to_string())
+    } else {
+        let r = wall(&runs[0]);
+        (format!("{r:.3}"), format!("{:.2}x", r / fast))
+    };
+    let mp = workload.pixels() as f64 / 1e6;
+    let passes = match workload {
+        Workload::Forward { .. } => 1.0,
+        Workload::TrainStep { .. } => 3.0,
+    };
+    let gflop = cfg.analytic_flops_per_pixel() * workload.pixels() as f64 * passes / 1e9;
+    println!(
+        "{:<6} {:<20} {:>7} {:>12} {:>12.3} {:>8} {:>12.3} {:>10.2} {:>10.2}",
+        cfg.name,
+        workload.describe(),
+        threads,
+        reference,
+        fast,
+        speed_up,
+        cpu(&runs[1]),
+        fast / mp,
+        gflop / fast
+    );
 }
 
 fn step(a: StepArgs) -> Result<()> {

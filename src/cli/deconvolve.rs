@@ -71,19 +71,7 @@ pub fn run(a: DeconvolveArgs) -> Result<()> {
         println!("input{}", score(&blurred));
     }
     if let Some(dir) = &a.bank {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        let (bank, secs) = step("13 Wiener filters", || wiener_bank(&blurred, &psf));
-        let bank = bank?;
-        for (m, (img, k)) in bank.images.iter().zip(bank_constants()).enumerate() {
-            img.save_png(&dir.join(format!("wiener_{m:02}_k{k:.1e}.png")))?;
-            if reference.is_some() {
-                println!("filter {m:2} k {k:.1e}{}", score(img));
-            }
-        }
-        println!(
-            "MAFG bank (13 adaptive filters, k 1e-2..1e-5) in {secs:.2} s: wrote {}",
-            dir.display()
-        );
+        write_bank(dir, &blurred, &psf, reference.is_some(), &score)?;
     }
     let k = a.k.unwrap_or(aberration::wiener::DEFAULT_K);
     let (out, secs) = step("Wiener", || {
@@ -96,6 +84,31 @@ pub fn run(a: DeconvolveArgs) -> Result<()> {
         if a.k.is_none() { " (the default)" } else { "" },
         score(&out),
         a.out.display()
+    );
+    Ok(())
+}
+
+/// `--bank DIR`: MAFG's 13 Wiener images of `blurred` into `dir`, each scored by `score`
+/// when there is a reference.
+fn write_bank(
+    dir: &std::path::Path,
+    blurred: &Image,
+    psf: &PsfGrid,
+    scored: bool,
+    score: &dyn Fn(&Image) -> String,
+) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let (bank, secs) = step("13 Wiener filters", || wiener_bank(blurred, psf));
+    let bank = bank?;
+    for (m, (img, k)) in bank.images.iter().zip(bank_constants()).enumerate() {
+        img.save_png(&dir.join(format!("wiener_{m:02}_k{k:.1e}.png")))?;
+        if scored {
+            println!("filter {m:2} k {k:.1e}{}", score(img));
+        }
+    }
+    println!(
+        "MAFG bank (13 adaptive filters, k 1e-2..1e-5) in {secs:.2} s: wrote {}",
+        dir.display()
     );
     Ok(())
 }

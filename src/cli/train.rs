@@ -81,6 +81,49 @@ impl Shown {
         }
     }
 
+    /// The bar after a step: its position, and every tenth step the losses and the count.
+    fn stepped(
+        &mut self,
+        step: u64,
+        loss: &metasplat::train::objective::LossParts,
+        splats: usize,
+        sh: u32,
+        seconds: f64,
+    ) {
+        self.last_step = (step, loss.total as f64, loss.psnr, splats, seconds);
+        self.pb.set_position(step);
+        if step.is_multiple_of(10) {
+            let parts = match loss.restored {
+                Some(r) => format!("L_abr {:.4} L_ac {r:.4}", loss.main),
+                None => format!("loss {:.4}", loss.total),
+            };
+            let test = self
+                .last_test
+                .map_or(String::new(), |p: f64| format!(" test {p:.2} dB"));
+            self.pb.set_message(format!(
+                "{parts} train {:.2} dB{test} | {splats} splats SH{sh}{}",
+                loss.psnr, self.last_edit
+            ));
+        }
+    }
+
+    /// An evaluation: kept for the bar, and a line of its own away from a terminal.
+    fn evaluated(&mut self, step: u64, metrics: &metasplat::train::eval::Metrics) {
+        self.last_test = Some(metrics.mean_psnr);
+        if self.lines {
+            let (at, loss, train_db, splats, seconds) = self.last_step;
+            let rate = if seconds > 0.0 {
+                at as f64 / seconds
+            } else {
+                0.0
+            };
+            println!(
+                "Step {step} of {}: loss {loss:.4}, train {train_db:.2} dB, held-out {:.2} dB (SSIM {:.4}), {splats} splats, {rate:.1} steps/s.",
+                self.iters, metrics.mean_psnr, metrics.mean_ssim
+            );
+        }
+    }
+
     fn on(&mut self, e: Event) {
         let pb = &self.pb;
         match e {
@@ -90,38 +133,8 @@ impl Shown {
                 splats,
                 sh_degree,
                 seconds,
-            } => {
-                self.last_step = (step, loss.total as f64, loss.psnr, splats, seconds);
-                pb.set_position(step);
-                if step % 10 == 0 {
-                    let parts = match loss.restored {
-                        Some(r) => format!("L_abr {:.4} L_ac {r:.4}", loss.main),
-                        None => format!("loss {:.4}", loss.total),
-                    };
-                    let test = self
-                        .last_test
-                        .map_or(String::new(), |p: f64| format!(" test {p:.2} dB"));
-                    pb.set_message(format!(
-                        "{parts} train {:.2} dB{test} | {splats} splats SH{sh_degree}{}",
-                        loss.psnr, self.last_edit
-                    ));
-                }
-            }
-            Event::Evaluated { step, metrics } => {
-                self.last_test = Some(metrics.mean_psnr);
-                if self.lines {
-                    let (at, loss, train_db, splats, seconds) = self.last_step;
-                    let rate = if seconds > 0.0 {
-                        at as f64 / seconds
-                    } else {
-                        0.0
-                    };
-                    println!(
-                        "Step {step} of {}: loss {loss:.4}, train {train_db:.2} dB, held-out {:.2} dB (SSIM {:.4}), {splats} splats, {rate:.1} steps/s.",
-                        self.iters, metrics.mean_psnr, metrics.mean_ssim
-                    );
-                }
-            }
+            } => self.stepped(step, loss, splats, sh_degree, seconds),
+            Event::Evaluated { step, metrics } => self.evaluated(step, metrics),
             // A band that stays is routine; one raised or dropped changes the model.
             Event::Sh {
                 step,
@@ -211,57 +224,7 @@ fn print_summary(dir: &Path, s: &RunSummary, outcome: &train::Outcome) {
         println!("resumed from step {from}");
     }
     match &s.metrics {
-        Some(m) => {
-            let in_mask = |p: Option<f64>| p.map_or(String::new(), |p| format!(" {p:>11.2}"));
-            let header = if m.on_object.is_some() {
-                " in the mask"
-            } else {
-                ""
-            };
-            println!("{:<16} {:>8} {:>7}{header}", "test view", "PSNR", "SSIM");
-            for v in &m.views {
-                println!(
-                    "{:<16} {:>8.2} {:>7.4}{}",
-                    v.name,
-                    v.psnr,
-                    v.ssim,
-                    in_mask(v.psnr_in_mask)
-                );
-            }
-            println!(
-                "{:<16} {:>8.2} {:>7.4}{}",
-                "mean",
-                m.mean_psnr,
-                m.mean_ssim,
-                in_mask(m.on_object.as_ref().map(|o| o.mean_psnr_in_mask))
-            );
-            match &m.on_object {
-                Some(o) => {
-                    let [r, g, b] = o.background;
-                    println!(
-                        "(rendered test views vs {}, on the object: both over {r:.3},{g:.3},{b:.3} outside its masks{}; and inside the masks alone)",
-                        m.against,
-                        if o.masks == MaskUse::Loss {
-                            ", the render composited as the reference is"
-                        } else {
-                            ", the render as drawn"
-                        }
-                    )
-                }
-                None if m.sourced_pixels => println!(
-                    "(rendered test views vs {}, PSNR over the pixels their masks keep: undistortion's border and transparent pixels have no reference)",
-                    m.against
-                ),
-                None => println!("(rendered test views vs {})", m.against),
-            }
-            if let Some(o) = s.observed_psnr {
-                println!(
-                    "(observed images vs clean: {o:.2} dB{})",
-                    s.observed_psnr_in_mask
-                        .map_or(String::new(), |p| format!(", {p:.2} dB in the masks"))
-                );
-            }
-        }
+        Some(m) => print_metrics(s, m),
         None => println!(
             "not evaluated: {}",
             s.not_evaluated.as_deref().unwrap_or("no metrics")
@@ -290,6 +253,60 @@ fn print_summary(dir: &Path, s: &RunSummary, outcome: &train::Outcome) {
         if let Some(w) = &s.psf_warp {
             println!("Learnt: {}.", w.sentence());
         }
+    }
+}
+
+/// The held-out views' table (PSNR, SSIM, and inside the masks for object captures) and
+/// what they were scored against.
+fn print_metrics(s: &RunSummary, m: &metasplat::train::eval::Metrics) {
+    let in_mask = |p: Option<f64>| p.map_or(String::new(), |p| format!(" {p:>11.2}"));
+    let header = if m.on_object.is_some() {
+        " in the mask"
+    } else {
+        ""
+    };
+    println!("{:<16} {:>8} {:>7}{header}", "test view", "PSNR", "SSIM");
+    for v in &m.views {
+        println!(
+            "{:<16} {:>8.2} {:>7.4}{}",
+            v.name,
+            v.psnr,
+            v.ssim,
+            in_mask(v.psnr_in_mask)
+        );
+    }
+    println!(
+        "{:<16} {:>8.2} {:>7.4}{}",
+        "mean",
+        m.mean_psnr,
+        m.mean_ssim,
+        in_mask(m.on_object.as_ref().map(|o| o.mean_psnr_in_mask))
+    );
+    match &m.on_object {
+        Some(o) => {
+            let [r, g, b] = o.background;
+            println!(
+                "(rendered test views vs {}, on the object: both over {r:.3},{g:.3},{b:.3} outside its masks{}; and inside the masks alone)",
+                m.against,
+                if o.masks == MaskUse::Loss {
+                    ", the render composited as the reference is"
+                } else {
+                    ", the render as drawn"
+                }
+            )
+        }
+        None if m.sourced_pixels => println!(
+            "(rendered test views vs {}, PSNR over the pixels their masks keep: undistortion's border and transparent pixels have no reference)",
+            m.against
+        ),
+        None => println!("(rendered test views vs {})", m.against),
+    }
+    if let Some(o) = s.observed_psnr {
+        println!(
+            "(observed images vs clean: {o:.2} dB{})",
+            s.observed_psnr_in_mask
+                .map_or(String::new(), |p| format!(", {p:.2} dB in the masks"))
+        );
     }
 }
 

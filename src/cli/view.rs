@@ -195,18 +195,7 @@ pub fn run(mut a: ViewArgs) -> Result<()> {
         }
     }
     let comparison = open_comparison(&a)?;
-    let captures: Vec<viewer::CaptureView> = comparison.as_ref().map_or(Vec::new(), |c| {
-        let cap = c.capture();
-        cap.cameras
-            .iter()
-            .enumerate()
-            .map(|(i, cam)| viewer::CaptureView {
-                name: cam.name.clone(),
-                camera: metasplat::splats::convert::splat_camera(cam),
-                held_out: cap.split.test.contains(&i),
-            })
-            .collect()
-    });
+    let captures = comparison.as_ref().map_or(Vec::new(), capture_views);
     let start = start_view(&a, &captures)?;
     let default_size = match (&start, &a.screenshot) {
         (viewer::Start::Capture(i), Some(_)) => {
@@ -254,4 +243,18 @@ pub fn run(mut a: ViewArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The capture's cameras as the viewer lists them, held-out views marked.
+fn capture_views(c: &CaptureComparison) -> Vec<viewer::CaptureView> {
+    let cap = c.capture();
+    cap.cameras
+        .iter()
+        .enumerate()
+        .map(|(i, cam)| viewer::CaptureView {
+            name: cam.name.clone(),
+            camera: metasplat::splats::convert::splat_camera(cam),
+            held_out: cap.split.test.contains(&i),
+        })
+        .collect()
 }
