@@ -59,6 +59,12 @@ pub fn source(stage: &str) -> String {
     )
 }
 
+/// A projection pass's source: the splat parameters' bindings and reads
+/// (`splat_params.wgsl`) before the stage, shared by the forward and the backward.
+fn projection_source(stage: &str) -> String {
+    format!("{}\n{stage}", include_str!("wgsl/splat_params.wgsl"))
+}
+
 fn pipeline(device: &wgpu::Device, label: &str, stage: &str) -> wgpu::ComputePipeline {
     let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(label),
@@ -77,7 +83,11 @@ fn pipeline(device: &wgpu::Device, label: &str, stage: &str) -> wgpu::ComputePip
 impl Pipelines {
     pub fn new(device: &wgpu::Device) -> Self {
         Self {
-            project: pipeline(device, "project", include_str!("wgsl/project.wgsl")),
+            project: pipeline(
+                device,
+                "project",
+                &projection_source(include_str!("wgsl/project.wgsl")),
+            ),
             scan: pipeline(device, "scan", include_str!("wgsl/scan.wgsl")),
             scan_add: pipeline(device, "scan_add", include_str!("wgsl/scan_add.wgsl")),
             keys: pipeline(device, "keys", include_str!("wgsl/keys.wgsl")),
@@ -102,7 +112,7 @@ impl Pipelines {
             project_backward: pipeline(
                 device,
                 "project_backward",
-                include_str!("wgsl/project_backward.wgsl"),
+                &projection_source(include_str!("wgsl/project_backward.wgsl")),
             ),
             adam: pipeline(device, "adam", include_str!("wgsl/adam.wgsl")),
         }

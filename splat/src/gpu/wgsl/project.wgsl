@@ -1,30 +1,14 @@
 // Projection and culling, one invocation per Gaussian: the EWA footprint, opacity-aware
 // radius, SH colour and the number of 16×16 tiles the footprint touches. Mirrors `project.rs`.
 
-@group(0) @binding(0) var<uniform> cam: Camera;
-@group(0) @binding(1) var<storage, read> params: array<f32>;
 @group(0) @binding(2) var<storage, read_write> proj: array<f32>;
 @group(0) @binding(3) var<storage, read_write> counts: array<u32>;
 @group(0) @binding(4) var<storage, read_write> radii: array<f32>;
-@group(0) @binding(5) var<uniform> chunk: Chunk;
 
 fn cull(i: u32) {
     counts[i] = 0u;
     radii[2u * i] = 0.0;
     radii[2u * i + 1u] = 0.0;
-}
-
-fn sh_color(i: u32, base: u32, dir: vec3<f32>) -> vec3<f32> {
-    let deg = cam.cfg.y;
-    let dc = vec3<f32>(params[base + 11u], params[base + 12u], params[base + 13u]);
-    let b = sh_basis(deg, dir);
-    var c = dc * b[0];
-    let nb = (deg + 1u) * (deg + 1u);
-    for (var k = 1u; k < nb; k = k + 1u) {
-        let o = base + 14u + 3u * (k - 1u);
-        c = c + vec3<f32>(params[o], params[o + 1u], params[o + 2u]) * b[k];
-    }
-    return c + vec3<f32>(SH_COLOR_OFFSET);
 }
 
 @compute @workgroup_size(256)
@@ -39,13 +23,8 @@ fn main(
     }
     let i = chunk.first + local;
     let base = local * cam.cfg.z;
-    let mean = vec3<f32>(params[base], params[base + 1u], params[base + 2u]);
-    let geo = geometry(
-        cam,
-        mean,
-        vec3<f32>(params[base + 3u], params[base + 4u], params[base + 5u]),
-        vec4<f32>(params[base + 6u], params[base + 7u], params[base + 8u], params[base + 9u]),
-    );
+    let mean = param3(base);
+    let geo = splat_geometry(base);
     if (!geo.valid) {
         cull(i);
         return;
@@ -90,8 +69,7 @@ fn main(
     }
     var color: vec3<f32>;
     if (cam.cfg.y == 0u) {
-        color = vec3<f32>(params[base + 11u], params[base + 12u], params[base + 13u]) * SH_C0
-            + vec3<f32>(SH_COLOR_OFFSET);
+        color = param3(base + 11u) * SH_C0 + vec3<f32>(SH_COLOR_OFFSET);
     } else {
         let v = mean - cam.pos.xyz;
         let rcp = 1.0 / length(v);
@@ -99,7 +77,7 @@ fn main(
         if (finite(rcp) && rcp > 0.0) {
             dir = v * rcp;
         }
-        color = sh_color(i, base, dir);
+        color = sh_color(base, dir);
     }
     color = max(color, vec3<f32>(0.0));
     if (!finite3(color)) {

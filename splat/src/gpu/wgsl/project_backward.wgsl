@@ -3,12 +3,9 @@
 // `project::project_backward_one` and `sh::eval_backward`; a Gaussian no tile touched, or one
 // whose gradients are not finite, gets zeros.
 
-@group(0) @binding(0) var<uniform> cam: Camera;
-@group(0) @binding(1) var<storage, read> params: array<f32>;
 @group(0) @binding(2) var<storage, read> screen: array<f32>;
 @group(0) @binding(3) var<storage, read> counts: array<u32>;
 @group(0) @binding(4) var<storage, read_write> grads: array<f32>;
-@group(0) @binding(5) var<uniform> chunk: Chunk;
 
 fn zero_all(base: u32) {
     for (var k = 0u; k < cam.cfg.z; k = k + 1u) {
@@ -66,13 +63,8 @@ fn main(
         zero_all(base);
         return;
     }
-    let mean = vec3<f32>(params[base], params[base + 1u], params[base + 2u]);
-    let geo = geometry(
-        cam,
-        mean,
-        vec3<f32>(params[base + 3u], params[base + 4u], params[base + 5u]),
-        vec4<f32>(params[base + 6u], params[base + 7u], params[base + 8u], params[base + 9u]),
-    );
+    let mean = param3(base);
+    let geo = splat_geometry(base);
     if (!geo.valid) {
         zero_all(base);
         return;
@@ -206,15 +198,9 @@ fn main(
     if (len > 0.0) {
         dir = raw / len;
     }
-    let dc = vec3<f32>(params[base + 11u], params[base + 12u], params[base + 13u]);
     let bs = sh_basis(deg, dir);
     let nb = (deg + 1u) * (deg + 1u);
-    var pre = dc * bs[0];
-    for (var k = 1u; k < nb; k = k + 1u) {
-        let o = base + 14u + 3u * (k - 1u);
-        pre = pre + vec3<f32>(params[o], params[o + 1u], params[o + 2u]) * bs[k];
-    }
-    pre = pre + vec3<f32>(SH_COLOR_OFFSET);
+    let pre = sh_color(base, dir);
     let v_color = select(vec3<f32>(0.0), v_col, pre > vec3<f32>(0.0));
     let g_dc = v_color * bs[0];
     var v_dir = vec3<f32>(0.0);
@@ -226,7 +212,7 @@ fn main(
         grads[o] = gr.x;
         grads[o + 1u] = gr.y;
         grads[o + 2u] = gr.z;
-        v_dir = v_dir + basis_grad(k, dir) * dot(vec3<f32>(params[o], params[o + 1u], params[o + 2u]), v_color);
+        v_dir = v_dir + basis_grad(k, dir) * dot(param3(o), v_color);
     }
     for (var k = 14u + 3u * (nb - 1u); k < stride; k = k + 1u) {
         grads[base + k] = 0.0;
