@@ -142,6 +142,42 @@ impl GpuRasterizer {
             .collect()
     }
 
+    /// Dispatches a projection pass (`kernel`, forward or backward) once per chunk of the
+    /// scene's parameters, each bound as both passes lay them out: the camera, the chunk's
+    /// parameters, the three buffers `middle` gives for the chunk's byte range `(at, len)`,
+    /// and the chunk's uniform.
+    fn per_parameter_chunk<'a>(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        kernel: &wgpu::ComputePipeline,
+        scene: &'a GpuScene,
+        n: u32,
+        cam_u: &'a wgpu::Buffer,
+        middle: impl Fn(u64, u64) -> [wgpu::BindingResource<'a>; 3],
+    ) {
+        let dev = &self.ctx.device;
+        let bytes = 4 * scene.stride as u64;
+        for (first, count) in self.chunks(n, scene.stride) {
+            let chunk = ChunkUniform { first, count };
+            let chunk = uniform(dev, "chunk", bytemuck::bytes_of(&chunk));
+            let (at, len) = (bytes * first as u64, bytes * count as u64);
+            let [a, b, c] = middle(at, len);
+            let g = bind_resources(
+                dev,
+                kernel,
+                vec![
+                    cam_u.as_entire_binding(),
+                    part(&scene.params, at, len),
+                    a,
+                    b,
+                    c,
+                    chunk.as_entire_binding(),
+                ],
+            );
+            dispatch(enc, kernel, &g, grid(blocks(count)));
+        }
+    }
+
     pub fn context(&self) -> &GpuContext {
         &self.ctx
     }
@@ -225,24 +261,13 @@ impl GpuRasterizer {
         // Projection and the scan of tile counts; read back how many keys there are.
         let mut enc = dev.create_command_encoder(&Default::default());
         let total = if n > 0 {
-            let bytes = 4 * scene.stride as u64;
-            for (first, count) in self.chunks(n, scene.stride) {
-                let chunk = ChunkUniform { first, count };
-                let chunk = uniform(dev, "chunk", bytemuck::bytes_of(&chunk));
-                let g = bind_resources(
-                    dev,
-                    &k.project,
-                    vec![
-                        cam_u.as_entire_binding(),
-                        part(&scene.params, bytes * first as u64, bytes * count as u64),
-                        proj.as_entire_binding(),
-                        counts.as_entire_binding(),
-                        radii.as_entire_binding(),
-                        chunk.as_entire_binding(),
-                    ],
-                );
-                dispatch(&mut enc, &k.project, &g, grid(blocks(count)));
-            }
+            self.per_parameter_chunk(&mut enc, &k.project, scene, n, &cam_u, |_, _| {
+                [
+                    proj.as_entire_binding(),
+                    counts.as_entire_binding(),
+                    radii.as_entire_binding(),
+                ]
+            });
             scan(dev, k, &mut enc, &counts, &offsets, n, scratch);
             let last = 4 * (n as u64 - 1);
             let b = read_back(
@@ -448,25 +473,14 @@ impl GpuRasterizer {
                 &[&len, &st.offsets, &st.counts, &isect, &screen],
             );
             dispatch(enc, &k.isect_reduce, &bg, grid(blocks(st.n)));
-            let bytes = 4 * scene.stride as u64;
-            for (first, count) in self.chunks(st.n, scene.stride) {
-                let chunk = ChunkUniform { first, count };
-                let chunk = uniform(dev, "chunk", bytemuck::bytes_of(&chunk));
-                let (at, len) = (bytes * first as u64, bytes * count as u64);
-                let bg = bind_resources(
-                    dev,
-                    &k.project_backward,
-                    vec![
-                        st.cam_u.as_entire_binding(),
-                        part(&scene.params, at, len),
-                        screen.as_entire_binding(),
-                        st.counts.as_entire_binding(),
-                        part(&grads, at, len),
-                        chunk.as_entire_binding(),
-                    ],
-                );
-                dispatch(enc, &k.project_backward, &bg, grid(blocks(count)));
-            }
+            let pass = &k.project_backward;
+            self.per_parameter_chunk(enc, pass, scene, st.n, &st.cam_u, |at, len| {
+                [
+                    screen.as_entire_binding(),
+                    st.counts.as_entire_binding(),
+                    part(&grads, at, len),
+                ]
+            });
         }
         Ok((screen, grads))
     }
