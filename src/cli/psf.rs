@@ -2,7 +2,7 @@
 
 use super::progress;
 use aberration::optics::{Dispersion, PhaseProfile, SimConfig, SimReport, simulate_grid};
-use aberration::{PsfGrid, image::save_rgb8_png};
+use aberration::PsfGrid;
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
 use std::path::PathBuf;
@@ -161,13 +161,11 @@ pub fn run(cmd: PsfCommand) -> Result<()> {
             grid.save_npy(&a.out)?;
             println!("wrote {}", a.out.display());
             if let Some(p) = a.picture {
-                save_rgb8_png(
-                    &metasplat::output::plot::psf_figure(
-                        &grid,
-                        Some(cfg.wavelengths_nm),
-                        Some(cfg.max_field_deg),
-                    ),
+                metasplat::output::write_psf_figure(
                     &p,
+                    &grid,
+                    Some(cfg.wavelengths_nm),
+                    Some(cfg.max_field_deg),
                 )?;
                 println!("wrote {}", p.display());
             }
@@ -182,10 +180,7 @@ pub fn run(cmd: PsfCommand) -> Result<()> {
             )?;
             metasplat::output::guard::refuse_unwritable_image("--out", &a.out)?;
             let grid = PsfGrid::load_npy(&a.psf)?;
-            save_rgb8_png(
-                &metasplat::output::plot::psf_figure(&grid, None, None),
-                &a.out,
-            )?;
+            metasplat::output::write_psf_figure(&a.out, &grid, None, None)?;
             println!(
                 "{}: {}x{} grid of {} px RGB PSFs; wrote {}",
                 a.psf.display(),

@@ -3,7 +3,7 @@
 //! go ([`guard`]), the plots ([`plot`]) and what the viewer reads from a run ([`view`]).
 
 pub mod guard;
-pub mod plot;
+pub(crate) mod plot;
 pub mod video;
 pub mod view;
 
@@ -420,6 +420,19 @@ pub fn plot_log(dir: &Path, log: &[LogRow], observed_psnr: Option<f64>) -> Resul
         "PSNR vs clean (dB)",
         &series,
     )?;
+    Ok(())
+}
+
+/// Writes the picture of a PSF grid (its cells in log scale, channel by channel, with a
+/// colour bar; the lens's wavelengths and field when known) to `path`.
+pub fn write_psf_figure(
+    path: &Path,
+    grid: &aberration::PsfGrid,
+    wavelengths_nm: Option<[f64; 3]>,
+    max_field_deg: Option<f64>,
+) -> Result<()> {
+    let figure = plot::psf_figure(grid, wavelengths_nm, max_field_deg);
+    aberration::image::save_rgb8_png(&figure, path)?;
     Ok(())
 }
 
