@@ -269,7 +269,6 @@ impl<'a> Run<'a> {
                 recipe: m.clone(),
                 budget: budget.clone(),
                 position_lr: position_lr.clone(),
-                extent: data.extent,
             }),
         };
         Ok(Run {

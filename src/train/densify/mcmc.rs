@@ -26,8 +26,6 @@ pub struct Mcmc {
     pub budget: Budget,
     /// The position learning rate's schedule: the noise follows it.
     pub position_lr: ExponentialLr,
-    /// The scene's size, which the noise is measured against.
-    pub extent: f32,
 }
 
 impl Mcmc {
@@ -104,12 +102,7 @@ impl Mcmc {
             });
         }
         if r.noise_lr > 0.0 {
-            inject_noise(
-                model,
-                self.position_lr.at(step) * r.noise_lr,
-                self.extent,
-                seed ^ NOISE,
-            );
+            inject_noise(model, self.position_lr.at(step) * r.noise_lr, seed ^ NOISE);
         }
         Ok(edit)
     }
