@@ -1,8 +1,8 @@
 //! `metasplat psf simulate|show`.
 
 use super::progress;
-use aberration::optics::{Dispersion, PhaseProfile, SimConfig, SimReport, simulate_grid};
 use aberration::PsfGrid;
+use aberration::optics::{Dispersion, PhaseProfile, SimConfig, SimReport, simulate_grid};
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
 use std::path::PathBuf;
