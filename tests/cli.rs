@@ -5,6 +5,7 @@ mod common;
 use std::path::Path;
 
 use common::cli::{SMALL_LENS, fails, ok, procedural, quick_train, s, small_psf};
+use common::photos;
 
 /// `scene aberrate` of `clean` through `psf` into `out`, at full resolution.
 fn aberrate(clean: &Path, psf: &Path, out: &Path) {
@@ -516,23 +517,6 @@ fn train_then_render_and_clear_errors() {
         s(&other),
     ]);
     assert!(err.contains("not the one"), "{err}");
-}
-
-/// Writes `n` smooth colourful test photos of `w × h` into `dir`.
-fn photos(dir: &Path, n: u32, w: u32, h: u32) {
-    std::fs::create_dir_all(dir).unwrap();
-    for i in 0..n {
-        let img = image::RgbImage::from_fn(w, h, |x, y| {
-            let f = (i + 1) as f32;
-            let v = |a: f32| (127.0 + 120.0 * a.sin()) as u8;
-            image::Rgb([
-                v(x as f32 * 0.11 * f),
-                v(y as f32 * 0.07 * f + 1.0),
-                v((x + y) as f32 * 0.05),
-            ])
-        });
-        img.save(dir.join(format!("p{i}.png"))).unwrap();
-    }
 }
 
 #[test]

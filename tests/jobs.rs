@@ -22,22 +22,6 @@ fn request(flags: &[&str]) -> RestorerTrainRequest {
     Args::parse_from(std::iter::once("train").chain(flags.iter().copied())).a
 }
 
-/// Writes `n` smooth photos of `w × h` into `dir`.
-fn photos(dir: &Path, n: u32, w: u32, h: u32) {
-    std::fs::create_dir_all(dir).unwrap();
-    for i in 0..n {
-        let img = image::RgbImage::from_fn(w, h, |x, y| {
-            let v = |a: f32| (127.0 + 120.0 * a.sin()) as u8;
-            image::Rgb([
-                v(x as f32 * 0.11 * (i + 1) as f32),
-                v(y as f32 * 0.07 + i as f32),
-                v((x + y) as f32 * 0.05),
-            ])
-        });
-        img.save(dir.join(format!("p{i}.png"))).unwrap();
-    }
-}
-
 /// Two steps of `tiny`, stopped after the first by a zero-minute budget and resumed: the
 /// events say how it starts and every validation, the report what it reached; a request
 /// that validates on its training photos is refused by `prepare` before anything is
@@ -50,8 +34,8 @@ fn restorer_training_runs_through_the_library_and_reports() {
     let psf_path = d.join("psf.npy");
     psf.save_npy(&psf_path).unwrap();
     let (train, val) = (d.join("train"), d.join("val"));
-    photos(&train, 2, 80, 72);
-    photos(&val, 1, 80, 72);
+    common::photos(&train, 2, 80, 72);
+    common::photos(&val, 1, 80, 72);
     let out = d.join("w.bin");
     let s = common::cli::s;
     let flags = [
@@ -74,10 +58,10 @@ fn restorer_training_runs_through_the_library_and_reports() {
     ];
     let run = |extra: &[&str]| {
         let all: Vec<&str> = flags.iter().chain(extra).copied().collect();
-        let mut said = Vec::new();
+        let prepared = prepare(&request(&all), "test").unwrap();
+        let mut said = prepared.notes.clone();
         let mut vals = Vec::new();
-        let report = prepare(&request(&all), "test")
-            .unwrap()
+        let report = prepared
             .run(&mut |e| match e {
                 RestorerEvent::Said(line) => said.push(line),
                 RestorerEvent::Step(Event::Val { step, psnr, .. }) => vals.push((*step, *psnr)),

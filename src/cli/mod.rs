@@ -68,19 +68,6 @@ enum Command {
     Man,
 }
 
-/// [`metasplat::settings::open_scene`].
-pub fn open_scene(
-    dir: &std::path::Path,
-    downsample: u32,
-    keep_distortion: bool,
-) -> anyhow::Result<scenes::Capture> {
-    Ok(metasplat::settings::open_scene(
-        dir,
-        downsample,
-        keep_distortion,
-    )?)
-}
-
 /// [`metasplat::settings::downsample_for`], its choice said.
 pub fn downsample_for(dir: &std::path::Path, given: Option<u32>) -> u32 {
     let (d, said) = metasplat::settings::downsample_for(dir, given);

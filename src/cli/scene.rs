@@ -126,7 +126,7 @@ fn aberrate(a: SceneAberrateArgs) -> Result<()> {
         &[("--scene", &a.scene), ("--psf", &a.psf)],
     )?;
     metasplat::output::guard::refuse_aberrated_source("--scene", &a.scene)?;
-    let capture = super::open_scene(&a.scene, a.downsample, a.keep_distortion)?;
+    let capture = metasplat::settings::open_scene(&a.scene, a.downsample, a.keep_distortion)?;
     let mut inputs =
         metasplat::output::guard::Inputs::of(&[("--scene", &a.scene), ("--psf", &a.psf)]);
     inputs.add_capture(&capture);

@@ -5,6 +5,7 @@
 use clap::Args;
 use std::path::{Path, PathBuf};
 
+use super::refused;
 use crate::error::{Result, TrainError};
 
 /// What `export` is asked to do (its flags).
@@ -65,18 +66,15 @@ pub fn prepare(a: &ExportRequest) -> Result<PreparedExport> {
         (splat::formats::files::read_splats(&a.input)?, None)
     };
     if model.is_empty() {
-        return Err(TrainError::Invalid(format!(
-            "{}: the scene has no splats",
-            a.input.display()
-        )));
+        return refused(format!("{}: the scene has no splats", a.input.display()));
     }
     if let Some(d) = a.sh_degree {
         if d > model.sh_degree {
-            return Err(TrainError::Invalid(format!(
+            return refused(format!(
                 "--sh-degree {d}: {} has SH degree {} only",
                 a.input.display(),
                 model.sh_degree
-            )));
+            ));
         }
         model.set_sh_degree(d);
     }

@@ -4,6 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
+use super::refused;
 use crate::error::{Result, TrainError};
 
 pub struct FrameFolders {
@@ -27,10 +28,10 @@ impl FrameFolders {
         let frames = scenes::images::list_images(input)
             .map_err(|e| TrainError::from(e).context(format!("--in {}", input.display())))?;
         if out.is_file() {
-            return Err(TrainError::Invalid(format!(
+            return refused(format!(
                 "--out {}: is a file; a folder of frames goes into a folder",
                 out.display()
-            )));
+            ));
         }
         let size = scenes::images::common_size(&frames).map_err(|e| {
             TrainError::from(e).context("--in: the frames of a clip are of one size")
@@ -43,11 +44,11 @@ impl FrameFolders {
         for f in &folders.frames {
             let t = folders.target(f);
             if let (true, Some(what)) = (t.exists(), existing) {
-                return Err(TrainError::Invalid(format!(
+                return refused(format!(
                     "--out {}: {} exists; {what}",
                     out.display(),
                     t.display()
-                )));
+                ));
             }
             let mut reads = inputs.to_vec();
             reads.push(("--in", f));

@@ -8,3 +8,10 @@ pub mod restore;
 pub mod restorer_eval;
 pub mod restorer_net;
 pub mod restorer_train;
+
+use crate::error::{Result, TrainError};
+
+/// A request a job refuses, and why (before any work).
+pub(crate) fn refused<T>(why: String) -> Result<T> {
+    Err(TrainError::Invalid(why))
+}

@@ -8,15 +8,11 @@ use clap::Args;
 use glam::Vec3;
 use std::path::{Path, PathBuf};
 
+use super::refused;
 use crate::error::{Result, TrainError};
 use crate::output::render_named;
 use crate::output::video::{self, VideoFormat};
 use crate::splats::device::{Device, DeviceChoice};
-
-/// A refusal of the request.
-fn refused<T>(why: String) -> Result<T> {
-    Err(TrainError::Invalid(why))
-}
 
 /// An I/O failure on `path`, said as what could not be done.
 fn cannot(what: String, path: &Path) -> impl FnOnce(std::io::Error) -> TrainError {

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use super::frames::{FrameFolders, time_left};
+use super::refused;
 use super::restorer_net::Inference;
 use crate::error::{Result, TrainError};
 use crate::output::video;
@@ -76,10 +77,6 @@ pub enum Restored {
     Gif,
     /// A video, at this frame rate.
     Video(f64),
-}
-
-fn refused<T>(why: String) -> Result<T> {
-    Err(TrainError::Invalid(why))
 }
 
 fn is_gif(p: &Path) -> bool {
@@ -322,18 +319,7 @@ fn restore_gif(
             left: time_left(start.elapsed().as_secs_f64(), i + 1, frames.len()),
         });
     }
-    let mut bytes = Vec::new();
-    {
-        let failed = |e: image::ImageError| {
-            TrainError::Invalid(format!("cannot encode {}: {e}", a.out.display()))
-        };
-        let mut encoder = image::codecs::gif::GifEncoder::new_with_speed(&mut bytes, 10);
-        encoder
-            .set_repeat(image::codecs::gif::Repeat::Infinite)
-            .map_err(failed)?;
-        encoder.encode_frames(out).map_err(failed)?;
-    }
-    base::write_bytes_atomically(&a.out, &bytes).map_err(|e| TrainError::io(&a.out, e))?;
+    video::write_gif(&a.out, out.into_iter().map(Ok))?;
     Ok(RestoreReport {
         frames: frames.len(),
         size: (w, h),

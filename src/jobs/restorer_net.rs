@@ -6,6 +6,7 @@ use clap::Args;
 use restore::Restorer;
 use std::path::{Path, PathBuf};
 
+use super::refused;
 use crate::error::{Result, TrainError};
 
 /// How large images are cut for the network.
@@ -97,10 +98,10 @@ impl Inference {
                         )?
                     }
                     restore::shipped::Choice::Declined(why) => {
-                        return Err(TrainError::Invalid(format!(
+                        return refused(format!(
                             "--weights: none given, and {why} (--psf {}); train one with `metasplat restorer train`, or pass --any-grid to measure it there",
                             self.psf.display()
-                        )));
+                        ));
                     }
                 }
             }

@@ -13,6 +13,7 @@ use restore::{Guidance, Preset, RestorerConfig, weights};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use super::refused;
 use crate::error::{Result, TrainError};
 
 /// What `restorer train` is asked to do (its flags).
@@ -105,7 +106,7 @@ pub struct RestorerTrainRequest {
 
 /// What a restorer run tells while it works.
 pub enum RestorerEvent<'a> {
-    /// A sentence on how the run starts or what it trains on.
+    /// A sentence on what the run trains on (the lens family, the data).
     Said(String),
     /// Lenses of the family ready, of `total` (simulated or read back).
     Lenses { done: usize, total: usize },
@@ -150,8 +151,8 @@ pub struct PreparedRestorerRun {
     schedule: Schedule,
     start: Start,
     lineage: Lineage,
-    /// Sentences about the start, given to the first events of [`Self::run`].
-    said: Vec<String>,
+    /// Sentences on how the run starts (a resume, fine-tuning to another lens).
+    pub notes: Vec<String>,
     command: String,
 }
 
@@ -175,9 +176,15 @@ pub fn prepare(request: &RestorerTrainRequest, command: &str) -> Result<Prepared
         refresh_every: request.refresh_every,
         ..Default::default()
     };
-    let mut said = Vec::new();
-    let (start, lineage) =
-        starting_point(request, &config, &native, &device, &mut schedule, &mut said)?;
+    let mut notes = Vec::new();
+    let (start, lineage) = starting_point(
+        request,
+        &config,
+        &native,
+        &device,
+        &mut schedule,
+        &mut notes,
+    )?;
     // On the CPU the step lives in this machine's memory (a GPU's is its own).
     if request.backend == restore::Compute::Cpu {
         refuse_training_memory(&config, schedule.batch, request.resume)?;
@@ -190,7 +197,7 @@ pub fn prepare(request: &RestorerTrainRequest, command: &str) -> Result<Prepared
         schedule,
         start,
         lineage,
-        said,
+        notes,
         command: command.to_string(),
     })
 }
@@ -252,11 +259,10 @@ fn config_from(a: &RestorerTrainRequest) -> Result<RestorerConfig> {
 /// Every check on the flags and folders, before anything is read: returns the training
 /// photos' folder.
 fn checked_inputs(a: &RestorerTrainRequest) -> Result<PathBuf> {
-    let bad = |m: String| Err(TrainError::Invalid(m));
     let (train_flag, train_dir) = match (&a.images, &a.pairs) {
         (_, Some(p)) => ("--pairs", p.as_path()),
         (Some(i), None) => ("--images", i.as_path()),
-        (None, None) => return bad("--images or --pairs: name the training photos".into()),
+        (None, None) => return refused("--images or --pairs: name the training photos".into()),
     };
     let mut inputs = vec![
         (train_flag, train_dir),
@@ -268,13 +274,13 @@ fn checked_inputs(a: &RestorerTrainRequest) -> Result<PathBuf> {
     }
     crate::output::guard::refuse_overwrite("--out", &a.out, &inputs)?;
     if a.out.is_dir() {
-        return bad(format!(
+        return refused(format!(
             "--out {} is a folder; name the weights file to write",
             a.out.display()
         ));
     }
     if a.pairs.is_some() && !restore::data::is_pairs_folder(train_dir) {
-        return bad(format!(
+        return refused(format!(
             "--pairs {}: needs the folders {} and {} inside",
             train_dir.display(),
             restore::data::CAPTURED_DIR,
@@ -283,7 +289,7 @@ fn checked_inputs(a: &RestorerTrainRequest) -> Result<PathBuf> {
     }
     for (flag, dir) in [(train_flag, train_dir), ("--val", a.val.as_path())] {
         if !dir.is_dir() {
-            return bad(format!(
+            return refused(format!(
                 "{flag} {}: {}; name a folder of photos",
                 dir.display(),
                 if dir.exists() {
@@ -298,7 +304,7 @@ fn checked_inputs(a: &RestorerTrainRequest) -> Result<PathBuf> {
     if let (Ok(i), Ok(v)) = (train_dir.canonicalize(), a.val.canonicalize())
         && (i.starts_with(&v) || v.starts_with(&i))
     {
-        return bad(format!(
+        return refused(format!(
             "--val {} and {train_flag} {} hold the same photos: validate on photos the network does not train on",
             a.val.display(),
             train_dir.display()
@@ -342,14 +348,14 @@ fn changed_settings(schedule: &Schedule, saved: &Schedule) -> Vec<String> {
 /// Where the run starts: a fresh network, `--init` weights of any lens (fine-tuning), or the
 /// saved run (`--resume`, whose schedule replaces `schedule`, each flag that says otherwise
 /// refused); with what the weights file's provenance carries over from the weights it
-/// started from. What it decides goes to `said`.
+/// started from. What it decides goes to `notes`.
 fn starting_point(
     a: &RestorerTrainRequest,
     cfg: &RestorerConfig,
     native: &PsfGrid,
     device: &restore::Device,
     schedule: &mut Schedule,
-    said: &mut Vec<String>,
+    notes: &mut Vec<String>,
 ) -> Result<(Start, Lineage)> {
     // A resumed run continues on the grid it was trained for; `--init` starts from weights of
     // any lens (fine-tuning to a user's own grid).
@@ -362,7 +368,7 @@ fn starting_point(
             Some(p) => {
                 let (net, header) = load(p, None)?;
                 if let Err(why) = header.serves(native) {
-                    said.push(format!(
+                    notes.push(format!(
                         "Fine-tuning {} to --psf {}: {why}",
                         p.display(),
                         a.psf.display()
@@ -381,13 +387,13 @@ fn starting_point(
     let changed = changed_settings(schedule, &state.schedule);
     let out = a.out.display();
     if !changed.is_empty() {
-        return Err(TrainError::Invalid(format!(
+        return refused(format!(
             "{out}: cannot resume with other settings: {}; resume with the run's settings, or start a new run from its weights with --init",
             changed.join(", ")
-        )));
+        ));
     }
     if header.family.is_some() != a.family {
-        return Err(TrainError::Invalid(format!(
+        return refused(format!(
             "{out}: cannot resume {} --family: the run was made {}",
             if a.family { "with" } else { "without" },
             if header.family.is_some() {
@@ -395,17 +401,17 @@ fn starting_point(
             } else {
                 "for one grid"
             }
-        )));
+        ));
     }
     *schedule = state.schedule.clone();
     let s = &*schedule;
     if state.step >= s.steps {
-        return Err(TrainError::Invalid(format!(
+        return refused(format!(
             "{out}: that run finished ({} of {} steps); continue it with --init {out} and a new --out",
             state.step, s.steps,
-        )));
+        ));
     }
-    said.push(format!(
+    notes.push(format!(
         "resuming {out} at step {} of {} (batch {}, lr {:.1e}, seed {} from the saved state)",
         state.step, s.steps, s.batch, s.lr, s.seed
     ));
@@ -487,7 +493,7 @@ impl PreparedRestorerRun {
                 .min_by_key(|(_, i)| i.width.min(i.height))
                 .filter(|(_, i)| i.width.min(i.height) < a.val_crop)
         {
-            return Err(TrainError::Invalid(format!(
+            return refused(format!(
                 "--val-crop {}: {} in --val {} is {}x{}; use at most {} px, or 0 to validate on whole photos",
                 a.val_crop,
                 name,
@@ -495,7 +501,7 @@ impl PreparedRestorerRun {
                 img.width,
                 img.height,
                 img.width.min(img.height)
-            )));
+            ));
         }
         Ok((photos, pairs))
     }
@@ -504,9 +510,6 @@ impl PreparedRestorerRun {
     /// and state at every validation; a stop asked for (Ctrl-C) is an
     /// [`TrainError::Interrupted`] saying how to continue.
     pub fn run(self, on_event: &mut dyn FnMut(RestorerEvent)) -> Result<RestorerReport> {
-        for s in &self.said {
-            on_event(RestorerEvent::Said(s.clone()));
-        }
         let (a, cfg, native) = (&self.request, &self.config, &self.native);
         let (photos, pairs): (Vec<Image>, Vec<(Image, Image)>) = match &a.pairs {
             Some(dir) => (

@@ -47,23 +47,39 @@ pub fn decode(ffmpeg: &Path, input: &Path, dir: &Path) -> Result<f64> {
         .find_map(|part| part.trim().strip_suffix(" fps")?.trim().parse::<f64>().ok())
         .filter(|f| f.is_finite() && *f > 0.0)
         .unwrap_or(30.0);
-    let child = std::process::Command::new(ffmpeg)
+    let mut command = std::process::Command::new(ffmpeg);
+    command
         .args(["-hide_banner", "-loglevel", "error", "-i"])
         .arg(input)
         .args(["-vsync", "0"])
-        .arg(frame_pattern(&dir.join("frame00000.png")))
-        .stdin(std::process::Stdio::null())
-        .spawn()
-        .map_err(|e| failed(format!("cannot run {}", ffmpeg.display()), e))?;
-    let status = wait_or_stop(child, ffmpeg)?;
-    if !status.success() {
-        return Err(TrainError::Invalid(format!(
+        .arg(frame_pattern(&dir.join("frame00000.png")));
+    run_tool(command, ffmpeg, |status| {
+        format!(
             "{} could not read the frames of {} ({status})",
             ffmpeg.display(),
             input.display()
-        )));
-    }
+        )
+    })?;
     Ok(fps)
+}
+
+/// Runs `command` (the video tool `tool`) to its end with its input closed (its own input
+/// would be the terminal's: a tool waiting on it never ends) and the first Ctrl-C honoured
+/// ([`wait_or_stop`]); a failed exit is the error `on_failure` words.
+fn run_tool(
+    mut command: std::process::Command,
+    tool: &Path,
+    on_failure: impl FnOnce(std::process::ExitStatus) -> String,
+) -> Result<()> {
+    let child = command
+        .stdin(std::process::Stdio::null())
+        .spawn()
+        .map_err(|e| failed(format!("cannot run {}", tool.display()), e))?;
+    let status = wait_or_stop(child, tool)?;
+    if !status.success() {
+        return Err(TrainError::Invalid(on_failure(status)));
+    }
+    Ok(())
 }
 
 /// [`format_for`], naming `flag` in its refusals.
@@ -127,23 +143,15 @@ pub fn on_path(name: &str) -> Option<PathBuf> {
 pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) -> Result<()> {
     match format {
         VideoFormat::Gif => {
-            use image::codecs::gif::{GifEncoder, Repeat};
-            let mut bytes = Vec::new();
-            {
-                let gif_failed = |e| failed(format!("cannot encode {}", out.display()), e);
-                let mut encoder = GifEncoder::new_with_speed(&mut bytes, 10);
-                encoder.set_repeat(Repeat::Infinite).map_err(gif_failed)?;
-                let delay = image::Delay::from_numer_denom_ms(10 * gif_centiseconds(fps)?, 1);
-                for f in frames {
+            let delay = image::Delay::from_numer_denom_ms(10 * gif_centiseconds(fps)?, 1);
+            write_gif(
+                out,
+                frames.iter().map(|f| {
                     let img = image::open(f)
-                        .map_err(|e| failed(format!("cannot read the frame {}", f.display()), e))?
-                        .to_rgba8();
-                    encoder
-                        .encode_frame(image::Frame::from_parts(img, 0, 0, delay))
-                        .map_err(gif_failed)?;
-                }
-            }
-            base::write_bytes_atomically(out, &bytes).map_err(|e| TrainError::io(out, e))?;
+                        .map_err(|e| failed(format!("cannot read the frame {}", f.display()), e))?;
+                    Ok(image::Frame::from_parts(img.to_rgba8(), 0, 0, delay))
+                }),
+            )?;
         }
         VideoFormat::Ffmpeg(ffmpeg) => {
             let dir = match out.parent() {
@@ -166,7 +174,8 @@ pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) ->
                 .first()
                 .ok_or_else(|| TrainError::Invalid("no frames to encode".into()))?;
             let pattern = frame_pattern(first);
-            let child = std::process::Command::new(ffmpeg)
+            let mut command = std::process::Command::new(ffmpeg);
+            command
                 .args(["-hide_banner", "-loglevel", "error", "-y", "-framerate"])
                 .arg(format!("{fps}"))
                 .arg("-i")
@@ -178,19 +187,14 @@ pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) ->
                     "-pix_fmt",
                     "yuv420p",
                 ])
-                .arg(temp.path())
-                // Its own input would be the terminal's: a tool waiting on it never ends.
-                .stdin(std::process::Stdio::null())
-                .spawn()
-                .map_err(|e| failed(format!("cannot run {}", ffmpeg.display()), e))?;
-            let status = wait_or_stop(child, ffmpeg)?;
-            if !status.success() {
-                return Err(TrainError::Invalid(format!(
+                .arg(temp.path());
+            run_tool(command, ffmpeg, |status| {
+                format!(
                     "{} could not encode {} ({status}); the frames were not kept",
                     ffmpeg.display(),
                     out.display()
-                )));
-            }
+                )
+            })?;
             // A tool that says it succeeded but wrote nothing does not make a video.
             let written = temp.as_file().metadata().map_or(0, |m| m.len());
             if written == 0 {
@@ -205,6 +209,22 @@ pub fn encode(format: &VideoFormat, frames: &[PathBuf], fps: f64, out: &Path) ->
         }
     }
     Ok(())
+}
+
+/// Writes `frames` (each with its own delay) as a looping GIF to `out`, atomically; the first
+/// frame that cannot be made stops it with nothing written.
+pub fn write_gif(out: &Path, frames: impl IntoIterator<Item = Result<image::Frame>>) -> Result<()> {
+    use image::codecs::gif::{GifEncoder, Repeat};
+    let mut bytes = Vec::new();
+    {
+        let gif_failed = |e| failed(format!("cannot encode {}", out.display()), e);
+        let mut encoder = GifEncoder::new_with_speed(&mut bytes, 10);
+        encoder.set_repeat(Repeat::Infinite).map_err(gif_failed)?;
+        for frame in frames {
+            encoder.encode_frame(frame?).map_err(gif_failed)?;
+        }
+    }
+    base::write_bytes_atomically(out, &bytes).map_err(|e| TrainError::io(out, e))
 }
 
 /// Waits for `child`, polling so that the first Ctrl-C, SIGTERM or SIGHUP ends it (a hung

@@ -72,3 +72,20 @@ pub fn small_capture(seed: u64) -> SmallCapture {
         psf,
     }
 }
+
+/// Writes `n` smooth colourful test photos of `w × h` into `dir`.
+pub fn photos(dir: &Path, n: u32, w: u32, h: u32) {
+    std::fs::create_dir_all(dir).unwrap();
+    for i in 0..n {
+        let img = image::RgbImage::from_fn(w, h, |x, y| {
+            let f = (i + 1) as f32;
+            let v = |a: f32| (127.0 + 120.0 * a.sin()) as u8;
+            image::Rgb([
+                v(x as f32 * 0.11 * f),
+                v(y as f32 * 0.07 * f + 1.0),
+                v((x + y) as f32 * 0.05),
+            ])
+        });
+        img.save(dir.join(format!("p{i}.png"))).unwrap();
+    }
+}

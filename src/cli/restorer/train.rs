@@ -119,6 +119,9 @@ fn print_report(r: &RestorerReport) {
 pub(crate) fn run_train(a: TrainRestorerArgs) -> Result<()> {
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     let prepared = prepare(&a, &command)?;
+    for note in &prepared.notes {
+        println!("{note}");
+    }
     let mut shown = Shown::default();
     let report = prepared.run(&mut |e| shown.show(e));
     shown.replace(None);
