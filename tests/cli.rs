@@ -2170,6 +2170,107 @@ fn restore_a_folder_of_frames_as_each_alone_and_resume_the_rest() {
     assert!(err.contains("--clean"), "{err}");
 }
 
+/// `restore --in DIR --steady S` blends each restored frame with the previous one: the frames
+/// after the first differ from frame-by-frame restoration, the first does not, and a clip
+/// resumed after a stop gets the very bytes an unbroken run writes. A strength outside [0, 1)
+/// and steadying a single photo are refused before anything is written.
+#[test]
+fn restore_a_folder_steadied_over_time_and_resume_it_unbroken() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // A short pan: a smooth texture moving a pixel right and half a pixel down per frame.
+    let frames = d.join("frames");
+    std::fs::create_dir(&frames).unwrap();
+    for t in 0..4 {
+        aberration::Image::from_fn(48, 32, |x, y| {
+            let (u, v) = (x as f32 + t as f32, y as f32 + 0.5 * t as f32);
+            let a = 0.5 + 0.25 * (0.3 * u + 0.2 * v).sin() + 0.2 * (0.13 * u - 0.4 * v).cos();
+            [a, 0.7 * a + 0.1, 1.0 - a]
+        })
+        .save_png(&frames.join(format!("f{t}.png")))
+        .unwrap();
+    }
+    let psf = d.join("psf.npy");
+    small_psf(&psf);
+    let run = |out: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "restore",
+            "--psf",
+            s(&psf),
+            "--in",
+            s(&frames),
+            "--out",
+            s(out),
+            "--any-grid",
+        ];
+        args.extend_from_slice(extra);
+        args.iter().map(|a| a.to_string()).collect::<Vec<_>>()
+    };
+    let (plain, steady, resumed) = (d.join("plain"), d.join("steady"), d.join("resumed"));
+    ok(&run(&plain, &[]));
+    let text = ok(&run(&steady, &["--steady", "0.6"]));
+    assert!(
+        text.contains("Steadying over time (--steady 0.6)"),
+        "{text}"
+    );
+    let mut names: Vec<_> = std::fs::read_dir(&plain)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    names.sort();
+    assert_eq!(names.len(), 4);
+    let bytes = |dir: &Path, n: &std::ffi::OsStr| std::fs::read(dir.join(n)).unwrap();
+    assert!(bytes(&plain, &names[0]) == bytes(&steady, &names[0]));
+    for n in &names[1..] {
+        assert!(
+            bytes(&plain, n) != bytes(&steady, n),
+            "{n:?} was not steadied"
+        );
+    }
+    // A stop after two frames, then --resume: the same bytes as the unbroken run.
+    std::fs::create_dir(&resumed).unwrap();
+    for n in &names[..2] {
+        std::fs::copy(steady.join(n), resumed.join(n)).unwrap();
+    }
+    ok(&run(&resumed, &["--steady", "0.6", "--resume"]));
+    for n in &names {
+        assert!(
+            bytes(&steady, n) == bytes(&resumed, n),
+            "{n:?} differs when resumed"
+        );
+    }
+    for bad in ["1", "-0.2", "NaN"] {
+        let out = d.join(format!("bad{bad}"));
+        let err = fails(&run(&out, &[&format!("--steady={bad}")]));
+        assert!(err.contains("--steady") && err.contains("[0, 1)"), "{err}");
+        assert!(!out.exists());
+    }
+    let photo = std::fs::read_dir(&frames)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let out = d.join("one.png");
+    let err = fails(&[
+        "restore",
+        "--psf",
+        s(&psf),
+        "--in",
+        s(&photo),
+        "--out",
+        s(&out),
+        "--any-grid",
+        "--steady",
+        "0.5",
+    ]);
+    assert!(
+        err.contains("--steady") && err.contains("one photo"),
+        "{err}"
+    );
+    assert!(!out.exists());
+}
+
 /// `restore --in clip.gif --out restored.gif` restores every frame of an animated GIF, keeps
 /// its frame times, and each frame is the restoration of that frame alone through the GIF's
 /// palette.

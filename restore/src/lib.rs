@@ -17,6 +17,7 @@ pub mod net;
 pub mod provenance;
 pub mod shipped;
 pub mod speed;
+pub mod steady;
 pub mod tiles;
 pub mod train;
 pub mod train_state;

@@ -37,6 +37,12 @@ pub struct RestoreRequest {
     /// A clean image to report PSNR/SSIM against.
     #[arg(long)]
     pub reference: Option<PathBuf>,
+    /// Steady a clip (frames, GIF, video) over time: each restored frame is blended with the
+    /// previous one, moved along the motion between them, where the two agree; 0 is off
+    /// (every frame exactly as restored alone), 0.5 averages about three frames where the
+    /// scene holds still. Below 1.
+    #[arg(long, default_value_t = 0.0)]
+    pub steady: f32,
 }
 
 /// What a restore tells while it works.
@@ -87,6 +93,9 @@ fn is_gif(p: &Path) -> bool {
 
 /// Restores what `a` names: a folder, a GIF, a video or one photo.
 pub fn run(a: &RestoreRequest, on_event: &mut dyn FnMut(RestoreEvent)) -> Result<RestoreReport> {
+    if let Err(e) = restore::steady::Steady::new(a.steady).validate() {
+        return refused(format!("--steady {}: {e}", a.steady));
+    }
     if a.input.is_dir() {
         return restore_folder(a, on_event);
     }
@@ -122,6 +131,12 @@ fn restore_photo(
     if a.resume {
         return refused(format!(
             "--resume: only a folder of frames (--in DIR) is restored in parts; {} is one photo",
+            a.input.display()
+        ));
+    }
+    if a.steady > 0.0 {
+        return refused(format!(
+            "--steady: steadying blends a clip's frames over time; {} is one photo",
             a.input.display()
         ));
     }
@@ -219,6 +234,9 @@ fn restore_folder(
             todo.len()
         )));
     }
+    let steady = steady_said(a, on_event);
+    // The previous frame as written (8-bit), so a resumed clip steadies as an unbroken one.
+    let mut previous: Option<(usize, Image)> = None;
     let start = Instant::now();
     for (done, f) in todo.iter().enumerate() {
         if base::interrupt::requested() {
@@ -231,7 +249,27 @@ fn restore_folder(
         }
         let blurred = Image::load(f)
             .map_err(|e| TrainError::from(e).context(format!("cannot read {}", f.display())))?;
-        restorer.restore(&blurred, &psf)?.save_png(&io.target(f))?;
+        let restored = restorer.restore(&blurred, &psf)?;
+        let target = io.target(f);
+        match &steady {
+            None => restored.save_png(&target)?,
+            Some(s) => {
+                let index = frames.iter().position(|g| g == *f).unwrap_or(0);
+                let before = match previous.take() {
+                    Some((i, img)) if i + 1 == index => Some(img),
+                    _ if index > 0 && io.target(&frames[index - 1]).exists() => {
+                        let p = io.target(&frames[index - 1]);
+                        Some(Image::load(&p).map_err(|e| {
+                            TrainError::from(e).context(format!("cannot read {}", p.display()))
+                        })?)
+                    }
+                    _ => None,
+                };
+                let out = restore::steady::steady_frame(before.as_ref(), restored, s)?;
+                out.save_png(&target)?;
+                previous = Some((index, as_written(&out)));
+            }
+        }
         on_event(RestoreEvent::Frame {
             done: kept + done + 1,
             total: frames.len(),
@@ -247,6 +285,31 @@ fn restore_folder(
         out: a.out.clone(),
         against_reference: None,
         kind: Restored::Frames,
+    })
+}
+
+/// The steadying `--steady` asks for (None when off), said.
+fn steady_said(
+    a: &RestoreRequest,
+    on_event: &mut dyn FnMut(RestoreEvent),
+) -> Option<restore::steady::Steady> {
+    (a.steady > 0.0).then(|| {
+        on_event(RestoreEvent::Said(format!(
+            "Steadying over time (--steady {}): each frame blended with the previous one along their motion where they agree.",
+            a.steady
+        )));
+        restore::steady::Steady::new(a.steady)
+    })
+}
+
+/// An image as its 8-bit file holds it, so what a frame is steadied with is the same whether
+/// the previous frame was just made or read back on `--resume`.
+fn as_written(img: &Image) -> Image {
+    let rgb = img.to_rgb8();
+    Image::from_fn(img.width, img.height, |x, y| {
+        rgb.get_pixel(x as u32, y as u32)
+            .0
+            .map(|v| v as f32 / 255.0)
     })
 }
 
@@ -292,6 +355,8 @@ fn restore_gif(
     crate::output::guard::refuse_overwrite("--out", &a.out, &inputs)?;
     let (frames, (w, h)) = gif_frames(&a.input)?;
     let (restorer, psf) = network_for(a, (w, h), on_event)?;
+    let steady = steady_said(a, on_event);
+    let mut previous: Option<Image> = None;
     let start = Instant::now();
     let mut out = Vec::with_capacity(frames.len());
     for (i, f) in frames.iter().enumerate() {
@@ -306,7 +371,12 @@ fn restore_gif(
             let p = rgba.get_pixel(x as u32, y as u32).0;
             [p[0], p[1], p[2]].map(|v| v as f32 / 255.0)
         });
-        let rgb = restorer.restore(&blurred, &psf)?.to_rgb8();
+        let mut restored = restorer.restore(&blurred, &psf)?;
+        if let Some(s) = &steady {
+            restored = restore::steady::steady_frame(previous.as_ref(), restored, s)?;
+            previous = Some(as_written(&restored));
+        }
+        let rgb = restored.to_rgb8();
         let rgba = image::RgbaImage::from_fn(w as u32, h as u32, |x, y| {
             let p = rgb.get_pixel(x, y).0;
             image::Rgba([p[0], p[1], p[2], 255])
