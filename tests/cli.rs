@@ -2066,6 +2066,22 @@ fn iters_auto_stops_when_training_stops_paying_and_says_so() {
     );
 }
 
+/// `restore --psf PSF --in IN --out OUT --any-grid` and `extra`.
+fn restore_args(psf: &Path, input: &Path, out: &Path, extra: &[&str]) -> Vec<String> {
+    let mut args = vec![
+        "restore",
+        "--psf",
+        s(psf),
+        "--in",
+        s(input),
+        "--out",
+        s(out),
+        "--any-grid",
+    ];
+    args.extend_from_slice(extra);
+    args.iter().map(|a| a.to_string()).collect()
+}
+
 /// `restore --in DIR` restores every frame of a folder into `--out` (a folder), each exactly as
 /// `restore` makes it alone; a second run is refused unless `--resume`, which restores only
 /// the frames missing.
@@ -2079,20 +2095,7 @@ fn restore_a_folder_of_frames_as_each_alone_and_resume_the_rest() {
     let psf = d.join("psf.npy");
     small_psf(&psf);
     let out = d.join("restored");
-    let folder = |extra: &[&str]| {
-        let mut args = vec![
-            "restore",
-            "--psf",
-            s(&psf),
-            "--in",
-            s(&frames),
-            "--out",
-            s(&out),
-            "--any-grid",
-        ];
-        args.extend_from_slice(extra);
-        args.iter().map(|a| a.to_string()).collect::<Vec<_>>()
-    };
+    let folder = |extra: &[&str]| restore_args(&psf, &frames, &out, extra);
     let text = ok(&folder(&[]));
     assert!(text.contains("restored 3 frames 48x32"), "{text}");
     for f in std::fs::read_dir(&frames).unwrap() {
@@ -2192,20 +2195,7 @@ fn restore_a_folder_steadied_over_time_and_resume_it_unbroken() {
     }
     let psf = d.join("psf.npy");
     small_psf(&psf);
-    let run = |out: &Path, extra: &[&str]| {
-        let mut args = vec![
-            "restore",
-            "--psf",
-            s(&psf),
-            "--in",
-            s(&frames),
-            "--out",
-            s(out),
-            "--any-grid",
-        ];
-        args.extend_from_slice(extra);
-        args.iter().map(|a| a.to_string()).collect::<Vec<_>>()
-    };
+    let run = |out: &Path, extra: &[&str]| restore_args(&psf, &frames, out, extra);
     let (plain, steady, resumed) = (d.join("plain"), d.join("steady"), d.join("resumed"));
     ok(&run(&plain, &[]));
     let text = ok(&run(&steady, &["--steady", "0.6"]));
@@ -2252,18 +2242,7 @@ fn restore_a_folder_steadied_over_time_and_resume_it_unbroken() {
         .unwrap()
         .path();
     let out = d.join("one.png");
-    let err = fails(&[
-        "restore",
-        "--psf",
-        s(&psf),
-        "--in",
-        s(&photo),
-        "--out",
-        s(&out),
-        "--any-grid",
-        "--steady",
-        "0.5",
-    ]);
+    let err = fails(&restore_args(&psf, &photo, &out, &["--steady", "0.5"]));
     assert!(
         err.contains("--steady") && err.contains("one photo"),
         "{err}"

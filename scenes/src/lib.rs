@@ -8,6 +8,7 @@
 
 pub mod aberrated;
 mod atomic;
+pub mod cache_entry;
 pub mod camera;
 pub mod capture;
 pub mod colmap;

@@ -11,6 +11,7 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::cache_entry::{self, Checksum};
 use crate::images::Photo;
 
 /// The folder beside the capture's photos.
@@ -44,36 +45,11 @@ pub fn key(bytes: &[u8], shrink: u32, remap: Option<u64>) -> u64 {
     base::hash::xxh3(&keyed)
 }
 
-fn path(dir: &Path, key: u64) -> PathBuf {
-    dir.join(format!("{key:016x}.safetensors"))
-}
-
-fn sum(key: u64, body: &[u8]) -> String {
-    let mut keyed = key.to_le_bytes().to_vec();
-    keyed.extend(body);
-    format!("{:016x}", base::hash::xxh3(&keyed))
-}
-
 /// The cached photo for `key`, when there is a whole one of `width` × `height`.
 pub fn get(dir: &Path, key: u64, width: u32, height: u32) -> Option<Photo> {
-    let bytes = base::input::read(&path(dir, key)).ok()?;
-    let tensors = safetensors::SafeTensors::deserialize(&bytes).ok()?;
-    let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).ok()?;
-    let meta = meta.metadata().clone()?;
-    let t = tensors.tensor(TENSOR).ok()?;
-    if t.dtype() != safetensors::Dtype::F32
-        || t.shape() != [height as usize, width as usize, 3]
-        || meta.get("key")? != &format!("{key:016x}")
-        || meta.get("xxh3")? != &sum(key, t.data())
-    {
-        return None;
-    }
-    let data: Vec<f32> = t
-        .data()
-        .chunks_exact(4)
-        .map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes")))
-        .collect();
-    data.iter().all(|v| v.is_finite()).then_some(Photo {
+    let shape = [height as usize, width as usize, 3];
+    let data = cache_entry::read(dir, key, TENSOR, &shape, Checksum::Xxh3)?;
+    Some(Photo {
         width,
         height,
         data,
@@ -82,18 +58,8 @@ pub fn get(dir: &Path, key: u64, width: u32, height: u32) -> Option<Photo> {
 
 /// Stores `photo` under `key` (atomically; the folder is made if needed).
 pub fn put(dir: &Path, key: u64, photo: &Photo) -> std::io::Result<()> {
-    std::fs::create_dir_all(dir)?;
-    let body: Vec<u8> = photo.data.iter().flat_map(|v| v.to_le_bytes()).collect();
-    let invalid = |e: safetensors::SafeTensorError| std::io::Error::other(e.to_string());
     let shape = vec![photo.height as usize, photo.width as usize, 3];
-    let view = safetensors::tensor::TensorView::new(safetensors::Dtype::F32, shape, &body)
-        .map_err(invalid)?;
-    let meta = std::collections::HashMap::from([
-        ("key".to_string(), format!("{key:016x}")),
-        ("xxh3".to_string(), sum(key, &body)),
-    ]);
-    let bytes = safetensors::serialize([(TENSOR, view)], Some(meta)).map_err(invalid)?;
-    base::atomic::write_bytes_atomically(&path(dir, key), &bytes)
+    cache_entry::write(dir, key, TENSOR, shape, &photo.data, Checksum::Xxh3)
 }
 
 #[cfg(test)]
@@ -122,7 +88,7 @@ mod tests {
             assert_ne!(k, other);
         }
         assert!(get(dir.path(), k, 3, 4).is_none());
-        let p = path(dir.path(), k);
+        let p = cache_entry::path(dir.path(), k);
         let good = std::fs::read(&p).unwrap();
         for at in [20, good.len() - 3] {
             let mut bad = good.clone();
@@ -138,7 +104,7 @@ mod tests {
         // Another photo's entry under this one's name is a miss.
         std::fs::write(&p, &good).unwrap();
         let k2 = key(b"another photo", 2, Some(9));
-        std::fs::copy(&p, path(dir.path(), k2)).unwrap();
+        std::fs::copy(&p, cache_entry::path(dir.path(), k2)).unwrap();
         assert!(get(dir.path(), k2, 4, 3).is_none());
     }
 }

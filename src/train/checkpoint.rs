@@ -160,50 +160,31 @@ fn le_vec3s(v: &[Vec3]) -> Vec<u8> {
         .collect()
 }
 
+/// A tensor of a checkpoint: name, type, shape, little-endian bytes.
+type Tensor = (String, safetensors::Dtype, Vec<usize>, Vec<u8>);
+
 /// The six arrays of a splat set (or of its Adam moments) under `prefix`.
-fn gaussian_tensors(
-    prefix: &str,
-    g: &Gaussians,
-) -> Vec<(String, safetensors::Dtype, Vec<usize>, Vec<u8>)> {
-    use safetensors::Dtype::F32;
+fn gaussian_tensors(prefix: &str, g: &Gaussians) -> Vec<Tensor> {
     let n = g.len();
+    let f32s = |name: &str, shape: Vec<usize>, bytes: Vec<u8>| {
+        (
+            format!("{prefix}.{name}"),
+            safetensors::Dtype::F32,
+            shape,
+            bytes,
+        )
+    };
     vec![
-        (
-            format!("{prefix}.means"),
-            F32,
-            vec![n, 3],
-            le_vec3s(&g.means),
-        ),
-        (
-            format!("{prefix}.log_scales"),
-            F32,
-            vec![n, 3],
-            le_vec3s(&g.log_scales),
-        ),
-        (
-            format!("{prefix}.rotations"),
-            F32,
+        f32s("means", vec![n, 3], le_vec3s(&g.means)),
+        f32s("log_scales", vec![n, 3], le_vec3s(&g.log_scales)),
+        f32s(
+            "rotations",
             vec![n, 4],
             le_f32s(g.rotations.iter().flatten()),
         ),
-        (
-            format!("{prefix}.logit_opacities"),
-            F32,
-            vec![n],
-            le_f32s(&g.logit_opacities),
-        ),
-        (
-            format!("{prefix}.sh_dc"),
-            F32,
-            vec![n, 3],
-            le_vec3s(&g.sh_dc),
-        ),
-        (
-            format!("{prefix}.sh_rest"),
-            F32,
-            vec![n, g.rest_count(), 3],
-            le_vec3s(&g.sh_rest),
-        ),
+        f32s("logit_opacities", vec![n], le_f32s(&g.logit_opacities)),
+        f32s("sh_dc", vec![n, 3], le_vec3s(&g.sh_dc)),
+        f32s("sh_rest", vec![n, g.rest_count(), 3], le_vec3s(&g.sh_rest)),
     ]
 }
 
@@ -236,40 +217,36 @@ pub fn save(
     tensors.extend(gaussian_tensors("adam_m", m));
     tensors.extend(gaussian_tensors("adam_v", v));
     let st = &p.densify.stats;
-    tensors.push((
-        "densify.grad_norm_sum".into(),
-        F32,
-        vec![n],
-        le_f32s(&st.grad_norm_sum),
-    ));
-    tensors.push((
-        "densify.count".into(),
-        U32,
-        vec![n],
-        st.count.iter().flat_map(|c| c.to_le_bytes()).collect(),
-    ));
-    tensors.push((
-        "densify.max_radius".into(),
-        F32,
-        vec![n],
-        le_f32s(&st.max_radius),
-    ));
-    tensors.push((
-        "densify.seen".into(),
-        U8,
-        vec![n],
-        p.densify.seen.iter().map(|&b| b as u8).collect(),
-    ));
-    if let Some(r) = &p.psf {
-        let st = r.state();
+    let psf = p.psf.as_ref().map(|r| r.state());
+    tensors.extend(
+        [
+            (
+                "densify.grad_norm_sum",
+                F32,
+                vec![n],
+                le_f32s(&st.grad_norm_sum),
+            ),
+            (
+                "densify.count",
+                U32,
+                vec![n],
+                st.count.iter().flat_map(|c| c.to_le_bytes()).collect(),
+            ),
+            ("densify.max_radius", F32, vec![n], le_f32s(&st.max_radius)),
+            (
+                "densify.seen",
+                U8,
+                vec![n],
+                p.densify.seen.iter().map(|&b| b as u8).collect(),
+            ),
+        ]
+        .map(|(name, dtype, shape, bytes)| (name.to_string(), dtype, shape, bytes)),
+    );
+    if let Some(st) = &psf {
         let k = st.logits.len();
         tensors.push(("psf.logits".into(), F32, vec![k], le_f32s(&st.logits)));
-        tensors.push((
-            "psf.moments".into(),
-            F32,
-            vec![2, k],
-            le_f32s(st.m.iter().chain(&st.v)),
-        ));
+        let moments = le_f32s(st.m.iter().chain(&st.v));
+        tensors.push(("psf.moments".into(), F32, vec![2, k], moments));
     }
     let crc = checksum(json.as_bytes(), |name| {
         tensors.iter().find(|t| t.0 == name).map(|t| t.3.as_slice())

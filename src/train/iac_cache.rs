@@ -18,6 +18,7 @@ use std::path::{Path, PathBuf};
 
 use aberration::PsfGrid;
 use glam::Vec3;
+use scenes::cache_entry::{self, Checksum};
 
 /// The layout of the entries before safetensors (still read).
 const MAGIC: &[u8; 16] = b"METASPLAT-IAC 2\n";
@@ -120,26 +121,14 @@ impl Keyer {
     }
 }
 
-/// An entry: `KEY.safetensors` holding the tensor [`TENSOR`] (`[pixels, 3]` float32, row-major
-/// RGB) and, in its metadata, the key (hex) and the CRC-32 of the key and the pixels.
-fn path(dir: &Path, key: u64) -> PathBuf {
-    dir.join(format!("{key:016x}.safetensors"))
-}
-
 /// An entry as the caches before safetensors wrote it (still read).
 fn legacy_path(dir: &Path, key: u64) -> PathBuf {
     dir.join(format!("{key:016x}.iac"))
 }
 
-/// The tensor an entry holds.
+/// The tensor an entry holds: `[pixels, 3]` float32, row-major RGB, with the key and the
+/// CRC-32 of the key and the pixels in its metadata ([`scenes::cache_entry`]).
 pub const TENSOR: &str = "i_ac";
-
-fn crc(key: u64, body: &[u8]) -> String {
-    let mut h = crc32fast::Hasher::new();
-    h.update(&key.to_le_bytes());
-    h.update(body);
-    format!("{:08x}", h.finalize())
-}
 
 fn floats(body: &[u8]) -> Option<Vec<Vec3>> {
     let floats: Vec<f32> = body
@@ -161,19 +150,8 @@ pub fn get(dir: &Path, key: Key, pixels: usize) -> Option<Vec<Vec3>> {
 }
 
 fn get_entry(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
-    let bytes = base::input::read(&path(dir, key)).ok()?;
-    let tensors = safetensors::SafeTensors::deserialize(&bytes).ok()?;
-    let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).ok()?;
-    let meta = meta.metadata().clone()?;
-    let t = tensors.tensor(TENSOR).ok()?;
-    if t.dtype() != safetensors::Dtype::F32
-        || t.shape() != [pixels, 3]
-        || meta.get("key")? != &format!("{key:016x}")
-        || meta.get("crc32")? != &crc(key, t.data())
-    {
-        return None;
-    }
-    floats(t.data())
+    let values = cache_entry::read(dir, key, TENSOR, &[pixels, 3], Checksum::Crc32)?;
+    Some(values.chunks_exact(3).map(Vec3::from_slice).collect())
 }
 
 fn get_legacy(dir: &Path, key: u64, pixels: usize) -> Option<Vec<Vec3>> {
@@ -199,22 +177,15 @@ pub fn put(dir: &Path, key: Key, image: &[Vec3]) -> std::io::Result<()> {
             dir.display()
         )));
     }
-    std::fs::create_dir_all(dir)?;
-    let body: Vec<u8> = image
-        .iter()
-        .flat_map(|p| p.to_array())
-        .flat_map(f32::to_le_bytes)
-        .collect();
-    let invalid = |e: safetensors::SafeTensorError| std::io::Error::other(e.to_string());
-    let view =
-        safetensors::tensor::TensorView::new(safetensors::Dtype::F32, vec![image.len(), 3], &body)
-            .map_err(invalid)?;
-    let meta = std::collections::HashMap::from([
-        ("key".to_string(), format!("{key:016x}")),
-        ("crc32".to_string(), crc(key, &body)),
-    ]);
-    let bytes = safetensors::serialize([(TENSOR, view)], Some(meta)).map_err(invalid)?;
-    base::atomic::write_bytes_atomically(&path(dir, key), &bytes)
+    let values: Vec<f32> = image.iter().flat_map(|p| p.to_array()).collect();
+    cache_entry::write(
+        dir,
+        key,
+        TENSOR,
+        vec![image.len(), 3],
+        &values,
+        Checksum::Crc32,
+    )
 }
 
 #[cfg(test)]
@@ -290,7 +261,7 @@ mod tests {
         assert_ne!(k, key("net a", &psf, 4, 3, &other));
         // The wrong size, a flipped byte or a truncation is a miss, not an image.
         assert!(get(dir.path(), k, 13).is_none());
-        let p = path(dir.path(), k.now);
+        let p = cache_entry::path(dir.path(), k.now);
         let good = std::fs::read(&p).unwrap();
         for at in [20, good.len() - 3] {
             let mut bad = good.clone();
@@ -306,7 +277,7 @@ mod tests {
         // Another view's entry under this view's name (swapped or copied files) is a miss.
         std::fs::write(&p, &good).unwrap();
         let k2 = key("net a", &psf, 4, 3, &other);
-        std::fs::copy(&p, path(dir.path(), k2.now)).unwrap();
+        std::fs::copy(&p, cache_entry::path(dir.path(), k2.now)).unwrap();
         assert!(get(dir.path(), k2, 12).is_none());
         assert_eq!(get(dir.path(), k, 12).unwrap(), image);
         // The entry is plain safetensors: its header, read by hand, names the tensor.
@@ -325,7 +296,7 @@ mod tests {
         assert_eq!(get(dir.path(), k, 12).unwrap(), image);
         assert!(get(dir.path(), key("net b", &psf, 4, 3, &observed), 12).is_none());
         // So is an entry of the layout before safetensors.
-        std::fs::remove_file(path(dir.path(), k.before)).unwrap();
+        std::fs::remove_file(cache_entry::path(dir.path(), k.before)).unwrap();
         let body: Vec<u8> = image
             .iter()
             .flat_map(|v| v.to_array())
