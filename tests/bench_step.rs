@@ -4,31 +4,52 @@
 
 mod common;
 
+use metasplat::jobs::bench_step::{StepBenchRequest, prepare};
 use metasplat::settings::DataOptions;
-use metasplat::splats::device::Device;
-use metasplat::train::config::{Mode, TrainConfig};
-use metasplat::train::data;
+use metasplat::splats::device::DeviceChoice;
+use metasplat::train::config::Mode;
 
 /// `bench step` times the training loop's own step: its spans are all there and add up to
-/// no more than the step the loop counted.
+/// no more than the step the loop counted. Driven through the library's job, refusals first.
 #[test]
 fn the_step_benchmark_times_the_training_step() {
     let capture = common::small_capture(1);
-    let aberrated = &capture.aberrated;
-    let options = DataOptions {
-        downsample: 1,
-        ..DataOptions::default()
-    };
-    let data = data::load(aberrated, Mode::Aware, &options).unwrap();
-    let settings = metasplat::settings::TrainSettings {
+    let request = StepBenchRequest {
+        scene: capture.aberrated.clone(),
         mode: Mode::Aware,
-        iters: metasplat::settings::Iters::Steps(3),
-        eval_every: Some(0),
-        checkpoint_every: Some(0),
-        ..Default::default()
+        ply: None,
+        steps: 3,
+        threads: vec![1],
+        device: DeviceChoice::Cpu,
+        refine_psf: false,
+        data: DataOptions {
+            downsample: 1,
+            ..DataOptions::default()
+        },
     };
-    let cfg = TrainConfig::build(&settings, 0, &data);
-    let t = metasplat::train::timing::time_steps(&data, &cfg, &Device::Cpu, 1).unwrap();
+    let refused = |r: StepBenchRequest| prepare(&r).err().expect("refused").to_string();
+    let e = refused(StepBenchRequest {
+        threads: vec![1, 0],
+        ..request.clone()
+    });
+    assert!(e.contains("--threads"), "{e}");
+    let e = refused(StepBenchRequest {
+        mode: Mode::Plain,
+        refine_psf: true,
+        ..request.clone()
+    });
+    assert!(e.contains("--refine-psf"), "{e}");
+    let prepared = prepare(&request).unwrap();
+    assert!(
+        prepared.note.starts_with("3 training steps of mode aware"),
+        "{}",
+        prepared.note
+    );
+    let report = prepared.run().unwrap();
+    assert_eq!(report.runs.len(), 1);
+    assert!(report.refinement.is_empty());
+    let t = &report.runs[0];
+    assert_eq!(t.threads, 1);
     let names: Vec<&str> = t.phases.iter().map(|p| p.0).collect();
     for want in [
         "render forward",

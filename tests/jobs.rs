@@ -1,5 +1,6 @@
-//! The other commands as library jobs: `restorer train`, `restorer eval`, `restore` and
-//! `render` driven through `metasplat::jobs` without the binary, their events and reports read.
+//! The other commands as library jobs: `restorer train`, `restorer eval`, `restore`, `render`,
+//! `export` and `bench restorer` driven through `metasplat::jobs` without the binary, their
+//! events and reports read (`bench step` in its own test binary).
 
 mod common;
 
@@ -284,4 +285,57 @@ fn exporting_runs_through_the_library_and_reports() {
     let err = metasplat::jobs::export::prepare(&request(&glb, "3"));
     assert!(matches!(&err, Err(e) if e.to_string().contains("--sh-degree 3")));
     assert!(!glb.exists());
+}
+
+#[derive(Parser)]
+struct BenchArgs {
+    #[command(flatten)]
+    a: metasplat::jobs::bench_restorer::RestorerBenchRequest,
+}
+
+/// `bench restorer` through the library: bad sizes refused by `prepare`, then a row per case
+/// handed over as it is timed and returned, every figure positive and the speed-up the ratio
+/// of the two kernels' times.
+#[test]
+fn the_restorer_benchmark_runs_through_the_library_and_reports() {
+    use metasplat::jobs::bench_restorer::prepare;
+    let req = |flags: &[&str]| {
+        BenchArgs::parse_from(std::iter::once("bench").chain(flags.iter().copied())).a
+    };
+    let e = prepare(&req(&["--configs", "tiny", "--sides", "100"]))
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(e.contains("--sides") && e.contains("100 px"), "{e}");
+    let e = prepare(&req(&["--configs", "tiny", "--crop", "30"]))
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(e.contains("--crop") && e.contains("30 px"), "{e}");
+    let prepared = prepare(&req(&[
+        "--configs",
+        "tiny",
+        "--sides",
+        "32",
+        "--batch",
+        "1",
+        "--threads",
+        "1",
+        "--rounds",
+        "1",
+    ]))
+    .unwrap();
+    let mut seen = 0;
+    let rows = prepared.run(&mut |_| seen += 1).unwrap();
+    assert_eq!((rows.len(), seen), (2, 2));
+    for r in &rows {
+        let reference = r.reference_s.expect("both kernels timed");
+        for v in [reference, r.fast_s, r.fast_cpu_s, r.gflops, r.s_per_mp()] {
+            assert!(v.is_finite() && v > 0.0, "{r:?}");
+        }
+    }
+    assert!(matches!(
+        rows[0].workload,
+        restore::speed::Workload::Forward { side: 32 }
+    ));
 }

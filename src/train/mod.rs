@@ -18,7 +18,7 @@ pub mod objective;
 pub mod psf_refine;
 pub mod sh;
 pub mod stop;
-pub mod timing;
+pub(crate) mod timing;
 
 use std::path::Path;
 use std::time::Instant;
