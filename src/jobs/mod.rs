@@ -1,8 +1,10 @@
 //! Commands other than splat training as jobs of the library: each is prepared (every check,
 //! nothing written), then run with its events, and ends in a report the binary prints.
 
+pub mod aberrate;
 pub mod bench_restorer;
 pub mod bench_step;
+pub mod deconvolve;
 pub mod export;
 pub mod frames;
 pub mod render;
