@@ -12,8 +12,14 @@ pub fn run(a: DeconvolveArgs) -> Result<()> {
     if r.input_psnr.is_some() {
         println!("input{}", score(r.input_psnr));
     }
-    if let (Some((rows, secs)), Some(dir)) = (&r.bank, &a.bank) {
-        for (m, (k, p)) in rows.iter().enumerate().filter(|(_, (_, p))| p.is_some()) {
+    if let (Some(bank), Some(dir)) = (&r.bank, &a.bank) {
+        let secs = bank.seconds;
+        for (m, (k, p)) in bank
+            .filters
+            .iter()
+            .enumerate()
+            .filter(|(_, (_, p))| p.is_some())
+        {
             println!("filter {m:2} k {k:.1e}{}", score(*p));
         }
         println!(

@@ -47,8 +47,15 @@ pub struct DeconvolveReport {
     pub seconds: f64,
     pub input_psnr: Option<f64>,
     pub psnr: Option<f64>,
-    /// With `--bank`: each filter's K and PSNR, and the seconds the bank took.
-    pub bank: Option<(Vec<(f32, Option<f64>)>, f64)>,
+    /// With `--bank`.
+    pub bank: Option<BankReport>,
+}
+
+/// MAFG's bank as written: each filter's K and PSNR (with a reference), and its seconds.
+#[derive(Clone, Debug)]
+pub struct BankReport {
+    pub filters: Vec<(f32, Option<f64>)>,
+    pub seconds: f64,
 }
 
 /// Deconvolves the photo `a` names.
@@ -93,7 +100,10 @@ pub fn run(a: &DeconvolveRequest) -> Result<DeconvolveReport> {
                 img.save_png(&dir.join(format!("wiener_{m:02}_k{k:.1e}.png")))?;
                 rows.push((k, score(img)));
             }
-            Some((rows, seconds))
+            Some(BankReport {
+                filters: rows,
+                seconds,
+            })
         }
         None => None,
     };
