@@ -2096,7 +2096,8 @@ fn restore_a_folder_of_frames_as_each_alone_and_resume_the_rest() {
     small_psf(&psf);
     let out = d.join("restored");
     let folder = |extra: &[&str]| restore_args(&psf, &frames, &out, extra);
-    let text = ok(&folder(&[]));
+    // Steadying off: each frame exactly as alone.
+    let text = ok(&folder(&["--steady", "0"]));
     assert!(text.contains("restored 3 frames 48x32"), "{text}");
     for f in std::fs::read_dir(&frames).unwrap() {
         let f = f.unwrap().path();
@@ -2128,7 +2129,7 @@ fn restore_a_folder_of_frames_as_each_alone_and_resume_the_rest() {
         .unwrap()
         .path();
     std::fs::remove_file(&first).unwrap();
-    let text = ok(&folder(&["--resume"]));
+    let text = ok(&folder(&["--resume", "--steady", "0"]));
     assert!(
         text.contains("2 of 3 frames were restored before") && text.contains("restored 1 frames"),
         "{text}"
@@ -2197,12 +2198,22 @@ fn restore_a_folder_steadied_over_time_and_resume_it_unbroken() {
     small_psf(&psf);
     let run = |out: &Path, extra: &[&str]| restore_args(&psf, &frames, out, extra);
     let (plain, steady, resumed) = (d.join("plain"), d.join("steady"), d.join("resumed"));
-    ok(&run(&plain, &[]));
+    let text = ok(&run(&plain, &["--steady", "0"]));
+    assert!(!text.contains("Steadying"), "{text}");
     let text = ok(&run(&steady, &["--steady", "0.6"]));
     assert!(
         text.contains("Steadying over time (--steady 0.6)"),
         "{text}"
     );
+    // Without the flag a clip is steadied at the default strength, and says so.
+    let default = d.join("default");
+    let text = ok(&run(&default, &[]));
+    assert!(
+        text.contains("--steady 0.5, the default for clips"),
+        "{text}"
+    );
+    let explicit = d.join("explicit");
+    ok(&run(&explicit, &["--steady", "0.5"]));
     let mut names: Vec<_> = std::fs::read_dir(&plain)
         .unwrap()
         .map(|e| e.unwrap().file_name())
@@ -2216,6 +2227,9 @@ fn restore_a_folder_steadied_over_time_and_resume_it_unbroken() {
             bytes(&plain, n) != bytes(&steady, n),
             "{n:?} was not steadied"
         );
+    }
+    for n in &names {
+        assert!(bytes(&default, n) == bytes(&explicit, n), "{n:?}");
     }
     // A stop after two frames, then --resume: the same bytes as the unbroken run.
     std::fs::create_dir(&resumed).unwrap();
@@ -2298,6 +2312,8 @@ fn restore_an_animated_gif_frame_by_frame() {
         "--out",
         s(&restored),
         "--any-grid",
+        "--steady",
+        "0",
     ]);
     assert!(text.contains("restored 3 frames 48x32"), "{text}");
     let (input, output) = (decode(&clip), decode(&restored));
