@@ -3,9 +3,7 @@
 use super::progress::bar;
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
-use scenes::BitDepth;
 use std::path::PathBuf;
-use std::time::Instant;
 
 #[derive(Subcommand)]
 pub enum SceneCommand {
@@ -40,30 +38,7 @@ pub struct ProceduralArgs {
     pub around: bool,
 }
 
-#[derive(Args)]
-pub struct SceneAberrateArgs {
-    /// Clean capture directory (LLFF or COLMAP).
-    #[arg(long)]
-    pub scene: PathBuf,
-    /// PSF grid .npy (the paper's layout).
-    #[arg(long)]
-    pub psf: PathBuf,
-    /// Destination; must not exist.
-    #[arg(long)]
-    pub out: PathBuf,
-    /// Read images_N/ of the source, else its images/ shrunk N times at load.
-    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
-    pub downsample: u32,
-    #[command(flatten)]
-    pub imaging: metasplat::settings::imaging::ImagingArgs,
-    /// Blur the photos as taken even when the cameras have lens distortion (by default they
-    /// are undistorted at load first, and the copy's cameras are pinhole).
-    #[arg(long)]
-    pub keep_distortion: bool,
-    /// PNG sample depth of the written images (8 or 16); 16 keeps the sensor noise.
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u8).range(8..=16))]
-    pub bit_depth: u8,
-}
+pub use metasplat::jobs::scene_aberrate::SceneAberrateRequest as SceneAberrateArgs;
 
 #[derive(Args)]
 pub struct InfoArgs {
@@ -120,60 +95,27 @@ pub fn run(cmd: SceneCommand) -> Result<()> {
 }
 
 fn aberrate(a: SceneAberrateArgs) -> Result<()> {
-    metasplat::output::guard::refuse_overwrite(
-        "--out",
-        &a.out,
-        &[("--scene", &a.scene), ("--psf", &a.psf)],
-    )?;
-    metasplat::output::guard::refuse_aberrated_source("--scene", &a.scene)?;
-    let capture = metasplat::settings::open_scene(&a.scene, a.downsample, a.keep_distortion)?;
-    let mut inputs =
-        metasplat::output::guard::Inputs::of(&[("--scene", &a.scene), ("--psf", &a.psf)]);
-    inputs.add_capture(&capture);
-    inputs.refuse("--out", &a.out)?;
-    let options = scenes::AberrateOptions {
-        mode: a.imaging.mode,
-        sensor_px: a.imaging.sensor_px,
-        noise: a.imaging.noise(),
-        seed: a.imaging.seed,
-        depth: match a.bit_depth {
-            8 => BitDepth::Eight,
-            16 => BitDepth::Sixteen,
-            other => anyhow::bail!("--bit-depth must be 8 or 16, not {other}"),
-        },
-    };
-    // A bad PSF file is the flag's error, found before the lock, the bar and the staging.
-    aberration::PsfGrid::load_npy(&a.psf).with_context(|| format!("--psf {}", a.psf.display()))?;
-    // The capture appears by renaming its staging folder into place; the lock beside it keeps
-    // a second maker from doing the work only to fail at the end (or to win a race).
-    let _lock = base::FolderLock::beside(&a.out, "scene aberrate")?;
-    let pb = bar(capture.len() as u64, "aberrating");
-    let start = Instant::now();
-    let report = scenes::make_aberrated(&capture, &a.psf, &a.out, &options, &|| pb.inc(1))
-        .with_context(|| format!("cannot write the aberrated capture {}", a.out.display()))?;
+    let prepared = metasplat::jobs::scene_aberrate::prepare(&a)?;
+    let pb = bar(prepared.images() as u64, "aberrating");
+    let r = prepared.run(&|| pb.inc(1));
     pb.finish_and_clear();
+    let r = r?;
+    let m = &r.made;
     println!(
         "{} images {}x{} through {} px PSFs ({} mode, seed {}) in {:.1} s: mean PSNR {:.2} dB vs clean; wrote {} (clean images in {}/)",
-        report.images,
-        report.width,
-        report.height,
-        report.psf_px,
+        m.images,
+        m.width,
+        m.height,
+        m.psf_px,
         a.imaging.mode,
         a.imaging.seed,
-        start.elapsed().as_secs_f64(),
-        report.mean_psnr,
-        report.dest.display(),
+        r.seconds,
+        m.mean_psnr,
+        m.dest.display(),
         scenes::aberrated::CLEAN_DIR,
     );
-    if report.masked && !capture.has_own_masks() {
-        println!(
-            "Undistortion leaves border pixels without a source: each photo was composited over black there before the blur, and the border is carried as masks beside the copy's photos (they leave its pixels out of the loss; the record says they are not an object's)."
-        );
-    } else if report.masked {
-        println!(
-            "The capture has masks ({}): each photo was composited over black outside its mask before the blur, so the copy is the object alone, and the masks are carried beside the copy's photos.",
-            capture.mask_source()
-        );
+    if let Some(line) = r.masks {
+        println!("{line}");
     }
     Ok(())
 }

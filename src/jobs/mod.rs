@@ -7,11 +7,13 @@ pub mod bench_step;
 pub mod deconvolve;
 pub mod export;
 pub mod frames;
+pub mod psf;
 pub mod render;
 pub mod restore;
 pub mod restorer_eval;
 pub mod restorer_net;
 pub mod restorer_train;
+pub mod scene_aberrate;
 
 use crate::error::{Result, TrainError};
 
