@@ -1,5 +1,6 @@
-//! Commands other than splat training as jobs of the library: each is prepared (every check,
-//! nothing written), then run with its events, and ends in a report the binary prints.
+//! Commands other than splat training (`run.rs`) and the experiments (`lab/`) as jobs of the
+//! library: each is prepared (every check, nothing written), then run with its events, and
+//! ends in a report the binary prints.
 
 pub mod aberrate;
 pub mod bench_restorer;
