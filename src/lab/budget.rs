@@ -74,14 +74,14 @@ pub fn run(
     {
         let mut clean = a
             .runs
-            .ceiling_run(a.runs.out.join(format!("budget_{b}_clean")));
+            .ceiling_run(a.runs.place.out.join(format!("budget_{b}_clean")));
         clean.training.max_splats = Some(b.0.unwrap_or(UNBOUNDED));
         a.runs.check_ceiling(&clean)?;
     }
     let (aberrated, _lock) = a.runs.aberrated(say)?;
     let mut rows = Vec::new();
     for &b in &a.budgets {
-        let run_dir = a.runs.out.join(format!("budget_{b}"));
+        let run_dir = a.runs.place.out.join(format!("budget_{b}"));
         let mut args = a.runs.run(&aberrated, run_dir.clone(), a.mode);
         args.training.max_splats = Some(b.0.unwrap_or(UNBOUNDED));
         args.training.eval_every = Some((a.runs.iters / 10).max(1));
@@ -92,7 +92,7 @@ pub fn run(
         let ceiling = if a.runs.ceiling {
             let mut clean = a
                 .runs
-                .ceiling_run(a.runs.out.join(format!("budget_{b}_clean")));
+                .ceiling_run(a.runs.place.out.join(format!("budget_{b}_clean")));
             clean.training.max_splats = args.training.max_splats;
             clean.training.eval_every = args.training.eval_every;
             say(format!(
@@ -144,7 +144,7 @@ pub fn run(
             ceiling.map_or("not run".to_string(), |c| format!("{c:.2}"))
         );
     }
-    let table_path = a.runs.out.join("budget.md");
+    let table_path = a.runs.place.out.join("budget.md");
     base::write_bytes_atomically(&table_path, table.as_bytes())
         .map_err(|e| TrainError::io(&table_path, e))?;
     let series = vec![Series {
@@ -157,7 +157,7 @@ pub fn run(
             .collect(),
     }];
     line_plot(
-        &a.runs.out.join("budget.png"),
+        &a.runs.place.out.join("budget.png"),
         "held-out PSNR against the splats kept",
         "splats at the end of training",
         "PSNR vs clean (dB)",

@@ -39,7 +39,7 @@ pub struct LlffReport {
 pub fn run(a: &LlffArgs, train: &mut Runner, say: &mut dyn FnMut(String)) -> Result<LlffReport> {
     refuse_repeats("--modes", &a.modes)?;
     let ceiling_run = || {
-        let mut args = a.runs.ceiling_run(a.runs.out.join("run_clean"));
+        let mut args = a.runs.ceiling_run(a.runs.place.out.join("run_clean"));
         args.training.eval_every = Some((a.runs.iters / 20).max(1));
         args
     };
@@ -56,7 +56,7 @@ pub fn run(a: &LlffArgs, train: &mut Runner, say: &mut dyn FnMut(String)) -> Res
     };
     let mut rows = Vec::new();
     for &mode in &a.modes {
-        let run_dir = a.runs.out.join(format!("run_{mode}"));
+        let run_dir = a.runs.place.out.join(format!("run_{mode}"));
         let mut args = a.runs.run(&aberrated, run_dir, mode);
         if mode == Mode::Aware {
             args.training.lambda = a.lambda;
@@ -176,7 +176,7 @@ pub fn run(a: &LlffArgs, train: &mut Runner, say: &mut dyn FnMut(String)) -> Res
             }
         }
     }
-    let table_path = a.runs.out.join("table.md");
+    let table_path = a.runs.place.out.join("table.md");
     base::write_bytes_atomically(&table_path, table.as_bytes())
         .map_err(|e| TrainError::io(&table_path, e))?;
     let curve = |log: &[crate::train::LogRow]| {
@@ -196,7 +196,7 @@ pub fn run(a: &LlffArgs, train: &mut Runner, say: &mut dyn FnMut(String)) -> Res
         }))
         .collect();
     line_plot(
-        &a.runs.out.join("psnr_vs_time.png"),
+        &a.runs.place.out.join("psnr_vs_time.png"),
         "held-out PSNR vs training time",
         "training time (s)",
         "PSNR vs clean (dB)",

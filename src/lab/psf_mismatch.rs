@@ -15,7 +15,7 @@ use aberration::PsfGrid;
 use aberration::optics::SimConfig;
 use clap::Args;
 
-use super::runs::ExperimentRuns;
+use super::runs::{ExperimentPlace, ExperimentRuns};
 use crate::error::{Result, TrainError};
 use crate::output::RunSummary;
 use crate::output::plot::{Series, line_plot};
@@ -160,35 +160,11 @@ impl std::fmt::Display for Variant {
 
 #[derive(Args)]
 pub struct PsfMismatchArgs {
-    /// The clean capture (e.g. the procedural scene, or ../shared/data/llff/fern).
-    #[arg(long)]
-    pub scene: PathBuf,
-    /// The experiment folder: the aberrated copy, the grids, every run, the table and plots.
-    #[arg(long)]
-    pub out: PathBuf,
-    /// The true PSF grid (default: simulate the paper's). With a grid given, only errors
-    /// made from the grid itself (`noise`, `pedestal`) can be asked for: the others
-    /// simulate the paper's lens.
-    #[arg(long)]
-    pub psf: Option<PathBuf>,
+    #[command(flatten)]
+    pub place: ExperimentPlace,
     /// Training steps of every run.
     #[arg(long, default_value_t = 1500, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
     pub iters: u64,
-    /// Use the capture's images_N/ (1: images/), else its images/ shrunk N times at load.
-    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
-    pub downsample: u32,
-    /// Seed of the aberration noise, the measured-PSF noise and every run.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Where to render: `auto`, `cpu`, or `gpu`.
-    #[arg(long, value_enum, default_value_t = crate::splats::device::DeviceChoice::Auto)]
-    pub device: crate::splats::device::DeviceChoice,
-    /// Replace runs already in --out.
-    #[arg(long)]
-    pub overwrite: bool,
-    /// Continue the runs already in --out from their checkpoints.
-    #[arg(long, conflicts_with = "overwrite")]
-    pub resume: bool,
     /// Weight of L(render, I_ac) (default: as `train`).
     #[arg(long, value_parser = crate::settings::values::weight, allow_negative_numbers = true)]
     pub lambda: Option<f32>,
@@ -206,10 +182,6 @@ pub struct PsfMismatchArgs {
     /// What each error trains.
     #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Variant::Wrong, Variant::BlurOnly, Variant::IacOnly, Variant::Refined])]
     pub variants: Vec<Variant>,
-    /// Keep the photos as taken when the cameras have lens distortion (as `train
-    /// --keep-distortion`).
-    #[arg(long)]
-    pub keep_distortion: bool,
     /// What the refined runs learn (as `train --refine-psf`).
     #[arg(long, value_enum, default_value_t = crate::train::psf_refine::PsfModel::Warp)]
     pub refine_model: crate::train::psf_refine::PsfModel,
@@ -259,7 +231,7 @@ fn mean(v: &[f64]) -> f64 {
 pub fn run(a: &PsfMismatchArgs, say: &mut dyn FnMut(String)) -> Result<PsfMismatchReport> {
     super::runs::refuse_repeats("--errors", &a.errors)?;
     super::runs::refuse_repeats("--variants", &a.variants)?;
-    if a.psf.is_some()
+    if a.place.psf.is_some()
         && let Some(e) = a
             .errors
             .iter()
@@ -270,29 +242,25 @@ pub fn run(a: &PsfMismatchArgs, say: &mut dyn FnMut(String)) -> Result<PsfMismat
         )));
     }
     let runs = ExperimentRuns {
-        scene: a.scene.clone(),
-        out: a.out.clone(),
-        psf: a.psf.clone(),
+        place: a.place.clone(),
         iters: a.iters,
-        downsample: a.downsample,
-        seed: a.seed,
-        device: a.device,
-        overwrite: a.overwrite,
         strategy: crate::settings::StrategyChoice::Auto,
         mask_mode: crate::settings::MaskChoice::Auto,
         coarse_to_fine: crate::settings::CoarseToFine::Auto,
         ceiling: false,
-        resume: a.resume,
-        keep_distortion: a.keep_distortion,
     };
     let (aberrated, _lock) = runs.aberrated(say)?;
-    let true_path = a.psf.clone().unwrap_or_else(|| a.out.join("psf.npy"));
+    let true_path = a
+        .place
+        .psf
+        .clone()
+        .unwrap_or_else(|| a.place.out.join("psf.npy"));
     let truth = PsfGrid::load_npy(&true_path)?;
     let record = scenes::aberrated::AberrationRecord::read(&aberrated)?
         .ok_or_else(|| TrainError::file(&aberrated, "the aberrated copy has no aberration.json"))?;
     let (w, h) = (record.width as usize, record.height as usize);
     let truth_here = truth.for_image(w, h, record.sensor_px)?;
-    let grids = a.out.join("psf");
+    let grids = a.place.out.join("psf");
     std::fs::create_dir_all(&grids).map_err(|e| TrainError::io(&grids, e))?;
     let cfg = SimConfig::default();
     let mut wrong_error = Vec::new();
@@ -300,7 +268,7 @@ pub fn run(a: &PsfMismatchArgs, say: &mut dyn FnMut(String)) -> Result<PsfMismat
         let path = grids.join(format!("{}.npy", e.slug()));
         if !path.exists() {
             say(format!("simulating the grid with {}", e.describe()));
-            e.grid(&cfg, &truth, a.seed)?.save_npy(&path)?;
+            e.grid(&cfg, &truth, a.place.seed)?.save_npy(&path)?;
         }
         let here = PsfGrid::load_npy(&path)?.for_image(w, h, record.sensor_px)?;
         wrong_error.push(mean(&aberration::refine::cell_errors(&here, &truth_here)?));
@@ -340,7 +308,7 @@ pub fn run(a: &PsfMismatchArgs, say: &mut dyn FnMut(String)) -> Result<PsfMismat
         )?)))
     };
     say("training aware with the true grid (matched)".into());
-    let matched_dir = a.out.join("run_matched");
+    let matched_dir = a.place.out.join("run_matched");
     let matched = Figures::of(
         &train(matched_dir.clone(), Mode::Aware, None, None, false)?,
         None,
@@ -348,7 +316,7 @@ pub fn run(a: &PsfMismatchArgs, say: &mut dyn FnMut(String)) -> Result<PsfMismat
     say("training restored with the true grid".into());
     let restored = Figures::of(
         &train(
-            a.out.join("run_restored"),
+            a.place.out.join("run_restored"),
             Mode::Restored,
             None,
             None,
@@ -359,6 +327,7 @@ pub fn run(a: &PsfMismatchArgs, say: &mut dyn FnMut(String)) -> Result<PsfMismat
     let matched_refined = if a.variants.contains(&Variant::Refined) {
         say("training aware with the true grid, refined".into());
         let dir = a
+            .place
             .out
             .join(format!("run_matched_refined-{}", a.refine_model));
         let s = train(dir.clone(), Mode::Aware, None, None, true)?;
@@ -374,10 +343,11 @@ pub fn run(a: &PsfMismatchArgs, say: &mut dyn FnMut(String)) -> Result<PsfMismat
             say(format!("training {e} ({}), {v}", e.describe()));
             let dir = match v {
                 Variant::Refined => {
-                    a.out
+                    a.place
+                        .out
                         .join(format!("run_{}_refined-{}", e.slug(), a.refine_model))
                 }
-                _ => a.out.join(format!("run_{}_{v}", e.slug())),
+                _ => a.place.out.join(format!("run_{}_{v}", e.slug())),
             };
             let (assumed, iac) = match v {
                 Variant::Wrong | Variant::Refined => (Some(wrong.as_path()), None),
@@ -514,7 +484,7 @@ pub fn run(a: &PsfMismatchArgs, say: &mut dyn FnMut(String)) -> Result<PsfMismat
         }
         let _ = writeln!(table);
     }
-    let table_path = a.out.join("psf_mismatch.md");
+    let table_path = a.place.out.join("psf_mismatch.md");
     base::write_bytes_atomically(&table_path, table.as_bytes())
         .map_err(|e| TrainError::io(&table_path, e))?;
     let mut families: Vec<(&str, &str)> = Vec::new();
@@ -561,7 +531,7 @@ pub fn run(a: &PsfMismatchArgs, say: &mut dyn FnMut(String)) -> Result<PsfMismat
             }))
             .collect();
         line_plot(
-            &a.out.join(format!("psf_mismatch_{family}.png")),
+            &a.place.out.join(format!("psf_mismatch_{family}.png")),
             &format!("aware training with a wrong PSF grid: {family}"),
             axis,
             "held-out PSNR vs clean (dB)",

@@ -9,25 +9,22 @@ use crate::settings::RunRequest;
 use crate::train::config::Mode;
 use aberration::optics::SimConfig;
 
-/// What every experiment's runs share: the capture, where they go, and how they train.
-#[derive(Args)]
-pub struct ExperimentRuns {
-    /// The clean capture.
+/// Where an experiment reads and writes, flags every experiment has with the same defaults.
+#[derive(Args, Clone, Debug)]
+pub struct ExperimentPlace {
+    /// The clean capture (e.g. the procedural scene, or ../shared/data/llff/fern).
     #[arg(long)]
     pub scene: PathBuf,
-    /// The experiment folder: the aberrated copy, every run, the table and the plot.
+    /// The experiment folder: the aberrated copy, every run, the table and the plots.
     #[arg(long)]
     pub out: PathBuf,
-    /// PSF grid; default: simulate the paper's 9x9 grid.
+    /// The true PSF grid; default: simulate the paper's 9x9 grid.
     #[arg(long)]
     pub psf: Option<PathBuf>,
-    /// Training steps of every run.
-    #[arg(long, default_value_t = 3000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
-    pub iters: u64,
     /// Use the capture's images_N/ (1: images/), else its images/ shrunk N times at load.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub downsample: u32,
-    /// Seed of the aberration noise and of every run.
+    /// Seed of the aberration noise (and any PSF noise an experiment makes) and of every run.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Where to render: `auto` (a hardware GPU when there is one), `cpu`, or `gpu`.
@@ -36,6 +33,25 @@ pub struct ExperimentRuns {
     /// Replace runs already in --out (otherwise a folder holding a run is refused).
     #[arg(long)]
     pub overwrite: bool,
+    /// Continue the runs already in --out from their checkpoints (a finished one is only
+    /// evaluated again): an interrupted experiment goes on where it stopped, and a run trained
+    /// on its own into its folder (with this experiment's settings) joins the table.
+    #[arg(long, conflicts_with = "overwrite")]
+    pub resume: bool,
+    /// Keep the photos as taken when the cameras have lens distortion (as `train
+    /// --keep-distortion`; by default they are undistorted at load).
+    #[arg(long)]
+    pub keep_distortion: bool,
+}
+
+/// What the paper's comparisons (`llff`, `budget`) share: the place, and how every run trains.
+#[derive(Args, Clone, Debug)]
+pub struct ExperimentRuns {
+    #[command(flatten)]
+    pub place: ExperimentPlace,
+    /// Training steps of every run.
+    #[arg(long, default_value_t = 3000, value_parser = clap::value_parser!(u64).range(1..=100_000_000))]
+    pub iters: u64,
     /// Densification strategy of every run (as `train --strategy`).
     #[arg(long, value_enum, default_value_t = crate::settings::StrategyChoice::Auto)]
     pub strategy: crate::settings::StrategyChoice,
@@ -49,15 +65,6 @@ pub struct ExperimentRuns {
     /// mode is measured against (`--ceiling false` leaves it out).
     #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
     pub ceiling: bool,
-    /// Continue the runs already in --out from their checkpoints (a finished one is only
-    /// evaluated again): an interrupted experiment goes on where it stopped, and a run trained
-    /// on its own into its folder (with this experiment's settings) joins the table.
-    #[arg(long, conflicts_with = "overwrite")]
-    pub resume: bool,
-    /// Keep the photos as taken when the cameras have lens distortion (as `train
-    /// --keep-distortion`; by default they are undistorted at load).
-    #[arg(long)]
-    pub keep_distortion: bool,
 }
 
 /// Makes (once) the aberrated copy of `scene` under `out`, simulating the PSF grid when none
@@ -225,12 +232,12 @@ impl ExperimentRuns {
     /// hears what was made.
     pub fn aberrated(&self, say: &mut dyn FnMut(String)) -> Result<(PathBuf, base::FolderLock)> {
         aberrated_capture(
-            &self.scene,
-            &self.out,
-            self.psf.as_deref(),
-            self.downsample,
-            self.seed,
-            self.keep_distortion,
+            &self.place.scene,
+            &self.place.out,
+            self.place.psf.as_deref(),
+            self.place.downsample,
+            self.place.seed,
+            self.place.keep_distortion,
             say,
         )
     }
@@ -241,7 +248,7 @@ impl ExperimentRuns {
         crate::run::check(request).map_err(|e| {
             e.context(format!(
                 "the ceiling run (plain 3DGS on the clean photos of {}) would be refused",
-                self.scene.display()
+                self.place.scene.display()
             ))
         })
     }
@@ -249,7 +256,7 @@ impl ExperimentRuns {
     /// Plain 3DGS on the clean capture (`--scene` itself) into `run_dir`, with the settings
     /// every other run has.
     pub fn ceiling_run(&self, run_dir: PathBuf) -> RunRequest {
-        let mut args = self.run(&self.scene, run_dir, Mode::Plain);
+        let mut args = self.run(&self.place.scene, run_dir, Mode::Plain);
         args.data.iac_cache = None;
         args
     }
@@ -257,22 +264,22 @@ impl ExperimentRuns {
     /// A run of `mode` on the aberrated capture into `run_dir`.
     pub fn run(&self, aberrated: &std::path::Path, run_dir: PathBuf, mode: Mode) -> RunRequest {
         let (resume, overwrite) = match (
-            self.resume,
+            self.place.resume,
             run_dir.join(crate::output::CHECKPOINT_FILE).exists(),
         ) {
             (true, true) => (true, false),
             // A run stopped before its first checkpoint left nothing to continue: it starts
             // again.
             (true, false) => (false, run_dir.exists()),
-            (false, _) => (false, self.overwrite),
+            (false, _) => (false, self.place.overwrite),
         };
         let mut args = RunRequest::new(aberrated, run_dir);
-        args.data.downsample = self.downsample;
-        args.data.seed = self.seed;
-        args.data.keep_distortion = self.keep_distortion;
+        args.data.downsample = self.place.downsample;
+        args.data.seed = self.place.seed;
+        args.data.keep_distortion = self.place.keep_distortion;
         // The runs restore the same views: one I_ac cache serves them all.
-        args.data.iac_cache = Some(self.out.join(crate::train::iac_cache::CACHE_DIR));
-        args.device = self.device;
+        args.data.iac_cache = Some(self.place.out.join(crate::train::iac_cache::CACHE_DIR));
+        args.device = self.place.device;
         args.overwrite = overwrite;
         args.resume = resume;
         args.training.mode = mode;
