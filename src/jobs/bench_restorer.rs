@@ -8,7 +8,7 @@ use restore::net::kernels::Kernels;
 use restore::speed::{Sample, Workload, time_workload};
 use restore::{Preset, RestorerConfig};
 
-use super::refused;
+use super::{median, refused};
 use crate::error::{Result, TrainError};
 
 /// What `bench restorer` is asked to time (its flags).
@@ -126,16 +126,6 @@ pub fn prepare(a: &RestorerBenchRequest) -> Result<PreparedRestorerBench> {
         cases,
         device,
     })
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
 }
 
 impl PreparedRestorerBench {

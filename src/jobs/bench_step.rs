@@ -7,7 +7,7 @@
 use clap::Args;
 use std::path::PathBuf;
 
-use super::refused;
+use super::{median, refused};
 use crate::error::{Result, TrainError};
 use crate::settings::{CoarseToFine, DataOptions, Iters, TrainSettings};
 use crate::splats::device::{Device, DeviceChoice};
@@ -131,16 +131,6 @@ pub fn prepare(a: &StepBenchRequest) -> Result<PreparedStepBench> {
         device,
         note,
     })
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
 }
 
 impl PreparedStepBench {

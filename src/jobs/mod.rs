@@ -22,3 +22,17 @@ use crate::error::{Result, TrainError};
 pub(crate) fn refused<T>(why: String) -> Result<T> {
     Err(TrainError::Invalid(why))
 }
+
+/// Median of the timings of alternated rounds (the benchmarks' figure: the machine is shared).
+pub(crate) fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
