@@ -227,7 +227,11 @@ fn restore_folder(
     let size = (size.0 as usize, size.1 as usize);
     let (restorer, psf) = network_for(a, size, on_event)?;
     io.make_out()?;
-    let todo: Vec<&PathBuf> = frames.iter().filter(|f| !io.target(f).exists()).collect();
+    let todo: Vec<(usize, &PathBuf)> = frames
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| !io.target(f).exists())
+        .collect();
     let kept = frames.len() - todo.len();
     if kept > 0 {
         on_event(RestoreEvent::Said(format!(
@@ -240,7 +244,7 @@ fn restore_folder(
     // The previous frame as written (8-bit), so a resumed clip steadies as an unbroken one.
     let mut previous: Option<(usize, Image)> = None;
     let start = Instant::now();
-    for (done, f) in todo.iter().enumerate() {
+    for (done, &(index, f)) in todo.iter().enumerate() {
         if base::interrupt::requested() {
             return Err(TrainError::Interrupted(format!(
                 "restoring stopped after {} of {} frames; they are kept in {}: the same command with --resume restores the others",
@@ -256,7 +260,6 @@ fn restore_folder(
         match &steady {
             None => restored.save_png(&target)?,
             Some(s) => {
-                let index = frames.iter().position(|g| g == *f).unwrap_or(0);
                 let before = match previous.take() {
                     Some((i, img)) if i + 1 == index => Some(img),
                     _ if index > 0 && io.target(&frames[index - 1]).exists() => {
