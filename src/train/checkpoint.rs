@@ -217,36 +217,40 @@ pub fn save(
     tensors.extend(gaussian_tensors("adam_m", m));
     tensors.extend(gaussian_tensors("adam_v", v));
     let st = &p.densify.stats;
-    let psf = p.psf.as_ref().map(|r| r.state());
-    tensors.extend(
-        [
-            (
-                "densify.grad_norm_sum",
-                F32,
-                vec![n],
-                le_f32s(&st.grad_norm_sum),
-            ),
-            (
-                "densify.count",
-                U32,
-                vec![n],
-                st.count.iter().flat_map(|c| c.to_le_bytes()).collect(),
-            ),
-            ("densify.max_radius", F32, vec![n], le_f32s(&st.max_radius)),
-            (
-                "densify.seen",
-                U8,
-                vec![n],
-                p.densify.seen.iter().map(|&b| b as u8).collect(),
-            ),
-        ]
-        .map(|(name, dtype, shape, bytes)| (name.to_string(), dtype, shape, bytes)),
-    );
-    if let Some(st) = &psf {
+    tensors.push((
+        "densify.grad_norm_sum".into(),
+        F32,
+        vec![n],
+        le_f32s(&st.grad_norm_sum),
+    ));
+    tensors.push((
+        "densify.count".into(),
+        U32,
+        vec![n],
+        st.count.iter().flat_map(|c| c.to_le_bytes()).collect(),
+    ));
+    tensors.push((
+        "densify.max_radius".into(),
+        F32,
+        vec![n],
+        le_f32s(&st.max_radius),
+    ));
+    tensors.push((
+        "densify.seen".into(),
+        U8,
+        vec![n],
+        p.densify.seen.iter().map(|&b| b as u8).collect(),
+    ));
+    if let Some(r) = &p.psf {
+        let st = r.state();
         let k = st.logits.len();
         tensors.push(("psf.logits".into(), F32, vec![k], le_f32s(&st.logits)));
-        let moments = le_f32s(st.m.iter().chain(&st.v));
-        tensors.push(("psf.moments".into(), F32, vec![2, k], moments));
+        tensors.push((
+            "psf.moments".into(),
+            F32,
+            vec![2, k],
+            le_f32s(st.m.iter().chain(&st.v)),
+        ));
     }
     let crc = checksum(json.as_bytes(), |name| {
         tensors.iter().find(|t| t.0 == name).map(|t| t.3.as_slice())
