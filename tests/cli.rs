@@ -568,6 +568,19 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
     other.push("--resume");
     let err = fails(&other);
     assert!(err.contains("--batch 2 (the run has 1)"), "{err}");
+    // So is another training crop (the config's field, not the schedule's).
+    let mut other = train_args.to_vec();
+    other.extend(["--crop", "32", "--resume"]);
+    let err = fails(&other);
+    assert!(err.contains("--crop 32 (the run has 64)"), "{err}");
+    // A crop the config's levels cannot divide is refused before any photo is read.
+    let mut other = train_args.to_vec();
+    other.extend(["--crop", "40"]);
+    let err = fails(&other);
+    assert!(
+        err.contains("--crop 40") && err.contains("multiple of"),
+        "{err}"
+    );
     let mut args = train_args.to_vec();
     args.push("--resume");
     let text = ok(&args);

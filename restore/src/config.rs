@@ -184,10 +184,12 @@ impl RestorerConfig {
         Ok(self)
     }
 
-    /// The same network, whatever its name: weights of one load into the other.
+    /// The same network, whatever its name and training crop: weights of one load into the
+    /// other.
     pub fn same_network(&self, other: &Self) -> bool {
         let unnamed = |c: &Self| Self {
             name: String::new(),
+            crop: 0,
             ..c.clone()
         };
         unnamed(self) == unnamed(other)
@@ -427,6 +429,13 @@ mod tests {
             ..a.clone()
         };
         assert!(a.same_network(&renamed));
+        // The training crop is not part of the network: weights trained on 64² crops
+        // fine-tune on 128² ones.
+        let larger_crops = RestorerConfig {
+            crop: 128,
+            ..a.clone()
+        };
+        assert!(a.same_network(&larger_crops));
         let median = RestorerConfig {
             residual_base: BANK_MEDIAN,
             ..a.clone()

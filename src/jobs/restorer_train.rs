@@ -46,6 +46,11 @@ pub struct RestorerTrainRequest {
     /// Crops per step.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..=1024))]
     pub batch: u64,
+    /// Side of the square training crops; default: the config's (tiny 64, small 128, paper
+    /// 256). A crop's Wiener bank comes from the whole photo whatever its side; a larger crop
+    /// lets the network see more of a large PSF's ringing at about the same cost per pixel.
+    #[arg(long, value_parser = crate::settings::values::train_crop)]
+    pub crop: Option<usize>,
     /// Peak AdamW learning rate, in (0, 1].
     #[arg(long, default_value_t = 3e-4, value_parser = crate::settings::values::learning_rate, allow_negative_numbers = true)]
     pub lr: f64,
@@ -245,8 +250,17 @@ fn gb(bytes: u64) -> String {
 }
 
 fn config_from(a: &RestorerTrainRequest) -> Result<RestorerConfig> {
-    let preset = RestorerConfig::preset(a.config);
+    let mut preset = RestorerConfig::preset(a.config);
     let name = preset.name.clone();
+    if let Some(side) = a.crop {
+        let multiple = preset.multiple();
+        if !side.is_multiple_of(multiple) {
+            return Err(TrainError::Invalid(format!(
+                "--crop {side}: config '{name}' needs a multiple of {multiple} px (its downsampling levels and attention windows)"
+            )));
+        }
+        preset.crop = side;
+    }
     preset
         .with_ablations(a.guidance, a.fixed_k, a.residual_base)
         .map_err(|e| {
@@ -384,7 +398,14 @@ fn starting_point(
     let (state, record) = restore::train_state::load(&a.out).map_err(cannot)?;
     // A flag that says otherwise than the saved run would be ignored: refuse it, naming
     // each, as `train --resume` does.
-    let changed = changed_settings(schedule, &state.schedule);
+    let mut changed = changed_settings(schedule, &state.schedule);
+    // The crop side is the network config's field, recorded in the weights' header.
+    if header.config.crop != cfg.crop {
+        changed.push(format!(
+            "--crop {} (the run has {})",
+            cfg.crop, header.config.crop
+        ));
+    }
     let out = a.out.display();
     if !changed.is_empty() {
         return refused(format!(
@@ -580,7 +601,7 @@ impl PreparedRestorerRun {
             (None, None) => ValSet::build(&val_photos, native, cfg, noise, crop),
         }?;
         on_event(RestorerEvent::Said(format!(
-            "{}; {} validation {} ({:.1} s); config '{}', {} parameters",
+            "{}; {} validation {} ({:.1} s); config '{}', {} parameters, training crops of {} px",
             if a.pairs.is_some() {
                 format!("{} captured pairs", pairs.len())
             } else {
@@ -602,7 +623,8 @@ impl PreparedRestorerRun {
             },
             built.elapsed().as_secs_f64(),
             cfg.name,
-            cfg.analytic_params()
+            cfg.analytic_params(),
+            cfg.crop
         )));
         let command = &self.command;
         let provenance = |step: usize, seconds: f64, m: (f64, f64)| {

@@ -116,6 +116,24 @@ pub fn val_crop(s: &str) -> Result<usize, String> {
     }
 }
 
+/// `restorer train --crop`: a training crop side from [`MIN_CROP`] to 1024 px (whether the
+/// config's levels divide it is checked with the config).
+pub fn train_crop(s: &str) -> Result<usize, String> {
+    let v: usize = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}' is not a pixel count"))?;
+    if (MIN_CROP..=MAX_TRAIN_CROP).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{v} px: use {MIN_CROP} to {MAX_TRAIN_CROP} px"))
+    }
+}
+
+/// The largest training crop: a training photo must hold it, and a step's memory grows with
+/// its square.
+pub const MAX_TRAIN_CROP: usize = 1024;
+
 /// The smallest validation crop: a few of the network's attention windows.
 pub const MIN_CROP: usize = 16;
 
