@@ -122,6 +122,9 @@ pub struct ValSet {
     pub names: Vec<String>,
     pub banks: Vec<Vec<Image>>,
     pub clean: Vec<Image>,
+    /// Per photo, the group its figure is also reported in (a family run's PSF scale, e.g.
+    /// "19 px"); empty where the set has one group.
+    pub groups: Vec<String>,
 }
 
 impl ValSet {
@@ -161,7 +164,11 @@ impl ValSet {
                 Some(lens.sensor_for_psf_px(img.width, img.height, px)),
             ))
         };
-        Self::build_through(photos, &through, cfg, noise, crop)
+        let mut v = Self::build_through(photos, &through, cfg, noise, crop)?;
+        v.groups = (0..v.names.len())
+            .map(|i| format!("{} px", FAMILY_VAL_PSF_PX[i % FAMILY_VAL_PSF_PX.len()]))
+            .collect();
+        Ok(v)
     }
 
     /// Validation on captured pairs (`(name, captured, clean)`): each captured photo's bank
@@ -233,14 +240,37 @@ pub fn crop_image(img: &Image, x0: usize, y0: usize, s: usize) -> Image {
 
 /// Mean PSNR and SSIM ([`aberration::compare`]) of a restorer on a validation set.
 pub fn validate(restorer: &Restorer, val: &ValSet) -> Result<(f64, f64)> {
+    Ok(validate_groups(restorer, val)?.0)
+}
+
+/// Mean PSNR (dB) of each validation group, by name, in the order they first appear.
+pub type GroupPsnr = Vec<(String, f64)>;
+
+/// [`validate`], and the mean PSNR of each of the set's groups ([`ValSet::groups`]) in the
+/// order they first appear (none for a set of one group).
+pub fn validate_groups(restorer: &Restorer, val: &ValSet) -> Result<((f64, f64), GroupPsnr)> {
     let mut acc = (0.0, 0.0);
-    for (bank, clean) in val.banks.iter().zip(&val.clean) {
+    let mut groups: Vec<(String, f64, usize)> = Vec::new();
+    for (i, (bank, clean)) in val.banks.iter().zip(&val.clean).enumerate() {
         let (p, s) = aberration::compare(&restorer.restore_bank(bank), clean)?;
         acc.0 += p;
         acc.1 += s;
+        if let Some(name) = val.groups.get(i) {
+            match groups.iter_mut().find(|g| g.0 == *name) {
+                Some(g) => {
+                    g.1 += p;
+                    g.2 += 1;
+                }
+                None => groups.push((name.clone(), p, 1)),
+            }
+        }
     }
     let n = val.banks.len().max(1) as f64;
-    Ok((acc.0 / n, acc.1 / n))
+    let groups = groups
+        .into_iter()
+        .map(|(name, sum, count)| (name, sum / count as f64))
+        .collect();
+    Ok(((acc.0 / n, acc.1 / n), groups))
 }
 
 /// What training reports as it goes.
@@ -261,6 +291,8 @@ pub enum Event {
         psnr: f64,
         ssim: f64,
         seconds: f64,
+        /// Mean PSNR of each validation group (a family run's PSF scales); empty for one.
+        groups: GroupPsnr,
     },
 }
 
@@ -393,13 +425,15 @@ pub fn train(
                 provenance: serde_json::Value::Null,
             };
             let r = Restorer::new(net.valid(), header.clone(), inner.clone());
-            last = validate(&r, val)?;
+            let groups;
+            (last, groups) = validate_groups(&r, val)?;
             let seconds = seconds_before + invocation.elapsed().as_secs_f64();
             on_event(Event::Val {
                 step: step + 1,
                 psnr: last.0,
                 ssim: last.1,
                 seconds,
+                groups,
             });
             val_log.push((step + 1, seconds, last.0, last.1));
             header.provenance = provenance(step + 1, seconds, last);

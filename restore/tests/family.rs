@@ -6,7 +6,9 @@ use aberration::optics::SimConfig;
 use aberration::{Image, NoiseModel, PsfGrid};
 use restore::data::TrainSet;
 use restore::family::LensFamily;
-use restore::train::{Schedule, Start, TrainOptions, TrainRun, ValSet, round_seed, train};
+use restore::train::{
+    Schedule, Start, TrainOptions, TrainRun, ValSet, round_seed, train, validate, validate_groups,
+};
 use restore::{RestorerConfig, weights};
 
 fn photo(seed: f32) -> Image {
@@ -128,4 +130,45 @@ fn a_family_run_serves_lenses_of_the_family_it_never_simulated_and_no_others() {
         .unwrap()
         .to_string();
     assert!(e.contains("family.bin") && e.contains("outside it"), "{e}");
+
+    // Validation reports each group's mean (a family run's PSF scales) beside the whole
+    // set's, each equal to the mean over its photos scored alone.
+    let restorer = restore::Restorer::from_bytes_any_grid_on(
+        &std::fs::read(&out).unwrap(),
+        &out,
+        device.clone(),
+    )
+    .unwrap();
+    let photos3 = [
+        ("p0".to_string(), photo(0.4)),
+        ("p1".to_string(), photo(2.7)),
+        ("p2".to_string(), photo(5.0)),
+    ];
+    let mut val3 = ValSet::build(&photos3, &bank[0], &cfg, noise, Some(32)).unwrap();
+    val3.groups = ["9 px", "31 px", "9 px"].map(String::from).to_vec();
+    let alone = |i: usize| {
+        let one = ValSet {
+            names: vec![val3.names[i].clone()],
+            banks: vec![val3.banks[i].clone()],
+            clean: vec![val3.clean[i].clone()],
+            groups: Vec::new(),
+        };
+        validate(&restorer, &one).unwrap().0
+    };
+    let (p0, p1, p2) = (alone(0), alone(1), alone(2));
+    let ((mean, _), groups) = validate_groups(&restorer, &val3).unwrap();
+    assert!(
+        (mean - (p0 + p1 + p2) / 3.0).abs() < 1e-9,
+        "{mean} against {p0} {p1} {p2}"
+    );
+    assert_eq!(groups.len(), 2, "{groups:?}");
+    assert_eq!(
+        (groups[0].0.as_str(), groups[1].0.as_str()),
+        ("9 px", "31 px")
+    );
+    assert!((groups[0].1 - (p0 + p2) / 2.0).abs() < 1e-9, "{groups:?}");
+    assert!((groups[1].1 - p1).abs() < 1e-9, "{groups:?}");
+    // A set of one group reports none.
+    val3.groups.clear();
+    assert!(validate_groups(&restorer, &val3).unwrap().1.is_empty());
 }

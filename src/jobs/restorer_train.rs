@@ -665,6 +665,7 @@ impl PreparedRestorerRun {
                     psnr,
                     ssim,
                     seconds,
+                    ..
                 } = e
                 {
                     log.push((step, seconds, psnr, ssim));

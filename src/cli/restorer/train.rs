@@ -88,9 +88,22 @@ impl Shown {
                 psnr,
                 ssim,
                 seconds,
-            } => self.say(format!(
-                "step {step:>6}  {seconds:>7.0} s  val PSNR {psnr:.2} dB  SSIM {ssim:.4}"
-            )),
+                ref groups,
+            } => {
+                let by_group = groups
+                    .iter()
+                    .map(|(name, p)| format!("{name} {p:.2}"))
+                    .collect::<Vec<_>>()
+                    .join(", ");
+                self.say(format!(
+                    "step {step:>6}  {seconds:>7.0} s  val PSNR {psnr:.2} dB  SSIM {ssim:.4}{}",
+                    if by_group.is_empty() {
+                        String::new()
+                    } else {
+                        format!("  ({by_group})")
+                    }
+                ))
+            }
         }
     }
 }
