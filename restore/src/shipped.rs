@@ -20,7 +20,7 @@ pub const TINY_NAME: &str = "restore/weights/tiny.bin (shipped)";
 pub const FAMILY: &[u8] = include_bytes!("../weights/family_tiny_3.bin");
 
 /// The name the general weights go by in messages.
-pub const FAMILY_NAME: &str = "resto../weights/family_tiny_3.bin (shipped)";
+pub const FAMILY_NAME: &str = "restore/weights/family_tiny_3.bin (shipped)";
 
 /// Weights shipped inside the binary.
 #[derive(Clone, Copy, Debug)]

@@ -282,3 +282,18 @@ fn the_family_increment_serves_the_default_lens_and_a_perturbed_one_at_every_sca
     let other = simulate_grid(&ideal, &|_, _| {}).unwrap().0;
     assert!(header.serves(&other).is_err());
 }
+
+/// Each shipped network's name is the repository path of the very file embedded, so messages
+/// and run records point at it.
+#[test]
+fn shipped_names_are_the_paths_of_the_embedded_files() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    for s in shipped::SHIPPED {
+        let path = s
+            .name
+            .strip_suffix(" (shipped)")
+            .unwrap_or_else(|| panic!("{}: no ' (shipped)' suffix", s.name));
+        let bytes = std::fs::read(root.join(path)).unwrap_or_else(|e| panic!("{path}: {e}"));
+        assert!(bytes == s.bytes, "{path} is not the file embedded");
+    }
+}
