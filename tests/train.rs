@@ -385,6 +385,23 @@ fn l_abr_gradient_through_the_blur_adjoint_matches_finite_differences() {
             objective.value(&out.color, view).unwrap().to_bits(),
             parts.total.to_bits()
         );
+        // The sum of the paper's two terms over its total weight 1 + λ (so the splats' own
+        // penalties weigh as in the other modes), each term as the one-term modes score it.
+        let one_term = |mode| Objective {
+            mode,
+            lambda: 0.0,
+            ..objective
+        };
+        let l_abr = one_term(Mode::Plain)
+            .value(&objective.as_observed(&out.color).unwrap(), view)
+            .unwrap() as f64;
+        let l_ac = one_term(Mode::Restored).value(&out.color, view).unwrap() as f64;
+        let want = (l_abr + lambda as f64 * l_ac) / (1.0 + lambda as f64);
+        assert!(
+            (parts.total as f64 - want).abs() <= 1e-6 * want,
+            "λ {lambda}: total {} against ({l_abr} + λ·{l_ac}) / (1 + λ) = {want}",
+            parts.total
+        );
         let g = render_backward(&model, &saved, &v, None, None).unwrap();
         // The Gaussians with the largest mean gradients: well above f32 noise.
         let mut order: Vec<usize> = (0..model.len()).collect();
