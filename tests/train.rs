@@ -385,8 +385,7 @@ fn l_abr_gradient_through_the_blur_adjoint_matches_finite_differences() {
             objective.value(&out.color, view).unwrap().to_bits(),
             parts.total.to_bits()
         );
-        // The sum of the paper's two terms over its total weight 1 + λ (so the splats' own
-        // penalties weigh as in the other modes), each term as the one-term modes score it.
+        // The paper's sum of the two terms, each as the one-term modes score it.
         let one_term = |mode| Objective {
             mode,
             lambda: 0.0,
@@ -396,10 +395,10 @@ fn l_abr_gradient_through_the_blur_adjoint_matches_finite_differences() {
             .value(&objective.as_observed(&out.color).unwrap(), view)
             .unwrap() as f64;
         let l_ac = one_term(Mode::Restored).value(&out.color, view).unwrap() as f64;
-        let want = (l_abr + lambda as f64 * l_ac) / (1.0 + lambda as f64);
+        let want = l_abr + lambda as f64 * l_ac;
         assert!(
             (parts.total as f64 - want).abs() <= 1e-6 * want,
-            "λ {lambda}: total {} against ({l_abr} + λ·{l_ac}) / (1 + λ) = {want}",
+            "λ {lambda}: total {} against {l_abr} + λ·{l_ac} = {want}",
             parts.total
         );
         let g = render_backward(&model, &saved, &v, None, None).unwrap();
@@ -1115,4 +1114,27 @@ fn a_distorted_capture_trains_better_undistorted_at_load() {
         "held-out PSNR against the pinhole truth: undistorted {undistorted:.2} dB, as taken {kept:.2} dB"
     );
     assert!(undistorted > kept + 0.5, "{undistorted} vs {kept}");
+}
+
+/// Aware mode's penalties weigh against the loss's total weight `1 + λ` (the step's λ, as it
+/// fades), the other modes' against their one term.
+#[test]
+fn aware_weighs_the_splat_penalties_by_the_loss_total_weight() {
+    let data = data::load(&fixture().aberrated, Mode::Aware, &options()).unwrap();
+    let mut aware = config(Mode::Aware, 100, &data);
+    aware.lambda = 0.75;
+    aware.lambda_hold_until = 20;
+    aware.lambda_fade_until = Some(60);
+    for (step, want) in [(0, 1.75), (20, 1.75), (40, 1.375), (60, 1.0), (99, 1.0)] {
+        let got = aware.penalty_weight_at(step);
+        assert!(
+            (got - want).abs() < 1e-6,
+            "step {step}: {got} against {want}"
+        );
+    }
+    for mode in [Mode::Plain, Mode::Restored] {
+        let mut c = config(mode, 100, &data);
+        c.lambda = 0.75;
+        assert_eq!(c.penalty_weight_at(0), 1.0, "{mode:?}");
+    }
 }

@@ -21,7 +21,7 @@ use crate::splats::device::DeviceChoice;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Mode {
-    /// "3D-GS + Ours": `(L(PSF ⊛ render, I_abr) + λ·L(render, I_ac)) / (1 + λ)`.
+    /// "3D-GS + Ours": `L(PSF ⊛ render, I_abr) + λ·L(render, I_ac)`.
     Aware,
     /// "3D-GS w/ Ours": plain 3DGS on the restored images `I_ac`.
     Restored,

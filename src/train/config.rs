@@ -474,6 +474,21 @@ impl TrainConfig {
         }
     }
 
+    /// How much the splats' own penalties (opacity, scale) weigh at `step` against the
+    /// photometric loss, as multiples of their configured weights: `1 + λ` in aware mode,
+    /// whose loss sums a term of weight 1 and one of weight λ, else 1. Penalties weigh against
+    /// the loss's total weight as they do against the single term of the other modes; at a
+    /// weight of 1 MCMC's penalties were 1.75 times weaker in aware mode and it kept floaters
+    /// restored mode removed (RESULTS.md, issue 49). Scaling the penalties rather than
+    /// dividing the loss leaves the positional gradients adaptive densification thresholds
+    /// as they were (a divided loss densified half as much on fern `images_4`).
+    pub fn penalty_weight_at(&self, step: u64) -> f32 {
+        match self.mode {
+            Mode::Aware => 1.0 + self.lambda_at(step),
+            Mode::Plain | Mode::Restored => 1.0,
+        }
+    }
+
     /// The config of a run with `settings` on `data`: the one place where defaults that depend
     /// on the capture (budget, λ for the capture's `I_ac`, evaluation and checkpoint cadence)
     /// are decided.

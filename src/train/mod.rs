@@ -433,8 +433,8 @@ impl<'a> Run<'a> {
             PixelGradients::color(&v),
             &lr,
             Regularisers {
-                opacity: self.config.opacity_reg_at(p.step),
-                scale: self.config.scale_reg,
+                opacity: self.config.opacity_reg_at(p.step) * self.config.penalty_weight_at(p.step),
+                scale: self.config.scale_reg * self.config.penalty_weight_at(p.step),
             },
         )?;
         if report.nonfinite_gradient {

@@ -1,11 +1,7 @@
 //! The per-view loss of each mode and its gradient with respect to the rendered image.
 //!
-//! `aware`: `(L_GS(PSF ⊛ r, I_abr) + λ·L_GS(r, I_ac)) / (1 + λ)`; the first term's gradient
-//! reaches `r` through the blur's exact adjoint (`aberration::BlurPlan::adjoint`). The two
-//! terms are weighed as the paper's sum, and the sum is divided by its total weight so that
-//! the splats' own penalties (MCMC's opacity and scale terms) weigh against the photometric
-//! loss as they do in the other modes: against a total of 1.75 they were 1.75 times weaker,
-//! and aware kept floaters restored mode removes (RESULTS.md, issue 49).
+//! `aware`: `L_GS(PSF ⊛ r, I_abr) + λ·L_GS(r, I_ac)`; the first term's gradient reaches `r`
+//! through the blur's exact adjoint (`aberration::BlurPlan::adjoint`).
 
 use aberration::ImagingModel;
 use glam::Vec3;
@@ -133,14 +129,9 @@ impl Objective<'_> {
                 } else {
                     0.0
                 };
-                Ok((v_abr + self.lambda * v_ac) * self.aware_weight())
+                Ok(v_abr + self.lambda * v_ac)
             }
         }
-    }
-
-    /// What aware mode's sum is multiplied by: `1 / (1 + λ)`.
-    fn aware_weight(&self) -> f32 {
-        1.0 / (1.0 + self.lambda)
     }
 
     /// Loss and `∂loss/∂rendered`. Its stages are `tracing` spans ("PSF blur", "loss", "blur
@@ -211,16 +202,13 @@ impl Objective<'_> {
                     }
                 })?;
                 let mut grad = g_abr;
-                let weight = self.aware_weight();
                 tracing::info_span!("blur adjoint").in_scope(|| {
                     grad.par_iter_mut()
                         .zip(&g_ac)
-                        .for_each(|(a, b)| *a = (*a + *b * self.lambda) * weight)
+                        .for_each(|(a, b)| *a += *b * self.lambda)
                 });
-                // The PSF's gradient stays `L_abr`'s own: refinement weighs it against its pull
-                // towards the supplied grid, as measured (issue 34).
                 let parts = LossParts {
-                    total: (v_abr + self.lambda * v_ac) * weight,
+                    total: v_abr + self.lambda * v_ac,
                     main: v_abr,
                     restored: Some(v_ac),
                     psnr: p,
