@@ -354,11 +354,12 @@ pub struct TrainSettings {
     pub strategy: StrategyChoice,
     /// Weight of a mean-opacity penalty: splats that no training view needs (floaters seen
     /// only against a black background) fade and are pruned or moved; 0 turns it off
-    /// (default: 0.01 with mcmc, 0 with adaptive).
+    /// (default: 0.01 with mcmc, 0 with adaptive). Against one loss term: aware mode, whose
+    /// loss has two, weighs it by 1 + λ.
     #[arg(long, value_parser = crate::settings::values::weight, allow_negative_numbers = true)]
     pub opacity_reg: Option<f32>,
     /// Weight of a mean-scale penalty, which keeps splats small unless the images need them
-    /// large (default: 0.01 with mcmc, 0 with adaptive).
+    /// large (default: 0.01 with mcmc, 0 with adaptive; by 1 + λ in aware mode, as above).
     #[arg(long, value_parser = crate::settings::values::weight, allow_negative_numbers = true)]
     pub scale_reg: Option<f32>,
     /// Colour behind the splats, in training and in the run's renders: `auto` (for a capture
