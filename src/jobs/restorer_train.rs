@@ -253,13 +253,12 @@ fn config_from(a: &RestorerTrainRequest) -> Result<RestorerConfig> {
     let mut preset = RestorerConfig::preset(a.config);
     let name = preset.name.clone();
     if let Some(side) = a.crop {
-        let multiple = preset.multiple();
-        if !side.is_multiple_of(multiple) {
-            return Err(TrainError::Invalid(format!(
-                "--crop {side}: config '{name}' needs a multiple of {multiple} px (its downsampling levels and attention windows)"
-            )));
-        }
+        // The config's own check (its downsampling levels and attention windows divide the
+        // side), named by the flag that set it.
         preset.crop = side;
+        preset
+            .validate()
+            .map_err(|e| TrainError::Invalid(format!("--crop {side}: {e}")))?;
     }
     preset
         .with_ablations(a.guidance, a.fixed_k, a.residual_base)

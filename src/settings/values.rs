@@ -66,12 +66,16 @@ pub fn field_angle(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A whole number of pixels, before each flag's own range.
+fn pixel_count(s: &str) -> Result<usize, String> {
+    s.trim()
+        .parse()
+        .map_err(|_| format!("'{s}' is not a pixel count"))
+}
+
 /// A sensor size in pixels: 8..=65536 (smaller would map PSFs far beyond the image).
 pub fn sensor_px(s: &str) -> Result<usize, String> {
-    let v: usize = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("'{s}' is not a pixel count"))?;
+    let v = pixel_count(s)?;
     if (8..=65_536).contains(&v) {
         Ok(v)
     } else {
@@ -103,10 +107,7 @@ pub fn wiener_k(s: &str) -> Result<f32, String> {
 
 /// A validation crop side: 0 (whole images) or at least [`MIN_CROP`] pixels.
 pub fn val_crop(s: &str) -> Result<usize, String> {
-    let v: usize = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("'{s}' is not a pixel count"))?;
+    let v = pixel_count(s)?;
     if v == 0 || (MIN_CROP..=MAX_SIDE as usize).contains(&v) {
         Ok(v)
     } else {
@@ -119,10 +120,7 @@ pub fn val_crop(s: &str) -> Result<usize, String> {
 /// `restorer train --crop`: a training crop side from [`MIN_CROP`] to 1024 px (whether the
 /// config's levels divide it is checked with the config).
 pub fn train_crop(s: &str) -> Result<usize, String> {
-    let v: usize = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("'{s}' is not a pixel count"))?;
+    let v = pixel_count(s)?;
     if (MIN_CROP..=MAX_TRAIN_CROP).contains(&v) {
         Ok(v)
     } else {

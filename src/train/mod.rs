@@ -428,13 +428,14 @@ impl<'a> Run<'a> {
             self.position_lr.at(p.step)
         };
         let lr = self.config.recipe.lrs.with_means(means_lr);
+        let penalty = self.config.penalty_weight_at(p.step);
         let report = t.step(
             saved,
             PixelGradients::color(&v),
             &lr,
             Regularisers {
-                opacity: self.config.opacity_reg_at(p.step) * self.config.penalty_weight_at(p.step),
-                scale: self.config.scale_reg * self.config.penalty_weight_at(p.step),
+                opacity: self.config.opacity_reg_at(p.step) * penalty,
+                scale: self.config.scale_reg * penalty,
             },
         )?;
         if report.nonfinite_gradient {
