@@ -7,6 +7,7 @@ pub mod fuse_direct;
 pub mod gate_direct;
 pub mod gelu;
 pub mod kernels;
+pub mod lanes;
 pub mod layers;
 pub mod mafg;
 pub mod norm_direct;

@@ -7,6 +7,7 @@
 //! and writes its answer into the output map, so nothing the size of the map is made but
 //! the output. It has no gradient: training takes the tensor formulation.
 
+use super::lanes;
 use rayon::prelude::*;
 
 /// Sizes and extra terms of one windowed attention.
@@ -136,11 +137,13 @@ fn strip_body<const D: usize>(
     let vmap = &v[g * c * plane..][..c * plane];
     let mut strip = vec![0.0f32; c * s.win * w];
     let mut qb = vec![[0.0f32; D]; lq];
-    // Keys transposed, `[D, n]`, so the logits accumulate along contiguous keys.
-    let mut kt = vec![0.0f32; D * lk];
+    // Keys transposed, `[D, np]`, so the logits accumulate along contiguous keys, in chunks
+    // of 8 over rows padded with zeros ([`super::lanes`]).
+    let lkp = lanes::padded(lk);
+    let mut kt = vec![0.0f32; D * lkp];
     let mut vb = vec![[0.0f32; D]; lk];
     let mut inside: Vec<(usize, usize)> = Vec::with_capacity(lk);
-    let mut logits = vec![0.0f32; lq * lk];
+    let mut logits = vec![0.0f32; lq * lkp];
     for wx in 0..nw {
         let (y0, x0) = (wy * s.win, wx * s.win);
         inside.clear();
@@ -154,6 +157,7 @@ fn strip_body<const D: usize>(
             }
         }
         let n = inside.len();
+        let np = lanes::padded(n);
         for head in 0..s.heads {
             let ch0 = head * D;
             for i in 0..D {
@@ -168,47 +172,42 @@ fn strip_body<const D: usize>(
                 }
                 let kp = &kmap[ch * plane..][..plane];
                 let vp = &vmap[ch * plane..][..plane];
-                let krow = &mut kt[i * n..][..n];
+                let krow = &mut kt[i * np..][..np];
                 for (j, &(kj, px)) in inside.iter().enumerate() {
                     krow[j] = kp[px] + s.pos_k.map_or(0.0, |p| p[kj * c + ch]);
                     vb[j][i] = vp[px];
                 }
+                krow[n..].fill(0.0);
             }
-            let logits = &mut logits[..lq * n];
+            let logits = &mut logits[..lq * np];
             match s.bias {
                 Some(b) => {
                     let b = &b[head * lq * lk..][..lq * lk];
                     for qi in 0..lq {
-                        for (l, &(kj, _)) in logits[qi * n..][..n].iter_mut().zip(&inside) {
+                        let row = &mut logits[qi * np..][..np];
+                        for (l, &(kj, _)) in row.iter_mut().zip(&inside) {
                             *l = b[qi * lk + kj];
                         }
+                        row[n..].fill(0.0);
                     }
                 }
                 None => logits.fill(0.0),
             }
             for i in 0..D {
-                let krow = &kt[i * n..][..n];
+                let krow = &kt[i * np..][..np];
                 for qi in 0..lq {
-                    let a = qb[qi][i];
-                    for (l, k) in logits[qi * n..][..n].iter_mut().zip(krow) {
-                        *l += a * k;
-                    }
+                    lanes::axpy(&mut logits[qi * np..][..np], qb[qi][i], krow);
                 }
             }
             for qi in 0..lq {
-                let row = &mut logits[qi * n..][..n];
-                let max = row.iter().fold(f32::NEG_INFINITY, |m, &l| m.max(l));
-                for l in row.iter_mut() {
-                    *l = exp_nonpositive(*l - max);
-                }
-                let total: f32 = row.iter().sum();
+                let row = &mut logits[qi * np..][..np];
+                let inv = lanes::exp_row(row, n, exp_nonpositive);
                 let mut acc = [0.0f32; D];
-                for (p, vrow) in row.iter().zip(&vb[..n]) {
+                for (p, vrow) in row[..n].iter().zip(&vb[..n]) {
                     for (a, v) in acc.iter_mut().zip(vrow) {
                         *a += p * v;
                     }
                 }
-                let inv = 1.0 / total;
                 let (qy, qx) = (qi / s.win, qi % s.win);
                 for (i, a) in acc.iter().enumerate() {
                     strip[((ch0 + i) * s.win + qy) * w + x0 + qx] = a * inv;

@@ -14,6 +14,7 @@
 //! stands in only on burn's CPU backend under autodiff.
 
 use super::kernels::{flex_dims, flex_slice};
+use super::lanes;
 use super::window_direct::{WindowSpec, attend_maps, exp_nonpositive, head_dim_supported};
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
@@ -371,17 +372,19 @@ fn strip_body<const D: usize>(
         dpos_k: vec![0.0f32; size(s.pos_k.is_some(), lk * c)],
     };
     // Per window and head: queries (scaled) and output gradients by query, `[lq, D]`; keys,
-    // values and their gradients transposed, `[D, n]`, so that every inner loop runs along
-    // contiguous keys (8 wide) instead of summing across the few channels of a head; the
-    // softmax `p` and its gradient `ds`, `[lq, n]`.
+    // values and their gradients transposed, `[D, np]`, so that every inner loop runs along
+    // contiguous keys (in chunks of 8, rows padded with zeros: [`super::lanes`]) instead of
+    // summing across the few channels of a head; the softmax `p` and its gradient `ds`,
+    // `[lq, np]`.
+    let lkp = lanes::padded(lk);
     let mut qb = vec![[0.0f32; D]; lq];
     let mut ob = vec![[0.0f32; D]; lq];
-    let mut kt = vec![0.0f32; D * lk];
-    let mut vt = vec![0.0f32; D * lk];
-    let mut dkt = vec![0.0f32; D * lk];
-    let mut dvt = vec![0.0f32; D * lk];
-    let mut p = vec![0.0f32; lq * lk];
-    let mut ds = vec![0.0f32; lq * lk];
+    let mut kt = vec![0.0f32; D * lkp];
+    let mut vt = vec![0.0f32; D * lkp];
+    let mut dkt = vec![0.0f32; D * lkp];
+    let mut dvt = vec![0.0f32; D * lkp];
+    let mut p = vec![0.0f32; lq * lkp];
+    let mut ds = vec![0.0f32; lq * lkp];
     // (slot in the key window, pixel in the map, pixel in the band)
     let mut inside: Vec<(usize, usize, usize)> = Vec::with_capacity(lk);
     for wx in 0..nw {
@@ -398,6 +401,7 @@ fn strip_body<const D: usize>(
             }
         }
         let n = inside.len();
+        let np = lanes::padded(n);
         for head in 0..heads {
             let ch0 = head * D;
             for i in 0..D {
@@ -408,82 +412,65 @@ fn strip_body<const D: usize>(
                     qb[qi][i] = (qmap[ch + px] + pos) * scale;
                     ob[qi][i] = omap[ch + px];
                 }
-                let (krow, vrow) = (&mut kt[i * n..][..n], &mut vt[i * n..][..n]);
+                let (krow, vrow) = (&mut kt[i * np..][..np], &mut vt[i * np..][..np]);
                 for (j, &(slot, px, _)) in inside.iter().enumerate() {
                     krow[j] = kmap[ch + px] + s.pos_k.map_or(0.0, |p| p[slot * c + ch0 + i]);
                     vrow[j] = vmap[ch + px];
                 }
+                krow[n..].fill(0.0);
+                vrow[n..].fill(0.0);
             }
-            let p = &mut p[..lq * n];
-            let ds = &mut ds[..lq * n];
+            let p = &mut p[..lq * np];
+            let ds = &mut ds[..lq * np];
             // Logits and softmax rows, as the forward computes them.
             match s.bias {
                 Some(b) => {
                     let b = &b[head * lq * lk..][..lq * lk];
                     for qi in 0..lq {
-                        for (l, &(slot, _, _)) in p[qi * n..][..n].iter_mut().zip(&inside) {
+                        let row = &mut p[qi * np..][..np];
+                        for (l, &(slot, _, _)) in row.iter_mut().zip(&inside) {
                             *l = b[qi * lk + slot];
                         }
+                        row[n..].fill(0.0);
                     }
                 }
                 None => p.fill(0.0),
             }
             for i in 0..D {
-                let krow = &kt[i * n..][..n];
+                let krow = &kt[i * np..][..np];
                 for qi in 0..lq {
-                    let a = qb[qi][i];
-                    for (l, &k) in p[qi * n..][..n].iter_mut().zip(krow) {
-                        *l += a * k;
-                    }
+                    lanes::axpy(&mut p[qi * np..][..np], qb[qi][i], krow);
                 }
             }
-            for row in p.chunks_exact_mut(n) {
-                let max = row.iter().fold(f32::NEG_INFINITY, |m, &l| m.max(l));
-                for l in row.iter_mut() {
-                    *l = exp_nonpositive(*l - max);
-                }
-                let inv = 1.0 / row.iter().sum::<f32>();
-                row.iter_mut().for_each(|l| *l *= inv);
+            for row in p.chunks_exact_mut(np) {
+                lanes::softmax(row, n, exp_nonpositive);
             }
             // dP = dO·Vᵀ (into ds); dV = Pᵀ·dO.
             ds.fill(0.0);
-            dvt[..D * n].fill(0.0);
+            dvt[..D * np].fill(0.0);
             for i in 0..D {
-                let vrow = &vt[i * n..][..n];
-                let dvrow = &mut dvt[i * n..][..n];
+                let vrow = &vt[i * np..][..np];
+                let dvrow = &mut dvt[i * np..][..np];
                 for qi in 0..lq {
                     let o = ob[qi][i];
-                    let prow = &p[qi * n..][..n];
-                    for ((d, &v), (dv, &pj)) in ds[qi * n..][..n]
-                        .iter_mut()
-                        .zip(vrow)
-                        .zip(dvrow.iter_mut().zip(prow))
-                    {
-                        *d += o * v;
-                        *dv += pj * o;
-                    }
+                    lanes::axpy(&mut ds[qi * np..][..np], o, vrow);
+                    lanes::axpy(dvrow, o, &p[qi * np..][..np]);
                 }
             }
-            // dS = P ⊙ (dP − rowsum(P ⊙ dP)).
-            for (dsrow, prow) in ds.chunks_exact_mut(n).zip(p.chunks_exact(n)) {
-                let total: f32 = dsrow.iter().zip(prow).map(|(d, p)| d * p).sum();
+            // dS = P ⊙ (dP − rowsum(P ⊙ dP)) (zero in the padding, where P is).
+            for (dsrow, prow) in ds.chunks_exact_mut(np).zip(p.chunks_exact(np)) {
+                let total = lanes::dot(dsrow, prow);
                 for (d, &pj) in dsrow.iter_mut().zip(prow) {
                     *d = pj * (*d - total);
                 }
             }
             // dK = dSᵀ·(s·Q); dQ = s·dS·K (into the strip); the position terms.
-            dkt[..D * n].fill(0.0);
+            dkt[..D * np].fill(0.0);
             for i in 0..D {
-                let krow = &kt[i * n..][..n];
-                let dkrow = &mut dkt[i * n..][..n];
+                let krow = &kt[i * np..][..np];
+                let dkrow = &mut dkt[i * np..][..np];
                 for qi in 0..lq {
-                    let a = qb[qi][i];
-                    let dsrow = &ds[qi * n..][..n];
-                    let mut dq = 0.0f32;
-                    for ((dk, &d), &k) in dkrow.iter_mut().zip(dsrow).zip(krow) {
-                        *dk += a * d;
-                        dq += d * k;
-                    }
+                    let dq = lanes::axpy_dot(dkrow, qb[qi][i], &ds[qi * np..][..np], krow);
                     let g = dq * scale;
                     let (qy, qx) = (qi / win, qi % win);
                     out.dq[((ch0 + i) * win + qy) * w + x0 + qx] = g;
@@ -493,7 +480,7 @@ fn strip_body<const D: usize>(
                 }
             }
             if !out.dbias.is_empty() {
-                for (qi, dsrow) in ds.chunks_exact(n).enumerate() {
+                for (qi, dsrow) in ds.chunks_exact(np).enumerate() {
                     let db = &mut out.dbias[(head * lq + qi) * lk..][..lk];
                     for (&d, &(slot, _, _)) in dsrow.iter().zip(&inside) {
                         db[slot] += d;
@@ -501,7 +488,7 @@ fn strip_body<const D: usize>(
                 }
             }
             for i in 0..D {
-                let (dkrow, dvrow) = (&dkt[i * n..][..n], &dvt[i * n..][..n]);
+                let (dkrow, dvrow) = (&dkt[i * np..][..n], &dvt[i * np..][..n]);
                 for (j, &(slot, _, band)) in inside.iter().enumerate() {
                     let at = (ch0 + i) * kwin * w + band;
                     out.dk[at] += dkrow[j];

@@ -1,0 +1,182 @@
+//! Row operations of the window attention kernels over rows padded to a multiple of 8.
+//!
+//! A key window holds 36 keys in `tiny` (25 or 30 at a map's edge). Over rows of such
+//! lengths the compiler's vectorised loops (32 wide when unrolled) leave most of the work to
+//! their scalar remainder, and a sum written as one running total (`iter().sum()`, a dot
+//! product beside another update) is not vectorised at all: floating-point addition is not
+//! associative, so the compiler keeps its order. Here every row is padded with zeros to a
+//! multiple of 8 and worked in chunks of 8, and sums run in 8 lanes added together in a fixed
+//! order at the end: each lane's order is written in the code, not chosen by the compiler, so
+//! the portable and the AVX2 builds give the same bits.
+
+/// Lanes per chunk: one AVX2 register of f32.
+pub const LANES: usize = 8;
+
+/// `n` rounded up to whole chunks.
+#[inline(always)]
+pub fn padded(n: usize) -> usize {
+    n.next_multiple_of(LANES)
+}
+
+/// The 8 lanes added in a fixed order: pairwise, `((0+4)+(2+6)) + ((1+5)+(3+7))`.
+#[inline(always)]
+fn reduce(acc: [f32; LANES]) -> f32 {
+    let a = [
+        acc[0] + acc[4],
+        acc[1] + acc[5],
+        acc[2] + acc[6],
+        acc[3] + acc[7],
+    ];
+    (a[0] + a[2]) + (a[1] + a[3])
+}
+
+/// `y += a·x` (rows of whole chunks).
+#[inline(always)]
+pub fn axpy(y: &mut [f32], a: f32, x: &[f32]) {
+    for (yc, xc) in y
+        .as_chunks_mut::<LANES>()
+        .0
+        .iter_mut()
+        .zip(x.as_chunks::<LANES>().0)
+    {
+        let (mut t, xv) = (*yc, *xc);
+        for l in 0..LANES {
+            t[l] += a * xv[l];
+        }
+        *yc = t;
+    }
+}
+
+/// `Σ x·y` in lanes.
+#[inline(always)]
+pub fn dot(x: &[f32], y: &[f32]) -> f32 {
+    let mut acc = [0.0f32; LANES];
+    for (xc, yc) in x
+        .as_chunks::<LANES>()
+        .0
+        .iter()
+        .zip(y.as_chunks::<LANES>().0)
+    {
+        let (xv, yv) = (*xc, *yc);
+        for l in 0..LANES {
+            acc[l] += xv[l] * yv[l];
+        }
+    }
+    reduce(acc)
+}
+
+/// `y += a·x` and `Σ x·z` in one pass over `x` (the attention backward's `dK += q·dS` beside
+/// `dQ = dS·K`).
+#[inline(always)]
+pub fn axpy_dot(y: &mut [f32], a: f32, x: &[f32], z: &[f32]) -> f32 {
+    let mut acc = [0.0f32; LANES];
+    for ((yc, xc), zc) in y
+        .as_chunks_mut::<LANES>()
+        .0
+        .iter_mut()
+        .zip(x.as_chunks::<LANES>().0)
+        .zip(z.as_chunks::<LANES>().0)
+    {
+        let (mut t, xv, zv) = (*yc, *xc, *zc);
+        for l in 0..LANES {
+            t[l] += a * xv[l];
+            acc[l] += xv[l] * zv[l];
+        }
+        *yc = t;
+    }
+    reduce(acc)
+}
+
+/// A softmax row in place: the first `n` entries are logits, the rest padding; afterwards
+/// the padding is zero and the first `n` sum to 1. `exp` is the caller's (for `x ≤ 0`).
+#[inline(always)]
+pub fn softmax(row: &mut [f32], n: usize, exp: impl Fn(f32) -> f32) {
+    let inv = exp_row(row, n, exp);
+    for c in row.as_chunks_mut::<LANES>().0.iter_mut() {
+        let mut v = *c;
+        for e in v.iter_mut() {
+            *e *= inv;
+        }
+        *c = v;
+    }
+}
+
+/// [`softmax`] before its last step: the row holds `exp(logit − max)` (padding zero) and the
+/// return value is the factor that normalises it, for callers that apply it later.
+#[inline(always)]
+pub fn exp_row(row: &mut [f32], n: usize, exp: impl Fn(f32) -> f32) -> f32 {
+    row[n..].fill(f32::NEG_INFINITY);
+    let mut top = [f32::NEG_INFINITY; LANES];
+    for c in row.as_chunks::<LANES>().0 {
+        let v = *c;
+        for l in 0..LANES {
+            top[l] = top[l].max(v[l]);
+        }
+    }
+    let max = top.iter().fold(f32::NEG_INFINITY, |m, &t| m.max(t));
+    for c in row.as_chunks_mut::<LANES>().0.iter_mut() {
+        let mut v = *c;
+        for e in v.iter_mut() {
+            *e = exp(*e - max);
+        }
+        *c = v;
+    }
+    // The padding's `exp(−∞)` may be the caller's smallest value rather than 0.
+    row[n..].fill(0.0);
+    let mut acc = [0.0f32; LANES];
+    for c in row.as_chunks::<LANES>().0 {
+        let v = *c;
+        for l in 0..LANES {
+            acc[l] += v[l];
+        }
+    }
+    1.0 / reduce(acc)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(n: usize, seed: u32) -> Vec<f32> {
+        (0..n)
+            .map(|i| (((i as u32).wrapping_mul(2_654_435_761) ^ seed) % 1000) as f32 / 100.0 - 5.0)
+            .collect()
+    }
+
+    #[test]
+    fn lane_sums_match_f64_sums() {
+        for n in [8, 16, 40, 144] {
+            let (x, y) = (row(n, 1), row(n, 7));
+            let want: f64 = x.iter().zip(&y).map(|(&a, &b)| a as f64 * b as f64).sum();
+            assert!((dot(&x, &y) as f64 - want).abs() < 1e-4 * want.abs().max(1.0));
+            let mut acc = row(n, 3);
+            let want_acc: Vec<f64> = acc
+                .iter()
+                .zip(&x)
+                .map(|(&a, &b)| a as f64 + 0.5 * b as f64)
+                .collect();
+            let d = axpy_dot(&mut acc, 0.5, &x, &y);
+            assert!((d as f64 - want).abs() < 1e-4 * want.abs().max(1.0));
+            for (a, w) in acc.iter().zip(&want_acc) {
+                assert!((*a as f64 - w).abs() < 1e-5);
+            }
+        }
+    }
+
+    #[test]
+    fn softmax_leaves_the_padding_out() {
+        for n in [1, 5, 25, 30, 36] {
+            let mut r = row(padded(n), 5);
+            // Logits far below the padding's value: a padding that took part would show.
+            r[..n].iter_mut().for_each(|v| *v -= 1000.0);
+            let logits: Vec<f64> = r[..n].iter().map(|&v| v as f64).collect();
+            softmax(&mut r, n, |x| x.exp());
+            let max = logits.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+            let total: f64 = logits.iter().map(|l| (l - max).exp()).sum();
+            for (p, l) in r.iter().zip(&logits) {
+                assert!((*p as f64 - (l - max).exp() / total).abs() < 1e-6);
+            }
+            assert!(r[n..].iter().all(|&p| p == 0.0));
+        }
+    }
+}
