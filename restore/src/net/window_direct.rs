@@ -5,7 +5,7 @@
 //! the windows back: with a few channels per head those copies cost more than the attention.
 //! This kernel gathers each window's queries, keys and values into small buffers as it goes
 //! and writes its answer into the output map, so nothing the size of the map is made but
-//! the output. It has no gradient: training takes the tensor formulation.
+//! the output. Training runs it too, with a hand-written backward (`net/window_train`).
 
 use super::lanes;
 use rayon::prelude::*;
@@ -40,16 +40,41 @@ pub fn attend_maps(
     q: &[f32],
     k: &[f32],
     v: &[f32],
-    [c, h, w]: [usize; 3],
+    dims: [usize; 3],
     s: &WindowSpec,
 ) -> Option<Vec<f32>> {
+    attend(q, k, v, dims, s, false).map(|(out, _)| out)
+}
+
+/// [`attend_maps`], also keeping the softmax of every window and head for a backward pass
+/// (`net/window_train`), which then need not compute it again: one `Vec` per strip of window
+/// rows (the kernel's task), `[windows in the row, heads, win², padded(kwin²)]`, keys in the
+/// order of the window's keys inside the image, zeros after them.
+pub fn attend_maps_keeping(
+    q: &[f32],
+    k: &[f32],
+    v: &[f32],
+    dims: [usize; 3],
+    s: &WindowSpec,
+) -> Option<(Vec<f32>, Vec<Vec<f32>>)> {
+    attend(q, k, v, dims, s, true)
+}
+
+fn attend(
+    q: &[f32],
+    k: &[f32],
+    v: &[f32],
+    [c, h, w]: [usize; 3],
+    s: &WindowSpec,
+    keep: bool,
+) -> Option<(Vec<f32>, Vec<Vec<f32>>)> {
     let d = c / s.heads;
     let z = Sizes { c, h, w };
     Some(match d {
-        4 => run::<4>(q, k, v, z, s),
-        8 => run::<8>(q, k, v, z, s),
-        16 => run::<16>(q, k, v, z, s),
-        32 => run::<32>(q, k, v, z, s),
+        4 => run::<4>(q, k, v, z, s, keep),
+        8 => run::<8>(q, k, v, z, s, keep),
+        16 => run::<16>(q, k, v, z, s, keep),
+        32 => run::<32>(q, k, v, z, s, keep),
         _ => return None,
     })
 }
@@ -61,16 +86,23 @@ struct Sizes {
     w: usize,
 }
 
-fn run<const D: usize>(q: &[f32], k: &[f32], v: &[f32], z: Sizes, s: &WindowSpec) -> Vec<f32> {
+fn run<const D: usize>(
+    q: &[f32],
+    k: &[f32],
+    v: &[f32],
+    z: Sizes,
+    s: &WindowSpec,
+    keep: bool,
+) -> (Vec<f32>, Vec<Vec<f32>>) {
     let Sizes { c, h, w } = z;
     let plane = h * w;
     let groups = k.len() / (c * plane);
     let nh = h / s.win;
     // One strip of window rows per task: `[c, win, w]` of one output map.
-    let strips: Vec<Vec<f32>> = (0..groups * nh)
+    let (strips, kept): (Vec<Vec<f32>>, Vec<Vec<f32>>) = (0..groups * nh)
         .into_par_iter()
-        .map(|task| strip::<D>(task, q, k, v, z, s))
-        .collect();
+        .map(|task| strip::<D>(task, q, k, v, z, s, keep))
+        .unzip();
     let mut out = vec![0.0f32; groups * c * plane];
     for (task, strip) in strips.iter().enumerate() {
         let (g, wy) = (task / nh, task % nh);
@@ -79,7 +111,7 @@ fn run<const D: usize>(q: &[f32], k: &[f32], v: &[f32], z: Sizes, s: &WindowSpec
             dst.copy_from_slice(&strip[ch * s.win * w..][..s.win * w]);
         }
     }
-    out
+    (out, kept)
 }
 
 /// One task's strip, in the build for the CPU at hand.
@@ -90,15 +122,16 @@ fn strip<const D: usize>(
     v: &[f32],
     z: Sizes,
     s: &WindowSpec,
-) -> Vec<f32> {
+    keep: bool,
+) -> (Vec<f32>, Vec<f32>) {
     #[cfg(target_arch = "x86_64")]
     if base::isa::Isa::chosen() != base::isa::Isa::Portable {
         // SAFETY: `Isa::chosen` names a build the CPU has, and every build past the
         // portable one has AVX2 (the project's one dispatcher, so `METASPLAT_NO_AVX2` holds
         // here too).
-        return unsafe { strip_avx2::<D>(task, q, k, v, z, s) };
+        return unsafe { strip_avx2::<D>(task, q, k, v, z, s, keep) };
     }
-    strip_body::<D>(task, q, k, v, z, s)
+    strip_body::<D>(task, q, k, v, z, s, keep)
 }
 
 /// The same code compiled for AVX2: the loops over keys and channels become 8-wide. No
@@ -112,8 +145,9 @@ unsafe fn strip_avx2<const D: usize>(
     v: &[f32],
     z: Sizes,
     s: &WindowSpec,
-) -> Vec<f32> {
-    strip_body::<D>(task, q, k, v, z, s)
+    keep: bool,
+) -> (Vec<f32>, Vec<f32>) {
+    strip_body::<D>(task, q, k, v, z, s, keep)
 }
 
 #[inline(always)]
@@ -124,7 +158,8 @@ fn strip_body<const D: usize>(
     v: &[f32],
     z: Sizes,
     s: &WindowSpec,
-) -> Vec<f32> {
+    keep: bool,
+) -> (Vec<f32>, Vec<f32>) {
     let Sizes { c, h, w } = z;
     let plane = h * w;
     let (nh, nw) = (h / s.win, w / s.win);
@@ -144,6 +179,7 @@ fn strip_body<const D: usize>(
     let mut vb = vec![[0.0f32; D]; lk];
     let mut inside: Vec<(usize, usize)> = Vec::with_capacity(lk);
     let mut logits = vec![0.0f32; lq * lkp];
+    let mut kept = vec![0.0f32; if keep { nw * s.heads * lq * lkp } else { 0 }];
     for wx in 0..nw {
         let (y0, x0) = (wy * s.win, wx * s.win);
         inside.clear();
@@ -202,6 +238,13 @@ fn strip_body<const D: usize>(
             for qi in 0..lq {
                 let row = &mut logits[qi * np..][..np];
                 let inv = lanes::exp_row(row, n, exp_nonpositive);
+                if keep {
+                    // As `lanes::softmax` normalises: the same bits.
+                    let dst = &mut kept[((wx * s.heads + head) * lq + qi) * lkp..][..np];
+                    for (d, &e) in dst.iter_mut().zip(row.iter()) {
+                        *d = e * inv;
+                    }
+                }
                 let mut acc = [0.0f32; D];
                 for (p, vrow) in row[..n].iter().zip(&vb[..n]) {
                     for (a, v) in acc.iter_mut().zip(vrow) {
@@ -215,7 +258,7 @@ fn strip_body<const D: usize>(
             }
         }
     }
-    strip
+    (strip, kept)
 }
 
 /// `eᵡ` for `x ≤ 0` without a library call, so the softmax loop vectorises: `x = n·ln 2 + r`

@@ -4,8 +4,8 @@
 //! The tensor formulation copies every overlapping key window out of the maps, splits heads,
 //! runs burn's attention and merges the windows back, and autodiff records each step: its
 //! matrix-product, softmax and copy gradients were a third of a `tiny` training step. Here
-//! the forward reads the maps directly (nothing is kept but the inputs), and the backward
-//! recomputes each window's softmax and forms, per window and head,
+//! the forward reads the maps directly (keeping the inputs and each window's softmax rows),
+//! and the backward forms, per window and head,
 //! `dV = Pᵀ·dO`, `dS = P ⊙ (dO·Vᵀ − rowsum(P ⊙ dO·Vᵀ))`, `dQ = s·dS·K`, `dK = s·dSᵀ·Q`, and
 //! the position logits' gradient `Σ dS` over windows. Query pixels belong to one window, so
 //! `dQ` is written in place; key windows overlap, so each task adds its keys' gradients into
@@ -15,7 +15,9 @@
 
 use super::kernels::{flex_dims, flex_slice};
 use super::lanes;
-use super::window_direct::{WindowSpec, attend_maps, exp_nonpositive, head_dim_supported};
+use super::window_direct::{
+    WindowSpec, attend_maps, attend_maps_keeping, exp_nonpositive, head_dim_supported,
+};
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -25,6 +27,7 @@ use burn::backend::flex::FlexTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension, tensor::FloatTensor};
 use burn::tensor::{Tensor, TensorData};
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// Whether [`attend_tensor`] and [`cross_tensor`] serve a layer of `c` channels in `heads`
 /// heads.
@@ -143,27 +146,46 @@ fn spec<'a>(
     }
 }
 
+/// The attention's output, and with `keep` the softmax of every window ([`Probs`]).
 fn forward(
     maps: [FlexTensor; 3],
     pos: Vec<FlexTensor>,
     kind: Kind,
     win: usize,
     kwin: usize,
-) -> FlexTensor {
+    keep: bool,
+) -> (FlexTensor, Option<Probs>) {
     let [q, k, v] = maps.map(|t| t.to_contiguous());
     let pos: Vec<FlexTensor> = pos.into_iter().map(|t| t.to_contiguous()).collect();
     let [bq, c, h, w] = flex_dims::<4>(&q);
     let g = flex_dims::<4>(&k)[0];
     let spec = spec(kind, &pos, win, kwin, g / bq.max(1));
-    let out = attend_maps(
-        flex_slice(&q),
-        flex_slice(&k),
-        flex_slice(&v),
-        [c, h, w],
-        &spec,
+    let (qs, ks, vs) = (flex_slice(&q), flex_slice(&k), flex_slice(&v));
+    let (out, probs) = if keep {
+        let (out, kept) =
+            attend_maps_keeping(qs, ks, vs, [c, h, w], &spec).expect("a supported head width");
+        (out, Some(Probs(Arc::new(kept))))
+    } else {
+        let out = attend_maps(qs, ks, vs, [c, h, w], &spec).expect("a supported head width");
+        (out, None)
+    };
+    (
+        FlexTensor::from_data(TensorData::new(out, [g, c, h, w])),
+        probs,
     )
-    .expect("a supported head width");
-    FlexTensor::from_data(TensorData::new(out, [g, c, h, w]))
+}
+
+/// The softmax rows a forward pass kept for its backward ([`attend_maps_keeping`]'s layout):
+/// the backward reads them instead of computing the logits and their softmax again, which
+/// was a fifth of its arithmetic.
+#[derive(Clone)]
+struct Probs(Arc<Vec<Vec<f32>>>);
+
+impl std::fmt::Debug for Probs {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let n: usize = self.0.iter().map(Vec::len).sum();
+        write!(f, "Probs({n} values)")
+    }
 }
 
 impl WindowTrainOps for Flex {
@@ -175,7 +197,7 @@ impl WindowTrainOps for Flex {
         win: usize,
         kwin: usize,
     ) -> FlexTensor {
-        forward([q, k, v], vec![bias], Kind::Window, win, kwin)
+        forward([q, k, v], vec![bias], Kind::Window, win, kwin, false).0
     }
 
     fn cross_attention(
@@ -194,7 +216,9 @@ impl WindowTrainOps for Flex {
             Kind::Cross { heads },
             win,
             kwin,
+            false,
         )
+        .0
     }
 }
 
@@ -212,7 +236,9 @@ pub struct AttendGrads {
     pub dpos_k: Vec<f32>,
 }
 
-/// The gradients of [`attend_maps`] for `q: [g / share, c, h, w]`, `k, v, dout: [g, c, h, w]`.
+/// The gradients of [`attend_maps`] for `q: [g / share, c, h, w]`, `k, v, dout: [g, c, h, w]`;
+/// `probs`, the softmax [`attend_maps_keeping`] kept for these inputs, or `None` to compute it
+/// again (the same bits either way).
 pub fn attend_backward(
     q: &[f32],
     k: &[f32],
@@ -220,13 +246,14 @@ pub fn attend_backward(
     dout: &[f32],
     [c, h, w]: [usize; 3],
     spec: &WindowSpec,
+    probs: Option<&[Vec<f32>]>,
 ) -> AttendGrads {
     let z = Sizes { c, h, w };
     match c / spec.heads {
-        4 => run::<4>(q, k, v, dout, z, spec),
-        8 => run::<8>(q, k, v, dout, z, spec),
-        16 => run::<16>(q, k, v, dout, z, spec),
-        32 => run::<32>(q, k, v, dout, z, spec),
+        4 => run::<4>(q, k, v, dout, z, spec, probs),
+        8 => run::<8>(q, k, v, dout, z, spec, probs),
+        16 => run::<16>(q, k, v, dout, z, spec, probs),
+        32 => run::<32>(q, k, v, dout, z, spec, probs),
         d => panic!("window attention with {d} channels per head"),
     }
 }
@@ -263,6 +290,7 @@ fn run<const D: usize>(
     dout: &[f32],
     z: Sizes,
     s: &WindowSpec,
+    probs: Option<&[Vec<f32>]>,
 ) -> AttendGrads {
     let Sizes { c, h, w } = z;
     let (win, kwin) = (s.win, s.kwin);
@@ -272,7 +300,7 @@ fn run<const D: usize>(
     let pad = (kwin - win) / 2;
     let parts: Vec<StripGrads> = (0..groups * nh)
         .into_par_iter()
-        .map(|task| strip::<D>(task, q, k, v, dout, z, s))
+        .map(|task| strip::<D>(task, q, k, v, dout, z, s, probs.map(|p| p[task].as_slice())))
         .collect();
     let size = |on: bool, n: usize| if on { n } else { 0 };
     let mut g = AttendGrads {
@@ -317,14 +345,15 @@ fn strip<const D: usize>(
     dout: &[f32],
     z: Sizes,
     s: &WindowSpec,
+    kept: Option<&[f32]>,
 ) -> StripGrads {
     #[cfg(target_arch = "x86_64")]
     if base::isa::Isa::chosen() != base::isa::Isa::Portable {
         // SAFETY: `Isa::chosen` names a build the CPU has, and every build past the
         // portable one has AVX2.
-        return unsafe { strip_avx2::<D>(task, q, k, v, dout, z, s) };
+        return unsafe { strip_avx2::<D>(task, q, k, v, dout, z, s, kept) };
     }
-    strip_body::<D>(task, q, k, v, dout, z, s)
+    strip_body::<D>(task, q, k, v, dout, z, s, kept)
 }
 
 /// The same code compiled for AVX2 (no multiply-add contracted: the portable build's bits).
@@ -338,8 +367,9 @@ unsafe fn strip_avx2<const D: usize>(
     dout: &[f32],
     z: Sizes,
     s: &WindowSpec,
+    kept: Option<&[f32]>,
 ) -> StripGrads {
-    strip_body::<D>(task, q, k, v, dout, z, s)
+    strip_body::<D>(task, q, k, v, dout, z, s, kept)
 }
 
 #[inline(always)]
@@ -351,6 +381,7 @@ fn strip_body<const D: usize>(
     dout: &[f32],
     z: Sizes,
     s: &WindowSpec,
+    kept: Option<&[f32]>,
 ) -> StripGrads {
     let Sizes { c, h, w } = z;
     let (heads, win, kwin) = (s.heads, s.win, s.kwin);
@@ -422,28 +453,36 @@ fn strip_body<const D: usize>(
             }
             let p = &mut p[..lq * np];
             let ds = &mut ds[..lq * np];
-            // Logits and softmax rows, as the forward computes them.
-            match s.bias {
-                Some(b) => {
-                    let b = &b[head * lq * lk..][..lq * lk];
-                    for qi in 0..lq {
-                        let row = &mut p[qi * np..][..np];
-                        for (l, &(slot, _, _)) in row.iter_mut().zip(&inside) {
-                            *l = b[qi * lk + slot];
+            if let Some(kept) = kept {
+                // The forward's softmax rows, as kept (the same bits as computed here).
+                let at = (wx * heads + head) * lq * lkp;
+                for (qi, row) in p.chunks_exact_mut(np).enumerate() {
+                    row.copy_from_slice(&kept[at + qi * lkp..][..np]);
+                }
+            } else {
+                // Logits and softmax rows, as the forward computes them.
+                match s.bias {
+                    Some(b) => {
+                        let b = &b[head * lq * lk..][..lq * lk];
+                        for qi in 0..lq {
+                            let row = &mut p[qi * np..][..np];
+                            for (l, &(slot, _, _)) in row.iter_mut().zip(&inside) {
+                                *l = b[qi * lk + slot];
+                            }
+                            row[n..].fill(0.0);
                         }
-                        row[n..].fill(0.0);
+                    }
+                    None => p.fill(0.0),
+                }
+                for i in 0..D {
+                    let krow = &kt[i * np..][..np];
+                    for qi in 0..lq {
+                        lanes::axpy(&mut p[qi * np..][..np], qb[qi][i], krow);
                     }
                 }
-                None => p.fill(0.0),
-            }
-            for i in 0..D {
-                let krow = &kt[i * np..][..np];
-                for qi in 0..lq {
-                    lanes::axpy(&mut p[qi * np..][..np], qb[qi][i], krow);
+                for row in p.chunks_exact_mut(np) {
+                    lanes::softmax(row, n, exp_nonpositive);
                 }
-            }
-            for row in p.chunks_exact_mut(np) {
-                lanes::softmax(row, n, exp_nonpositive);
             }
             // dP = dO·Vᵀ (into ds); dV = Pᵀ·dO.
             ds.fill(0.0);
@@ -512,7 +551,12 @@ struct AttentionBackward {
 
 impl AttentionBackward {
     /// The gradients of the node's inputs, in their order.
-    fn grads(&self, dout: FlexTensor, inputs: Vec<FlexTensor>) -> Vec<FlexTensor> {
+    fn grads(
+        &self,
+        dout: FlexTensor,
+        inputs: Vec<FlexTensor>,
+        probs: Option<&Probs>,
+    ) -> Vec<FlexTensor> {
         let dout = dout.to_contiguous();
         let inputs: Vec<FlexTensor> = inputs.into_iter().map(|t| t.to_contiguous()).collect();
         let (maps, pos) = inputs.split_at(3);
@@ -526,6 +570,7 @@ impl AttentionBackward {
             flex_slice(&dout),
             [c, h, w],
             &spec,
+            probs.map(|p| p.0.as_slice()),
         );
         let tensor = |v: Vec<f32>, like: &FlexTensor| {
             let shape = like.layout().shape().to_vec();
@@ -548,7 +593,8 @@ impl AttentionBackward {
 }
 
 impl<const N: usize> Backward<Flex, N> for AttentionBackward {
-    type State = [NodeId; N];
+    /// The inputs' nodes, and the forward's softmax rows when it kept them.
+    type State = ([NodeId; N], Option<Probs>);
 
     fn backward(
         self,
@@ -557,12 +603,12 @@ impl<const N: usize> Backward<Flex, N> for AttentionBackward {
         checkpointer: &mut Checkpointer,
     ) {
         let dout = grads.consume::<Flex>(&ops.node);
-        let inputs = ops
-            .state
+        let (ids, probs) = ops.state;
+        let inputs = ids
             .iter()
             .map(|&id| checkpointer.retrieve_node_output::<FlexTensor>(id))
             .collect();
-        let tensors = self.grads(dout, inputs);
+        let tensors = self.grads(dout, inputs, probs.as_ref());
         for (parent, grad) in ops.parents.into_iter().zip(tensors) {
             if let Some(node) = parent {
                 grads.register::<Flex>(node.id, grad);
@@ -575,16 +621,18 @@ impl<const N: usize> Backward<Flex, N> for AttentionBackward {
 fn tracked<C: CheckpointStrategy, const N: usize>(
     inputs: [FloatTensor<Autodiff<Flex, C>>; N],
     backward: AttentionBackward,
-    forward: impl FnOnce([FlexTensor; N]) -> FlexTensor,
+    forward: impl FnOnce([FlexTensor; N], bool) -> (FlexTensor, Option<Probs>),
 ) -> FloatTensor<Autodiff<Flex, C>> {
     let nodes = inputs.each_ref().map(|t| t.node());
     match backward.prepare::<C>(nodes).compute_bound().stateful() {
         OpsKind::Tracked(mut prep) => {
-            let state = inputs.each_ref().map(|t| prep.checkpoint(t));
-            let y = forward(inputs.map(|t| t.into_primitive()));
-            prep.finish(state, y)
+            let ids = inputs.each_ref().map(|t| prep.checkpoint(t));
+            let (y, probs) = forward(inputs.map(|t| t.into_primitive()), true);
+            prep.finish((ids, probs), y)
         }
-        OpsKind::UnTracked(prep) => prep.finish(forward(inputs.map(|t| t.into_primitive()))),
+        OpsKind::UnTracked(prep) => {
+            prep.finish(forward(inputs.map(|t| t.into_primitive()), false).0)
+        }
     }
 }
 
@@ -601,7 +649,7 @@ impl<C: CheckpointStrategy> WindowTrainOps for Autodiff<Flex, C> {
         tracked::<C, _>(
             [q, k, v, bias],
             AttentionBackward { kind, win, kwin },
-            |[q, k, v, b]| forward([q, k, v], vec![b], kind, win, kwin),
+            |[q, k, v, b], keep| forward([q, k, v], vec![b], kind, win, kwin, keep),
         )
     }
 
@@ -619,7 +667,88 @@ impl<C: CheckpointStrategy> WindowTrainOps for Autodiff<Flex, C> {
         tracked::<C, _>(
             [q, k, v, pos_q, pos_k],
             AttentionBackward { kind, win, kwin },
-            |[q, k, v, pq, pk]| forward([q, k, v], vec![pq, pk], kind, win, kwin),
+            |[q, k, v, pq, pk], keep| forward([q, k, v], vec![pq, pk], kind, win, kwin, keep),
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Values in [-2, 2) from a fixed sequence (no RNG crate needed in a unit test).
+    fn values(n: usize, seed: u64) -> Vec<f32> {
+        let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        (0..n)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                (x >> 40) as f32 / (1u64 << 24) as f32 * 4.0 - 2.0
+            })
+            .collect()
+    }
+
+    /// The softmax a forward kept gives the backward the bits it computes without it, for
+    /// window attention (position logits) and the shared-query cross-attention (embeddings),
+    /// on maps with border windows.
+    #[test]
+    fn kept_softmax_gives_the_recomputed_gradients_bit_for_bit() {
+        let (c, h, w, win, kwin) = (16, 12, 8, 4, 6);
+        let plane = c * h * w;
+        let bias = values(2 * win * win * kwin * kwin, 5);
+        let pos_q = values(win * win * c, 6);
+        let pos_k = values(kwin * kwin * c, 7);
+        let specs = [
+            (
+                1,
+                WindowSpec {
+                    heads: 2,
+                    win,
+                    kwin,
+                    share: 1,
+                    pos_q: None,
+                    pos_k: None,
+                    bias: Some(&bias),
+                },
+            ),
+            (
+                3,
+                WindowSpec {
+                    heads: 2,
+                    win,
+                    kwin,
+                    share: 3,
+                    pos_q: Some(&pos_q),
+                    pos_k: Some(&pos_k),
+                    bias: None,
+                },
+            ),
+        ];
+        for (groups, spec) in specs {
+            let q = values(plane, 1);
+            let k = values(groups * plane, 2);
+            let v = values(groups * plane, 3);
+            let dout = values(groups * plane, 4);
+            let dims = [c, h, w];
+            let (out, kept) = attend_maps_keeping(&q, &k, &v, dims, &spec).unwrap();
+            let plain = attend_maps(&q, &k, &v, dims, &spec).unwrap();
+            assert_eq!(out, plain);
+            let with = attend_backward(&q, &k, &v, &dout, dims, &spec, Some(&kept));
+            let without = attend_backward(&q, &k, &v, &dout, dims, &spec, None);
+            for (name, a, b) in [
+                ("dq", &with.dq, &without.dq),
+                ("dk", &with.dk, &without.dk),
+                ("dv", &with.dv, &without.dv),
+                ("dbias", &with.dbias, &without.dbias),
+                ("dpos_q", &with.dpos_q, &without.dpos_q),
+                ("dpos_k", &with.dpos_k, &without.dpos_k),
+            ] {
+                let bits = |x: &[f32]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(a), bits(b), "{name} differs (groups {groups})");
+                assert!(a.iter().all(|v| v.is_finite()), "{name} not finite");
+            }
+            assert!(with.dq.iter().any(|&v| v != 0.0));
+        }
     }
 }
