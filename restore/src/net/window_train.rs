@@ -300,7 +300,15 @@ fn run<const D: usize>(
     let pad = (kwin - win) / 2;
     let parts: Vec<StripGrads> = (0..groups * nh)
         .into_par_iter()
-        .map(|task| strip::<D>(task, q, k, v, dout, z, s, probs.map(|p| p[task].as_slice())))
+        .map(|task| {
+            strip::<D>(
+                task,
+                [q, k, v, dout],
+                z,
+                s,
+                probs.map(|p| p[task].as_slice()),
+            )
+        })
         .collect();
     let size = |on: bool, n: usize| if on { n } else { 0 };
     let mut g = AttendGrads {
@@ -339,10 +347,7 @@ fn run<const D: usize>(
 
 fn strip<const D: usize>(
     task: usize,
-    q: &[f32],
-    k: &[f32],
-    v: &[f32],
-    dout: &[f32],
+    maps: [&[f32]; 4],
     z: Sizes,
     s: &WindowSpec,
     kept: Option<&[f32]>,
@@ -351,9 +356,9 @@ fn strip<const D: usize>(
     if base::isa::Isa::chosen() != base::isa::Isa::Portable {
         // SAFETY: `Isa::chosen` names a build the CPU has, and every build past the
         // portable one has AVX2.
-        return unsafe { strip_avx2::<D>(task, q, k, v, dout, z, s, kept) };
+        return unsafe { strip_avx2::<D>(task, maps, z, s, kept) };
     }
-    strip_body::<D>(task, q, k, v, dout, z, s, kept)
+    strip_body::<D>(task, maps, z, s, kept)
 }
 
 /// The same code compiled for AVX2 (no multiply-add contracted: the portable build's bits).
@@ -361,28 +366,23 @@ fn strip<const D: usize>(
 #[target_feature(enable = "avx2")]
 unsafe fn strip_avx2<const D: usize>(
     task: usize,
-    q: &[f32],
-    k: &[f32],
-    v: &[f32],
-    dout: &[f32],
+    maps: [&[f32]; 4],
     z: Sizes,
     s: &WindowSpec,
     kept: Option<&[f32]>,
 ) -> StripGrads {
-    strip_body::<D>(task, q, k, v, dout, z, s, kept)
+    strip_body::<D>(task, maps, z, s, kept)
 }
 
 #[inline(always)]
 fn strip_body<const D: usize>(
     task: usize,
-    q: &[f32],
-    k: &[f32],
-    v: &[f32],
-    dout: &[f32],
+    maps: [&[f32]; 4],
     z: Sizes,
     s: &WindowSpec,
     kept: Option<&[f32]>,
 ) -> StripGrads {
+    let [q, k, v, dout] = maps;
     let Sizes { c, h, w } = z;
     let (heads, win, kwin) = (s.heads, s.win, s.kwin);
     let plane = h * w;
