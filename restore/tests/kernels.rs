@@ -551,6 +551,60 @@ fn window_attention_trains_alike_through_the_hand_written_backward() {
 }
 
 #[test]
+fn the_gdfn_trains_alike_through_the_one_node_gate() {
+    use restore::net::layers::Gdfn;
+    let device = Device::flex().autodiff();
+    device.seed(26);
+    // tiny's widths on odd sizes, a one-pixel-wide map, a batch of three.
+    for (c, hidden, [b, h, w]) in [(8, 8, [2, 7, 9]), (4, 6, [1, 5, 1]), (6, 3, [3, 4, 6])] {
+        let mut layer = Gdfn::new(c, hidden, &device);
+        // Depthwise kernels well away from their initial scale, so GELU's curve matters.
+        layer.depthwise.weight = burn::module::Param::from_tensor(Tensor::random(
+            layer.depthwise.weight.dims(),
+            Distribution::Normal(0.0, 1.0),
+            &device,
+        ));
+        let x = Tensor::<4>::random([b, c, h, w], Distribution::Normal(0.0, 1.0), &device)
+            .require_grad();
+        let wts = Tensor::<4>::random([b, c, h, w], Distribution::Normal(0.0, 1.0), &device);
+        let run = |kernels| {
+            with_kernels(kernels, || {
+                let y = layer.forward(x.clone());
+                let g = (y.clone() * wts.clone()).sum().backward();
+                vec![
+                    values(y),
+                    values(x.grad(&g).expect("input gradient")),
+                    values(layer.project_in.weight.val().grad(&g).expect("project_in")),
+                    values(layer.depthwise.weight.val().grad(&g).expect("depthwise")),
+                    values(
+                        layer
+                            .project_out
+                            .weight
+                            .val()
+                            .grad(&g)
+                            .expect("project_out"),
+                    ),
+                ]
+            })
+        };
+        let (fast, reference) = (run(Kernels::Fast), run(Kernels::Reference));
+        assert_within_scale(
+            &[
+                "output",
+                "input gradient",
+                "project_in gradient",
+                "depthwise gradient",
+                "project_out gradient",
+            ],
+            &fast,
+            &reference,
+            1e-4,
+            &format!("{c}/{hidden} {b}x{h}x{w}"),
+        );
+    }
+}
+
+#[test]
 fn the_guide_trains_alike_through_the_hand_written_cross_attention_backward() {
     use restore::net::mafg::CrossAttentionGuide;
     let device = Device::flex().autodiff();

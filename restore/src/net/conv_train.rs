@@ -337,7 +337,7 @@ impl<B: Backend + DepthwiseOps, C: CheckpointStrategy> DepthwiseOps for Autodiff
 
 /// Each channel's 3×3 kernel turned by 180°: the input gradient of a cross-correlation is
 /// the cross-correlation of the output gradient with it.
-fn half_turn(weight: &[f32]) -> Vec<f32> {
+pub(crate) fn half_turn(weight: &[f32]) -> Vec<f32> {
     weight
         .chunks_exact(9)
         .flat_map(|k| k.iter().rev().copied())

@@ -143,6 +143,10 @@ impl Gdfn {
             let gated = Tensor::from_data(TensorData::new(gated, [b, c2 / 2, hh, w]), &device);
             return pointwise(&self.project_out, gated);
         }
+        if current() == Kernels::Fast && super::conv_train::trained_applies(&h) {
+            let gated = super::gate_train::gated_tensor(&self.depthwise, h);
+            return pointwise(&self.project_out, gated);
+        }
         let h = depthwise(&self.depthwise, h);
         let mut parts = h.chunk(2, 1);
         let x2 = parts.pop().expect("two halves");

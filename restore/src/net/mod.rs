@@ -5,6 +5,7 @@ pub mod channel;
 pub mod conv_train;
 pub mod fuse_direct;
 pub mod gate_direct;
+pub mod gate_train;
 pub mod gelu;
 pub mod kernels;
 pub mod lanes;
