@@ -227,6 +227,22 @@ fn the_hand_written_depthwise_convolution_has_burns_values_and_gradients() {
 }
 
 #[test]
+fn the_1x1_convolution_as_a_matrix_product_has_burns_gradients() {
+    let device = Device::flex().autodiff();
+    device.seed(23);
+    // A batch of one and of three, with and without bias, a one-pixel map, and one product
+    // large enough for burn to split it over the threads (32 · 32 · 96²).
+    for (dims, cout, bias) in [
+        ([3, 5, 7, 9], 4, true),
+        ([1, 6, 4, 5], 3, false),
+        ([2, 3, 1, 1], 5, true),
+        ([1, 32, 96, 96], 32, true),
+    ] {
+        agrees_with_burns_convolution(conv(dims[1], cout, 1, bias, &device), dims, bias, pointwise);
+    }
+}
+
+#[test]
 fn the_dense_3x3_convolution_with_a_hand_written_backward_has_burns_values_and_gradients() {
     let device = Device::flex().autodiff();
     device.seed(22);
