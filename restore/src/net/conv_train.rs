@@ -245,13 +245,13 @@ pub trait DepthwiseOps: Backend {
 }
 
 /// A dense copy's values (no copy when the tensor is dense already).
-fn values(t: FlexTensor) -> (FlexTensor, [usize; 4]) {
+pub(super) fn values(t: FlexTensor) -> (FlexTensor, [usize; 4]) {
     let t = t.to_contiguous();
     let d = flex_dims::<4>(&t);
     (t, d)
 }
 
-fn tensor(v: Vec<f32>, shape: [usize; 4]) -> FlexTensor {
+pub(super) fn tensor(v: Vec<f32>, shape: [usize; 4]) -> FlexTensor {
     FlexTensor::from_data(TensorData::new(v, shape))
 }
 
@@ -337,7 +337,7 @@ impl<B: Backend + DepthwiseOps, C: CheckpointStrategy> DepthwiseOps for Autodiff
 
 /// Each channel's 3×3 kernel turned by 180°: the input gradient of a cross-correlation is
 /// the cross-correlation of the output gradient with it.
-pub(crate) fn half_turn(weight: &[f32]) -> Vec<f32> {
+fn half_turn(weight: &[f32]) -> Vec<f32> {
     weight
         .chunks_exact(9)
         .flat_map(|k| k.iter().rev().copied())

@@ -11,10 +11,10 @@
 //! [`super::gate_direct`] (the same row kernel and GELU), bit for bit. Registered with burn
 //! as a backend extension ([`GateTrainOps`]) for burn's CPU backend under autodiff.
 
-use super::conv_train::{forward as depthwise_forward, half_turn, weight_grad};
+use super::conv_train::{DepthwiseOps, forward as depthwise_forward, tensor, values};
 use super::gate_direct::gated_depthwise;
 use super::gelu::{gelu, gelu_slope};
-use super::kernels::{flex_dims, flex_slice};
+use super::kernels::flex_slice;
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -23,7 +23,7 @@ use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension, tensor::FloatTensor};
 use burn::nn::conv::Conv2d;
-use burn::tensor::{Tensor, TensorData};
+use burn::tensor::Tensor;
 use rayon::prelude::*;
 use std::sync::Arc;
 
@@ -47,18 +47,12 @@ pub trait GateTrainOps: Backend {
     fn gated_depthwise3(x: FloatTensor<Self>, weight: FloatTensor<Self>) -> FloatTensor<Self>;
 }
 
-fn dense(t: FlexTensor) -> (FlexTensor, [usize; 4]) {
-    let t = t.to_contiguous();
-    let d = flex_dims::<4>(&t);
-    (t, d)
-}
-
 impl GateTrainOps for Flex {
     fn gated_depthwise3(x: FlexTensor, weight: FlexTensor) -> FlexTensor {
-        let (x, [b, c2, h, w]) = dense(x);
-        let (weight, _) = dense(weight);
+        let (x, [b, c2, h, w]) = values(x);
+        let (weight, _) = values(weight);
         let y = gated_depthwise(flex_slice(&x), flex_slice(&weight), [b, c2, h, w]);
-        FlexTensor::from_data(TensorData::new(y, [b, c2 / 2, h, w]))
+        tensor(y, [b, c2 / 2, h, w])
     }
 }
 
@@ -192,18 +186,15 @@ impl Backward<Flex, 2> for GateBackward {
         let [node_x, node_w] = ops.parents;
         let (id_x, id_w, Kept(d)) = ops.state;
         let dy = grads.consume::<Flex>(&ops.node).to_contiguous();
-        let (x, dims) = dense(checkpointer.retrieve_node_output::<FlexTensor>(id_x));
-        let (weight, _) = dense(checkpointer.retrieve_node_output::<FlexTensor>(id_w));
-        let dd = gate_grad(&d, flex_slice(&dy), dims);
-        let weight = flex_slice(&weight);
+        let (x, dims) = values(checkpointer.retrieve_node_output::<FlexTensor>(id_x));
+        let (weight, _) = values(checkpointer.retrieve_node_output::<FlexTensor>(id_w));
+        // From `∂d` on, the depthwise convolution's own gradients.
+        let dd = tensor(gate_grad(&d, flex_slice(&dy), dims), dims);
         if let Some(node) = node_x {
-            let dx = depthwise_forward(&dd, &half_turn(weight), dims);
-            grads.register::<Flex>(node.id, FlexTensor::from_data(TensorData::new(dx, dims)));
+            grads.register::<Flex>(node.id, Flex::depthwise3_x_grad(weight, dd.clone()));
         }
         if let Some(node) = node_w {
-            let dw = weight_grad(flex_slice(&x), &dd, dims);
-            let shape = [dims[1], 1, 3, 3];
-            grads.register::<Flex>(node.id, FlexTensor::from_data(TensorData::new(dw, shape)));
+            grads.register::<Flex>(node.id, Flex::depthwise3_w_grad(x, dd));
         }
     }
 }
@@ -217,12 +208,12 @@ impl<C: CheckpointStrategy> GateTrainOps for Autodiff<Flex, C> {
         {
             OpsKind::Tracked(mut prep) => {
                 let (id_x, id_w) = (prep.checkpoint(&x), prep.checkpoint(&weight));
-                let (xs, dims) = dense(x.into_primitive());
-                let (ws, _) = dense(weight.into_primitive());
+                let (xs, dims) = values(x.into_primitive());
+                let (ws, _) = values(weight.into_primitive());
                 let d = depthwise_forward(flex_slice(&xs), flex_slice(&ws), dims);
                 let y = gate(&d, dims);
                 let [b, c2, h, w] = dims;
-                let y = FlexTensor::from_data(TensorData::new(y, [b, c2 / 2, h, w]));
+                let y = tensor(y, [b, c2 / 2, h, w]);
                 prep.finish((id_x, id_w, Kept(Arc::new(d))), y)
             }
             OpsKind::UnTracked(prep) => prep.finish(Flex::gated_depthwise3(

@@ -216,25 +216,9 @@ fn strip_body<const D: usize>(
                 krow[n..].fill(0.0);
             }
             let logits = &mut logits[..lq * np];
-            match s.bias {
-                Some(b) => {
-                    let b = &b[head * lq * lk..][..lq * lk];
-                    for qi in 0..lq {
-                        let row = &mut logits[qi * np..][..np];
-                        for (l, &(kj, _)) in row.iter_mut().zip(&inside) {
-                            *l = b[qi * lk + kj];
-                        }
-                        row[n..].fill(0.0);
-                    }
-                }
-                None => logits.fill(0.0),
-            }
-            for i in 0..D {
-                let krow = &kt[i * np..][..np];
-                for qi in 0..lq {
-                    lanes::axpy(&mut logits[qi * np..][..np], qb[qi][i], krow);
-                }
-            }
+            let bias = s.bias.map(|b| &b[head * lq * lk..][..lq * lk]);
+            let slots = inside.iter().map(|&(kj, _)| kj);
+            logit_rows(logits, slots, n, bias, &qb, &kt[..D * np]);
             for qi in 0..lq {
                 let row = &mut logits[qi * np..][..np];
                 let inv = lanes::exp_row(row, n, exp_nonpositive);
@@ -259,6 +243,39 @@ fn strip_body<const D: usize>(
         }
     }
     (strip, kept)
+}
+
+/// One window's and head's logits, `[lq, np]` rows for its `n` keys padded to `np`: the
+/// position logits of the keys' slots (`bias`: this head's `[lq, kwin²]`) or zeros, plus
+/// `q·k` (`qb`: scaled queries; `kt`: keys transposed, `[D, np]`, zero padding). The
+/// backward (`net/window_train`) computes them through this too, so both get the same bits.
+#[inline(always)]
+pub(super) fn logit_rows<const D: usize>(
+    rows: &mut [f32],
+    slots: impl Iterator<Item = usize> + Clone,
+    n: usize,
+    bias: Option<&[f32]>,
+    qb: &[[f32; D]],
+    kt: &[f32],
+) {
+    let np = rows.len() / qb.len();
+    match bias {
+        Some(b) => {
+            let lk = b.len() / qb.len();
+            for (qi, row) in rows.chunks_exact_mut(np).enumerate() {
+                for (l, slot) in row.iter_mut().zip(slots.clone()) {
+                    *l = b[qi * lk + slot];
+                }
+                row[n..].fill(0.0);
+            }
+        }
+        None => rows.fill(0.0),
+    }
+    for (i, krow) in kt.chunks_exact(np).enumerate() {
+        for (row, q) in rows.chunks_exact_mut(np).zip(qb) {
+            lanes::axpy(row, q[i], krow);
+        }
+    }
 }
 
 /// `eᵡ` for `x ≤ 0` without a library call, so the softmax loop vectorises: `x = n·ln 2 + r`

@@ -16,7 +16,7 @@
 use super::kernels::{flex_dims, flex_slice};
 use super::lanes;
 use super::window_direct::{
-    WindowSpec, attend_maps, attend_maps_keeping, exp_nonpositive, head_dim_supported,
+    WindowSpec, attend_maps, attend_maps_keeping, exp_nonpositive, head_dim_supported, logit_rows,
 };
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
@@ -461,25 +461,9 @@ fn strip_body<const D: usize>(
                 }
             } else {
                 // Logits and softmax rows, as the forward computes them.
-                match s.bias {
-                    Some(b) => {
-                        let b = &b[head * lq * lk..][..lq * lk];
-                        for qi in 0..lq {
-                            let row = &mut p[qi * np..][..np];
-                            for (l, &(slot, _, _)) in row.iter_mut().zip(&inside) {
-                                *l = b[qi * lk + slot];
-                            }
-                            row[n..].fill(0.0);
-                        }
-                    }
-                    None => p.fill(0.0),
-                }
-                for i in 0..D {
-                    let krow = &kt[i * np..][..np];
-                    for qi in 0..lq {
-                        lanes::axpy(&mut p[qi * np..][..np], qb[qi][i], krow);
-                    }
-                }
+                let bias = s.bias.map(|b| &b[head * lq * lk..][..lq * lk]);
+                let slots = inside.iter().map(|&(slot, _, _)| slot);
+                logit_rows(p, slots, n, bias, &qb, &kt[..D * np]);
                 for row in p.chunks_exact_mut(np) {
                     lanes::softmax(row, n, exp_nonpositive);
                 }
