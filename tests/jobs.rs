@@ -196,6 +196,96 @@ struct RenderArgs {
 /// `render --split test` through the library: the report counts the capture's held-out
 /// views, whose renders and ground truth lie side by side under one name each; a request the
 /// job must refuse (a frame rate for a folder of frames) writes nothing.
+/// A family run records how it draws its PSF scales, and a resume that asks for another draw
+/// is refused naming the flag and the run's draw, before anything is trained; the same draw
+/// resumes. Without `--family` the flag is refused by the parser.
+#[test]
+fn a_family_run_resumes_only_with_its_own_scale_draw() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (psf, _) = simulate_grid(&SimConfig::small(21), &|_, _| {}).unwrap();
+    let psf_path = d.join("psf.npy");
+    psf.save_npy(&psf_path).unwrap();
+    let (train, val) = (d.join("train"), d.join("val"));
+    common::photos(&train, 2, 96, 96);
+    common::photos(&val, 1, 96, 96);
+    let out = d.join("f.bin");
+    let s = common::cli::s;
+    let flags = |extra: &[&'static str]| -> Vec<String> {
+        let mut v: Vec<String> = [
+            "--images",
+            s(&train),
+            "--val",
+            s(&val),
+            "--psf",
+            s(&psf_path),
+            "--out",
+            s(&out),
+            "--steps",
+            "2",
+            "--batch",
+            "1",
+            "--val-every",
+            "1",
+            "--val-crop",
+            "64",
+            "--family",
+            "--lenses",
+            "1",
+        ]
+        .iter()
+        .map(|f| f.to_string())
+        .collect();
+        v.extend(extra.iter().map(|f| f.to_string()));
+        v
+    };
+    let req = |extra: &[&'static str]| {
+        let f = flags(extra);
+        request(&f.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    let first = prepare(&req(&["--psf-px-draw", "linear", "--minutes", "0"]), "test")
+        .unwrap()
+        .run(&mut |_| {})
+        .unwrap();
+    assert!(first.stopped_early() && first.reached == 1, "{first:?}");
+    let (header, _) = restore::weights::read(&out).unwrap();
+    let drawn = &header.family.as_ref().unwrap().drawn;
+    assert_eq!(drawn["psf_px_draw"], "linear", "{drawn}");
+    let before = std::fs::read(&out).unwrap();
+    let err = match prepare(&req(&["--resume"]), "test") {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("a resume with another scale draw was accepted"),
+    };
+    assert!(
+        err.contains("--psf-px-draw log") && err.contains("linear") && err.contains("f.bin"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(&out).unwrap(),
+        before,
+        "a refused resume touched the weights"
+    );
+    let second = prepare(&req(&["--resume", "--psf-px-draw", "linear"]), "test")
+        .unwrap()
+        .run(&mut |_| {})
+        .unwrap();
+    assert_eq!((second.first, second.reached), (1, 2));
+    // Without --family there is no family to draw over.
+    let plain = [
+        "--images",
+        "x",
+        "--val",
+        "x",
+        "--psf",
+        "x",
+        "--out",
+        "x",
+        "--psf-px-draw",
+        "linear",
+    ];
+    assert!(Args::try_parse_from(std::iter::once("train").chain(plain)).is_err());
+}
+
 #[test]
 fn rendering_runs_through_the_library_and_reports() {
     let c = common::small_capture(4);

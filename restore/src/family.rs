@@ -29,8 +29,12 @@ pub struct LensFamily {
     /// of each kernel's peak, and a uniform pedestal up to this share of its energy.
     pub psf_noise: f32,
     pub pedestal: f32,
-    /// PSF side at the photo's size (px), drawn log-uniform.
+    /// PSF side at the photo's size (px), drawn as `psf_px_draw` says.
     pub psf_px: [usize; 2],
+    /// How the PSF side is drawn over `psf_px`. Read as log-uniform from headers written
+    /// before the field.
+    #[serde(default)]
+    pub psf_px_draw: ScaleDraw,
     /// Sensor noise as a multiple of the paper's, drawn log-uniform.
     pub noise_scale: [f32; 2],
 }
@@ -48,9 +52,24 @@ impl Default for LensFamily {
             psf_noise: 0.01,
             pedestal: 0.01,
             psf_px: [15, 140],
+            psf_px_draw: ScaleDraw::LogUniform,
             noise_scale: [0.5, 2.0],
         }
     }
+}
+
+/// How a pair's PSF side is drawn over the family's range.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum ScaleDraw {
+    /// Each doubling of the side equally often: over 15–140 px, half the pairs below 46 px.
+    #[default]
+    #[value(name = "log")]
+    LogUniform,
+    /// Each pixel of side equally often: over 15–140 px, 44 % of the pairs above 85 px
+    /// (22 % log-uniform), for weights that must gain where the blur is widest.
+    #[value(name = "linear")]
+    Linear,
 }
 
 /// One lens of a family: the simulator's settings and the measurement defects.
@@ -146,7 +165,11 @@ impl LensFamily {
     pub fn pair(&self, lenses: usize, seed: u64) -> PairDraw {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let [lo, hi] = self.psf_px;
-        let psf_px = log_uniform(&mut rng, lo as f64, hi as f64).round() as usize;
+        let psf_px = match self.psf_px_draw {
+            ScaleDraw::LogUniform => log_uniform(&mut rng, lo as f64, hi as f64),
+            ScaleDraw::Linear => lo as f64 + rng.random::<f64>() * (hi - lo) as f64,
+        }
+        .round() as usize;
         let [a, b] = self.noise_scale;
         let noise = if a > 0.0 {
             log_uniform(&mut rng, a as f64, b as f64) as f32
@@ -265,6 +288,27 @@ mod tests {
         assert!(seen[0] <= 17 && seen[1] >= 135, "{seen:?}");
         // Log-uniform: the geometric middle of 15-140 px (45.8) splits the draws in half.
         assert!((850..1150).contains(&below_57), "{below_57}");
+        // Linear: the arithmetic middle (77.5) does, and 44 % lie above 85 px (22 % above).
+        let linear = LensFamily {
+            psf_px_draw: ScaleDraw::Linear,
+            ..f.clone()
+        };
+        let (mut below_mid, mut above_85, mut above_85_log) = (0, 0, 0);
+        for s in 0..4000 {
+            let p = linear.pair(8, s);
+            assert!((15..=140).contains(&p.psf_px));
+            below_mid += usize::from(p.psf_px < 78);
+            above_85 += usize::from(p.psf_px > 85);
+            above_85_log += usize::from(f.pair(8, s).psf_px > 85);
+        }
+        assert!((1800..2200).contains(&below_mid), "{below_mid}");
+        assert!((1600..1900).contains(&above_85), "{above_85}");
+        assert!((750..1000).contains(&above_85_log), "{above_85_log}");
+        // Headers written before the field read as log-uniform.
+        let mut old = serde_json::to_value(&f).unwrap();
+        old.as_object_mut().unwrap().remove("psf_px_draw");
+        let read: LensFamily = serde_json::from_value(old).unwrap();
+        assert_eq!(read, f);
         // Ranges that describe no lens are refused.
         for bad in [
             LensFamily {

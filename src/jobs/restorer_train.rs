@@ -5,7 +5,7 @@
 use aberration::{Image, NoiseModel, PsfGrid};
 use clap::Args;
 use restore::data::{TrainSet, load_folder, load_pairs};
-use restore::family::LensFamily;
+use restore::family::{LensFamily, ScaleDraw};
 use restore::net::kernels::{Kernels, with_kernels};
 use restore::provenance::Lineage;
 use restore::train::{Event, Schedule, Start, TrainOptions, TrainRun, ValSet, round_seed, train};
@@ -77,6 +77,11 @@ pub struct RestorerTrainRequest {
     /// so that a resumed or later run simulates none again.
     #[arg(long, default_value_t = 12, value_parser = clap::value_parser!(u64).range(1..=1000), requires = "family")]
     pub lenses: u64,
+    /// How each pair's PSF scale is drawn over the family's 15-140 px: `log` (log-uniform,
+    /// each doubling equally often) or `linear` (each pixel of side equally often: twice the
+    /// share above 85 px, for weights that must gain where the blur is widest).
+    #[arg(long, value_enum, default_value_t = ScaleDraw::LogUniform, requires = "family")]
+    pub psf_px_draw: ScaleDraw,
     /// Continue the interrupted run that writes `--out` exactly where its last checkpoint left
     /// it (weights, `OUT.state`: optimizer moments, schedule, sampler position); --steps,
     /// --batch, --lr, --seed and --refresh-every must be the run's own (others are refused).
@@ -423,6 +428,16 @@ fn starting_point(
             }
         ));
     }
+    if let Some(saved) = &header.family {
+        let drawn = serde_json::from_value::<LensFamily>(saved.drawn.clone()).ok();
+        if let Some(d) = drawn.filter(|d| d.psf_px_draw != a.psf_px_draw) {
+            return refused(format!(
+                "{out}: cannot resume with --psf-px-draw {}: the run draws its PSF scales {}",
+                draw_name(a.psf_px_draw),
+                draw_name(d.psf_px_draw),
+            ));
+        }
+    }
     *schedule = state.schedule.clone();
     let s = &*schedule;
     if state.step >= s.steps {
@@ -437,6 +452,20 @@ fn starting_point(
     ));
     let lineage = Lineage::resumed(header.provenance, state.step);
     Ok((Start::Resume(net, Box::new(state), record), lineage))
+}
+
+/// The family `--family` trains over: issue 51's, its scales drawn as `--psf-px-draw` says.
+fn family_of(a: &RestorerTrainRequest) -> LensFamily {
+    LensFamily {
+        psf_px_draw: a.psf_px_draw,
+        ..LensFamily::default()
+    }
+}
+
+fn draw_name(d: ScaleDraw) -> String {
+    use clap::ValueEnum;
+    d.to_possible_value()
+        .map_or_else(|| format!("{d:?}"), |v| v.get_name().to_string())
 }
 
 /// The lenses a family run draws from: `centre` (the `--psf` grid) and `count - 1` lenses
@@ -552,7 +581,7 @@ impl PreparedRestorerRun {
         if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
         }
-        let family = a.family.then(LensFamily::default);
+        let family = a.family.then(|| family_of(a));
         let lenses = match &family {
             Some(f) => lens_bank(f, native, &a.out, a.lenses as usize, a.seed, on_event)?,
             None => vec![],
