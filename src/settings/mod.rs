@@ -328,10 +328,10 @@ pub struct TrainSettings {
     /// FROM:TO (held until FROM, zero at TO).
     #[arg(long, default_value_t = LambdaFade::Auto)]
     pub lambda_fade: LambdaFade,
-    /// Training steps, or `auto`: until the training views stop improving (after
-    /// densification, then a short final phase), with schedules made for 150 steps per
-    /// training view (1000 to 7000).
-    #[arg(long, default_value_t = Iters::Steps(7000))]
+    /// Training steps, or `auto` (the default): until the training views stop improving
+    /// (after densification, then a short final phase), with schedules made for 150 steps per
+    /// training view (1000 to 7000). A number means exactly that many steps.
+    #[arg(long, default_value_t = Iters::Auto)]
     pub iters: Iters,
     /// Splat budget; default: one per two pixels of a view, twice that for a capture whose
     /// cameras surround the scene.
@@ -587,7 +587,7 @@ mod tests {
         let r = RunRequest::new("scene", "run");
         assert_eq!(r.scene, PathBuf::from("scene"));
         assert_eq!(r.training.mode, Mode::Aware);
-        assert_eq!(r.training.iters, Iters::Steps(7000));
+        assert_eq!(r.training.iters, Iters::Auto);
         assert_eq!(r.data.downsample, DataOptions::default().downsample);
         assert_eq!(r.data.llffhold, scenes::LLFFHOLD);
         let t: TrainSettings = parse_args(&["--iters".as_ref(), "12".as_ref()]);
