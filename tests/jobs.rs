@@ -11,7 +11,7 @@ use metasplat::jobs::restore::{RestoreEvent, Restored};
 use metasplat::jobs::restorer_eval::evaluate;
 use metasplat::jobs::restorer_train::{RestorerEvent, RestorerTrainRequest, prepare};
 use restore::train::Event;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 #[derive(Parser)]
 struct Args {
@@ -23,6 +23,18 @@ fn request(flags: &[&str]) -> RestorerTrainRequest {
     Args::parse_from(std::iter::once("train").chain(flags.iter().copied())).a
 }
 
+/// A small simulated grid saved as `d/psf.npy`, two training photos in `d/train` and one
+/// validation photo in `d/val`, all `w × h`: what a `restorer train` request reads.
+fn restorer_inputs(d: &Path, w: u32, h: u32) -> (aberration::PsfGrid, PathBuf, PathBuf, PathBuf) {
+    let (psf, _) = simulate_grid(&SimConfig::small(21), &|_, _| {}).unwrap();
+    let psf_path = d.join("psf.npy");
+    psf.save_npy(&psf_path).unwrap();
+    let (train, val) = (d.join("train"), d.join("val"));
+    common::photos(&train, 2, w, h);
+    common::photos(&val, 1, w, h);
+    (psf, psf_path, train, val)
+}
+
 /// Two steps of `tiny`, stopped after the first by a zero-minute budget and resumed: the
 /// events say how it starts and every validation, the report what it reached; a request
 /// that validates on its training photos is refused by `prepare` before anything is
@@ -31,12 +43,7 @@ fn request(flags: &[&str]) -> RestorerTrainRequest {
 fn restorer_training_runs_through_the_library_and_reports() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let (psf, _) = simulate_grid(&SimConfig::small(21), &|_, _| {}).unwrap();
-    let psf_path = d.join("psf.npy");
-    psf.save_npy(&psf_path).unwrap();
-    let (train, val) = (d.join("train"), d.join("val"));
-    common::photos(&train, 2, 80, 72);
-    common::photos(&val, 1, 80, 72);
+    let (psf, psf_path, train, val) = restorer_inputs(d, 80, 72);
     let out = d.join("w.bin");
     let s = common::cli::s;
     let flags = [
@@ -187,15 +194,6 @@ struct RestoreArgs {
     a: metasplat::jobs::restore::RestoreRequest,
 }
 
-#[derive(Parser)]
-struct RenderArgs {
-    #[command(flatten)]
-    a: metasplat::jobs::render::RenderRequest,
-}
-
-/// `render --split test` through the library: the report counts the capture's held-out
-/// views, whose renders and ground truth lie side by side under one name each; a request the
-/// job must refuse (a frame rate for a folder of frames) writes nothing.
 /// A family run records how it draws its PSF scales, and a resume that asks for another draw
 /// is refused naming the flag and the run's draw, before anything is trained; the same draw
 /// resumes. Without `--family` the flag is refused by the parser.
@@ -203,46 +201,31 @@ struct RenderArgs {
 fn a_family_run_resumes_only_with_its_own_scale_draw() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let (psf, _) = simulate_grid(&SimConfig::small(21), &|_, _| {}).unwrap();
-    let psf_path = d.join("psf.npy");
-    psf.save_npy(&psf_path).unwrap();
-    let (train, val) = (d.join("train"), d.join("val"));
-    common::photos(&train, 2, 96, 96);
-    common::photos(&val, 1, 96, 96);
+    let (_, psf_path, train, val) = restorer_inputs(d, 96, 96);
     let out = d.join("f.bin");
     let s = common::cli::s;
-    let flags = |extra: &[&'static str]| -> Vec<String> {
-        let mut v: Vec<String> = [
-            "--images",
-            s(&train),
-            "--val",
-            s(&val),
-            "--psf",
-            s(&psf_path),
-            "--out",
-            s(&out),
-            "--steps",
-            "2",
-            "--batch",
-            "1",
-            "--val-every",
-            "1",
-            "--val-crop",
-            "64",
-            "--family",
-            "--lenses",
-            "1",
-        ]
-        .iter()
-        .map(|f| f.to_string())
-        .collect();
-        v.extend(extra.iter().map(|f| f.to_string()));
-        v
-    };
-    let req = |extra: &[&'static str]| {
-        let f = flags(extra);
-        request(&f.iter().map(String::as_str).collect::<Vec<_>>())
-    };
+    let flags = [
+        "--images",
+        s(&train),
+        "--val",
+        s(&val),
+        "--psf",
+        s(&psf_path),
+        "--out",
+        s(&out),
+        "--steps",
+        "2",
+        "--batch",
+        "1",
+        "--val-every",
+        "1",
+        "--val-crop",
+        "64",
+        "--family",
+        "--lenses",
+        "1",
+    ];
+    let req = |extra: &[&str]| request(&[&flags[..], extra].concat());
     let first = prepare(&req(&["--psf-px-draw", "linear", "--minutes", "0"]), "test")
         .unwrap()
         .run(&mut |_| {})
@@ -286,6 +269,15 @@ fn a_family_run_resumes_only_with_its_own_scale_draw() {
     assert!(Args::try_parse_from(std::iter::once("train").chain(plain)).is_err());
 }
 
+#[derive(Parser)]
+struct RenderArgs {
+    #[command(flatten)]
+    a: metasplat::jobs::render::RenderRequest,
+}
+
+/// `render --split test` through the library: the report counts the capture's held-out
+/// views, whose renders and ground truth lie side by side under one name each; a request the
+/// job must refuse (a frame rate for a folder of frames) writes nothing.
 #[test]
 fn rendering_runs_through_the_library_and_reports() {
     let c = common::small_capture(4);
