@@ -1,6 +1,7 @@
 //! A training run killed with SIGKILL at several points leaves only complete files (and our
 //! own temporary files, which the next run in that folder removes); `--resume` finishes it,
-//! and the result equals an uninterrupted run bit for bit.
+//! and the result equals an uninterrupted run bit for bit. `restorer train` stops between
+//! the lenses of its bank.
 
 mod common;
 
@@ -611,4 +612,67 @@ fn ctrl_c_while_i_ac_is_made_keeps_the_views_restored_so_far() {
         "{out}"
     );
     assert_eq!(entries(), total);
+}
+
+/// A stop asked for while `restorer train --family` simulates its lens bank (most of a minute
+/// per lens) ends the run at the next lens, saying so, with no weights written and `--out`
+/// let go. The request is made in this process, which trains nothing else (the other tests
+/// here run the binary).
+#[test]
+fn a_restorer_run_stops_between_the_lenses_of_its_bank() {
+    use clap::Parser;
+    use metasplat::jobs::restorer_train::{RestorerTrainRequest, prepare};
+    #[derive(Parser)]
+    struct Args {
+        #[command(flatten)]
+        a: RestorerTrainRequest,
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (psf, _) =
+        aberration::optics::simulate_grid(&aberration::optics::SimConfig::small(21), &|_, _| {})
+            .unwrap();
+    let psf_path = d.join("psf.npy");
+    psf.save_npy(&psf_path).unwrap();
+    common::photos(&d.join("train"), 2, 96, 96);
+    common::photos(&d.join("val"), 1, 96, 96);
+    let out = d.join("f.bin");
+    let (train, val) = (s(&d.join("train")), s(&d.join("val")));
+    let (psf_arg, out_arg) = (s(&psf_path), s(&out));
+    let flags = [
+        "train",
+        "--images",
+        &train,
+        "--val",
+        &val,
+        "--psf",
+        &psf_arg,
+        "--out",
+        &out_arg,
+        "--steps",
+        "2",
+        "--batch",
+        "1",
+        "--val-crop",
+        "64",
+        "--family",
+        "--lenses",
+        "3",
+    ];
+    let prepared = prepare(&Args::parse_from(flags).a, "test").unwrap();
+    base::interrupt::request();
+    let result = prepared.run(&mut |_| {});
+    base::interrupt::clear();
+    let err = match result {
+        Err(e @ metasplat::TrainError::Interrupted(_)) => e.to_string(),
+        Err(e) => panic!("another error: {e}"),
+        Ok(r) => panic!("the run trained: {r:?}"),
+    };
+    assert!(
+        err.contains("lens family") && err.contains("1 of 3"),
+        "{err}"
+    );
+    assert!(!out.exists() && !restore::train_state::state_path(&out).exists());
+    // `--out` is free again.
+    drop(prepare(&Args::parse_from(flags).a, "test").unwrap());
 }

@@ -196,7 +196,7 @@ struct RestoreArgs {
 
 /// A family run records how it draws its PSF scales, and a resume that asks for another draw
 /// is refused naming the flag and the run's draw, before anything is trained; the same draw
-/// resumes. Without `--family` the flag is refused by the parser.
+/// resumes. A second run on the same `--out` is refused while the first holds it. Without `--family` the flag is refused by the parser.
 #[test]
 fn a_family_run_resumes_only_with_its_own_scale_draw() {
     let dir = tempfile::tempdir().unwrap();
@@ -226,10 +226,19 @@ fn a_family_run_resumes_only_with_its_own_scale_draw() {
         "1",
     ];
     let req = |extra: &[&str]| request(&[&flags[..], extra].concat());
-    let first = prepare(&req(&["--psf-px-draw", "linear", "--minutes", "0"]), "test")
-        .unwrap()
-        .run(&mut |_| {})
-        .unwrap();
+    let held = prepare(&req(&["--psf-px-draw", "linear", "--minutes", "0"]), "test").unwrap();
+    // While one run holds `--out`, a second one writing it is refused before any work.
+    let busy = match prepare(&req(&["--psf-px-draw", "linear"]), "test") {
+        Err(e @ TrainError::Lock(_)) => e.to_string(),
+        Err(e) => panic!("another error: {e}"),
+        Ok(_) => panic!("two runs were let write {}", out.display()),
+    };
+    assert!(
+        busy.contains("f.bin") && busy.contains("restorer train"),
+        "{busy}"
+    );
+    assert!(!out.exists());
+    let first = held.run(&mut |_| {}).unwrap();
     assert!(first.stopped_early() && first.reached == 1, "{first:?}");
     let (header, _) = restore::weights::read(&out).unwrap();
     let drawn = &header.family.as_ref().unwrap().drawn;

@@ -164,6 +164,9 @@ pub struct PreparedRestorerRun {
     /// Sentences on how the run starts (a resume, fine-tuning to another lens).
     pub notes: Vec<String>,
     command: String,
+    /// Held until the run ends: a second run writing the same `--out` (its weights, state
+    /// and lens bank) is refused instead of interleaving its checkpoints with this one's.
+    _lock: base::FolderLock,
 }
 
 /// Every check on `request`, before a photo is read or anything written; the PSF grid and
@@ -199,6 +202,8 @@ pub fn prepare(request: &RestorerTrainRequest, command: &str) -> Result<Prepared
     if request.backend == restore::Compute::Cpu {
         refuse_training_memory(&config, schedule.batch, request.resume)?;
     }
+    // Last of the checks, so a refused request leaves nothing behind but `--out`'s folder.
+    let lock = base::FolderLock::beside(&request.out, "restorer train")?;
     Ok(PreparedRestorerRun {
         request: request.clone(),
         train_dir,
@@ -209,6 +214,7 @@ pub fn prepare(request: &RestorerTrainRequest, command: &str) -> Result<Prepared
         lineage,
         notes,
         command: command.to_string(),
+        _lock: lock,
     })
 }
 
@@ -491,6 +497,14 @@ fn lens_bank(
         total: count,
     });
     for i in 1..count {
+        // Each lens takes most of a minute to simulate: a stop asked for here must not wait
+        // for the whole bank (what is simulated is kept and read again by the same command).
+        if base::interrupt::requested() {
+            return Err(TrainError::Interrupted(format!(
+                "while simulating the lens family ({i} of {count} ready, kept in {}): nothing trained yet; the same command reads them again",
+                dir.display()
+            )));
+        }
         let path = dir.join(format!("lens_{i:03}_seed{seed}.npy"));
         let grid = match PsfGrid::load_npy(&path) {
             Ok(g) => g,
