@@ -17,10 +17,10 @@ pub const TINY_NAME: &str = "restore/weights/tiny.bin (shipped)";
 
 /// The `tiny` network fine-tuned over the lens family around the default one, at PSFs of
 /// 15-140 px (`restore/weights/README.md`): `auto`'s choice where [`TINY`] does not serve.
-pub const FAMILY: &[u8] = include_bytes!("../weights/family_tiny_4.bin");
+pub const FAMILY: &[u8] = include_bytes!("../weights/family_tiny_5.bin");
 
 /// The name the general weights go by in messages.
-pub const FAMILY_NAME: &str = "restore/weights/family_tiny_4.bin (shipped)";
+pub const FAMILY_NAME: &str = "restore/weights/family_tiny_5.bin (shipped)";
 
 /// Weights shipped inside the binary.
 #[derive(Clone, Copy, Debug)]

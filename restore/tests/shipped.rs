@@ -249,7 +249,7 @@ fn the_general_network_beats_wiener_where_auto_takes_it() {
 
 #[test]
 fn the_family_increment_serves_the_default_lens_and_a_perturbed_one_at_every_scale() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("weights/family_tiny_4.bin");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("weights/family_tiny_5.bin");
     let (header, _) = restore::weights::read(&path).unwrap();
     assert_eq!(header.trained_psf_px, Some([15, 140]));
     assert!(header.family.is_some());
