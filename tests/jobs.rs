@@ -196,7 +196,8 @@ struct RestoreArgs {
 
 /// A family run records how it draws its PSF scales, and a resume that asks for another draw
 /// is refused naming the flag and the run's draw, before anything is trained; the same draw
-/// resumes. A second run on the same `--out` is refused while the first holds it. Without `--family` the flag is refused by the parser.
+/// resumes; so is a resume over another `--psf-px-range`. A second run on the same `--out` is
+/// refused while the first holds it. Without `--family` the flag is refused by the parser.
 #[test]
 fn a_family_run_resumes_only_with_its_own_scale_draw() {
     let dir = tempfile::tempdir().unwrap();
@@ -226,7 +227,8 @@ fn a_family_run_resumes_only_with_its_own_scale_draw() {
         "1",
     ];
     let req = |extra: &[&str]| request(&[&flags[..], extra].concat());
-    let held = prepare(&req(&["--psf-px-draw", "linear", "--minutes", "0"]), "test").unwrap();
+    let range = ["--psf-px-draw", "linear", "--psf-px-range", "60-90"];
+    let held = prepare(&req(&[&range[..], &["--minutes", "0"]].concat()), "test").unwrap();
     // While one run holds `--out`, a second one writing it is refused before any work.
     let busy = match prepare(&req(&["--psf-px-draw", "linear"]), "test") {
         Err(e @ TrainError::Lock(_)) => e.to_string(),
@@ -243,6 +245,8 @@ fn a_family_run_resumes_only_with_its_own_scale_draw() {
     let (header, _) = restore::weights::read(&out).unwrap();
     let drawn = &header.family.as_ref().unwrap().drawn;
     assert_eq!(drawn["psf_px_draw"], "linear", "{drawn}");
+    assert_eq!(drawn["psf_px"], serde_json::json!([60, 90]), "{drawn}");
+    assert_eq!(header.trained_psf_px, Some([60, 90]));
     let before = std::fs::read(&out).unwrap();
     let err = match prepare(&req(&["--resume"]), "test") {
         Err(e) => e.to_string(),
@@ -252,12 +256,20 @@ fn a_family_run_resumes_only_with_its_own_scale_draw() {
         err.contains("--psf-px-draw log") && err.contains("linear") && err.contains("f.bin"),
         "{err}"
     );
+    let err = match prepare(&req(&["--resume", "--psf-px-draw", "linear"]), "test") {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("a resume over another scale range was accepted"),
+    };
+    assert!(
+        err.contains("--psf-px-range 15-140") && err.contains("60-90 px"),
+        "{err}"
+    );
     assert_eq!(
         std::fs::read(&out).unwrap(),
         before,
         "a refused resume touched the weights"
     );
-    let second = prepare(&req(&["--resume", "--psf-px-draw", "linear"]), "test")
+    let second = prepare(&req(&[&["--resume"][..], &range[..]].concat()), "test")
         .unwrap()
         .run(&mut |_| {})
         .unwrap();

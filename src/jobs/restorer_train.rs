@@ -82,6 +82,11 @@ pub struct RestorerTrainRequest {
     /// share above 85 px, for weights that must gain where the blur is widest).
     #[arg(long, value_enum, default_value_t = ScaleDraw::LogUniform, requires = "family")]
     pub psf_px_draw: ScaleDraw,
+    /// The PSF sides (px, `LO-HI`) the pairs are drawn from instead of the family's 15-140,
+    /// e.g. `85-140` for weights meant for the widest blur only; the header records the range
+    /// and `auto` offers the weights for captures inside it.
+    #[arg(long, value_parser = crate::settings::values::psf_px_range, requires = "family")]
+    pub psf_px_range: Option<crate::settings::values::PsfPxRange>,
     /// Continue the interrupted run that writes `--out` exactly where its last checkpoint left
     /// it (weights, `OUT.state`: optimizer moments, schedule, sampler position); --steps,
     /// --batch, --lr, --seed and --refresh-every must be the run's own (others are refused).
@@ -436,11 +441,20 @@ fn starting_point(
     }
     if let Some(saved) = &header.family {
         let drawn = serde_json::from_value::<LensFamily>(saved.drawn.clone()).ok();
-        if let Some(d) = drawn.filter(|d| d.psf_px_draw != a.psf_px_draw) {
+        if let Some(d) = &drawn
+            && d.psf_px_draw != a.psf_px_draw
+        {
             return refused(format!(
                 "{out}: cannot resume with --psf-px-draw {}: the run draws its PSF scales {}",
                 draw_name(a.psf_px_draw),
                 draw_name(d.psf_px_draw),
+            ));
+        }
+        let asked = family_of(a).psf_px;
+        if let Some(d) = drawn.filter(|d| d.psf_px != asked) {
+            return refused(format!(
+                "{out}: cannot resume with --psf-px-range {}-{}: the run draws its PSF scales over {}-{} px",
+                asked[0], asked[1], d.psf_px[0], d.psf_px[1],
             ));
         }
     }
@@ -462,9 +476,11 @@ fn starting_point(
 
 /// The family `--family` trains over: issue 51's, its scales drawn as `--psf-px-draw` says.
 fn family_of(a: &RestorerTrainRequest) -> LensFamily {
+    let base = LensFamily::default();
     LensFamily {
         psf_px_draw: a.psf_px_draw,
-        ..LensFamily::default()
+        psf_px: a.psf_px_range.map_or(base.psf_px, |r| r.0),
+        ..base
     }
 }
 

@@ -135,6 +135,24 @@ pub const MAX_TRAIN_CROP: usize = 1024;
 /// The smallest validation crop: a few of the network's attention windows.
 pub const MIN_CROP: usize = 16;
 
+/// `restorer train --psf-px-range`: the PSF sides a family run draws from, `LO-HI` pixels,
+/// 1 ≤ LO ≤ HI ≤ the largest mapped PSF.
+pub fn psf_px_range(s: &str) -> Result<PsfPxRange, String> {
+    let (lo, hi) = s
+        .split_once('-')
+        .ok_or_else(|| format!("'{s}' is not LO-HI (e.g. 85-140)"))?;
+    let (lo, hi) = (pixel_count(lo)?, pixel_count(hi)?);
+    let max = aberration::resample::MAX_MAPPED_PSF_PX;
+    if lo == 0 || lo > hi || hi > max {
+        return Err(format!("{lo}-{hi} px: use 1 ≤ LO ≤ HI ≤ {max}"));
+    }
+    Ok(PsfPxRange([lo, hi]))
+}
+
+/// A range of PSF sides in pixels, both ends included.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PsfPxRange(pub [usize; 2]);
+
 /// Held-out view spacing: 0 (none held out) or at least 2 (1 would hold out every view).
 pub fn llffhold(s: &str) -> Result<usize, String> {
     let v: usize = s
@@ -231,6 +249,10 @@ mod tests {
         assert_eq!(weight("0").unwrap(), 0.0);
         assert!(field_angle("90").is_err() && field_angle("0").is_err());
         assert!(llffhold("1").is_err());
+        assert_eq!(psf_px_range(" 85-140").unwrap(), PsfPxRange([85, 140]));
+        for bad in ["85", "140-85", "0-10", "10-99999", "a-b", "-5-10"] {
+            assert!(psf_px_range(bad).is_err(), "{bad}");
+        }
         assert_eq!(llffhold("0").unwrap(), 0);
         assert_eq!(colour("white").unwrap(), [1.0; 3]);
         assert_eq!(colour("0.5, 0.25,1").unwrap(), [0.5, 0.25, 1.0]);
