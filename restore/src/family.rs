@@ -65,6 +65,8 @@ pub enum ScaleDraw {
     /// Each doubling of the side equally often: over 15–140 px, half the pairs below 46 px.
     #[default]
     #[value(name = "log")]
+    // Recorded as the flag names it; the first headers with the field wrote `log-uniform`.
+    #[serde(rename = "log", alias = "log-uniform")]
     LogUniform,
     /// Each pixel of side equally often: over 15–140 px, 44 % of the pairs above 85 px
     /// (22 % log-uniform), for weights that must gain where the blur is widest.
@@ -309,6 +311,12 @@ mod tests {
         old.as_object_mut().unwrap().remove("psf_px_draw");
         let read: LensFamily = serde_json::from_value(old).unwrap();
         assert_eq!(read, f);
+        // The log draw is recorded as its flag's value, and read under its earlier name too.
+        let log = serde_json::to_value(&read).unwrap();
+        assert_eq!(log["psf_px_draw"], "log");
+        let mut earlier = log.clone();
+        earlier["psf_px_draw"] = "log-uniform".into();
+        assert_eq!(serde_json::from_value::<LensFamily>(earlier).unwrap(), read);
         // Ranges that describe no lens are refused.
         for bad in [
             LensFamily {
