@@ -212,6 +212,22 @@ fn checked(request: &RunRequest) -> Result<(Dataset, TrainConfig, Device, String
             config.schedule_iters = Some(base);
         }
     }
+    // An `--iters auto` run resumes with the schedules it was made for, where this version
+    // would make them for another length (restored mode's horizon grew from 150 to 200 steps
+    // per view): refused as changed settings, the run could not be finished.
+    if let Some(base) = saved
+        .as_ref()
+        .filter(|s| s.stop.is_some())
+        .and_then(|s| s.schedule_iters)
+        && config.schedule_iters != Some(base)
+    {
+        config = TrainConfig::build_with_horizon(
+            &request.training,
+            request.data.seed,
+            &data,
+            Some(base),
+        );
+    }
     // `--coarse-to-fine auto` resumes a run as it was made: one made at full size (before
     // coarse to fine existed, or with it off) stays so, instead of being refused as changed.
     if let Some(saved) = &saved

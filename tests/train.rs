@@ -1138,3 +1138,37 @@ fn aware_weighs_the_splat_penalties_by_the_loss_total_weight() {
         assert_eq!(c.penalty_weight_at(0), 1.0, "{mode:?}");
     }
 }
+
+/// An `--iters auto` run built for another horizon (the one an earlier version made it for,
+/// so that it resumes as made) has that horizon's schedules, those of a fixed run of that
+/// length, and no stop before its own densification ends.
+#[test]
+fn an_auto_run_is_built_for_the_horizon_it_was_made_for() {
+    let data = data::load(&fixture().clean, Mode::Plain, &options()).unwrap();
+    let settings = metasplat::settings::TrainSettings {
+        mode: Mode::Plain,
+        iters: metasplat::settings::Iters::Auto,
+        ..Default::default()
+    };
+    let own = TrainConfig::build(&settings, 0, &data);
+    let h = own.schedule_iters.unwrap();
+    let other = TrainConfig::build_with_horizon(&settings, 0, &data, Some(h + 400));
+    assert_eq!(other.schedule_iters, Some(h + 400));
+    assert_eq!(other.iters, 3 * (h + 400));
+    let fixed = TrainConfig::build(
+        &metasplat::settings::TrainSettings {
+            iters: metasplat::settings::Iters::Steps(h + 400),
+            ..settings.clone()
+        },
+        0,
+        &data,
+    );
+    assert_eq!(other.recipe, fixed.recipe);
+    assert_ne!(other.recipe, own.recipe);
+    let (a, b) = (own.stop.unwrap(), other.stop.unwrap());
+    assert!(b.not_before > a.not_before, "{a:?} {b:?}");
+    assert_eq!(
+        TrainConfig::build_with_horizon(&settings, 0, &data, Some(h)),
+        own
+    );
+}

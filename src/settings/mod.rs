@@ -330,7 +330,7 @@ pub struct TrainSettings {
     pub lambda_fade: LambdaFade,
     /// Training steps, or `auto` (the default): until the training views stop improving
     /// (after densification, then a short final phase), with schedules made for 150 steps per
-    /// training view (1000 to 7000). A number means exactly that many steps.
+    /// training view, 200 in restored mode (1000 to 7000). A number means exactly that many steps.
     #[arg(long, default_value_t = Iters::Auto)]
     pub iters: Iters,
     /// Splat budget; default: one per two pixels of a view, twice that for a capture whose

@@ -258,10 +258,23 @@ impl std::fmt::Display for Decision {
     }
 }
 
-/// Steps the schedules of an `--iters auto` run are made for: 150 per training view (how
-/// often 3DGS's schedules see each view at 30k steps on a capture of 200), from 1000 to 7000.
-pub fn auto_horizon(views: usize) -> u64 {
-    (150 * views as u64).clamp(1000, 7000)
+/// Steps per training view the schedules of an `--iters auto` run are made for: 150 (how
+/// often 3DGS's schedules see each view at 30k steps on a capture of 200), 200 in restored
+/// mode. Restored fits the sharp `I_ac` alone and needs the longer densification: on fern
+/// `images_8` it ended 0.31 dB below its 7000-step run with 150 and 0.18 with 200, while
+/// aware ended above its 7000-step run with either and takes 18 % more time with 200
+/// (RESULTS.md, issue 52).
+pub fn auto_steps_per_view(mode: Mode) -> u64 {
+    match mode {
+        Mode::Restored => 200,
+        Mode::Aware | Mode::Plain => 150,
+    }
+}
+
+/// Steps the schedules of an `--iters auto` run are made for: [`auto_steps_per_view`] per
+/// training view, from 1000 to 7000.
+pub fn auto_horizon(views: usize, mode: Mode) -> u64 {
+    (auto_steps_per_view(mode) * views as u64).clamp(1000, 7000)
 }
 
 /// How far past its horizon an `--iters auto` run may go while it still pays (the position
@@ -493,11 +506,23 @@ impl TrainConfig {
     /// on the capture (budget, λ for the capture's `I_ac`, evaluation and checkpoint cadence)
     /// are decided.
     pub fn build(settings: &TrainSettings, seed: u64, data: &Dataset) -> TrainConfig {
+        Self::build_with_horizon(settings, seed, data, None)
+    }
+
+    /// [`Self::build`], with an `--iters auto` run's schedules made for `horizon` steps
+    /// instead of [`auto_horizon`]'s: a run resumed as it was made by a version whose horizon
+    /// differed.
+    pub fn build_with_horizon(
+        settings: &TrainSettings,
+        seed: u64,
+        data: &Dataset,
+        horizon: Option<u64>,
+    ) -> TrainConfig {
         // The length the schedules are made for, and the most the run may take.
         let (iters, cap) = match settings.iters {
             Iters::Steps(n) => (n, n),
             Iters::Auto => {
-                let h = auto_horizon(data.train.len());
+                let h = horizon.unwrap_or_else(|| auto_horizon(data.train.len(), settings.mode));
                 (h, AUTO_CAP_FACTOR * h)
             }
         };
@@ -609,5 +634,22 @@ impl TrainConfig {
             config.iters = cap;
         }
         config
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn auto_schedules_follow_the_views_and_give_restored_mode_longer() {
+        // Fern `images_8`'s 17 training views, a capture of 3 and one of 60.
+        assert_eq!(auto_horizon(17, Mode::Aware), 2550);
+        assert_eq!(auto_horizon(17, Mode::Plain), 2550);
+        assert_eq!(auto_horizon(17, Mode::Restored), 3400);
+        for mode in Mode::ALL {
+            assert_eq!(auto_horizon(3, mode), 1000, "{mode}");
+            assert_eq!(auto_horizon(60, mode), 7000, "{mode}");
+        }
     }
 }

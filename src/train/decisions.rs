@@ -43,11 +43,22 @@ pub fn explain(config: &TrainConfig, settings: &TrainSettings, data: &Dataset) -
         ));
     }
     if let (Some(rule), Some(base)) = (&config.stop, config.schedule_iters) {
+        let per_view = crate::train::config::auto_steps_per_view(config.mode);
+        // A run resumed from an earlier version keeps the length it was made for.
+        let made_for = if base == crate::train::config::auto_horizon(data.train.len(), config.mode)
+        {
+            format!(
+                "{per_view} per training view in {} mode, 1000 to 7000",
+                config.mode
+            )
+        } else {
+            "the run's own, as it was made".to_string()
+        };
         out.push(decision(
             "iters",
             format!("auto, at most {}", config.iters),
             format!(
-                "--iters auto: schedules made for {base} steps (150 per training view, 1000 to 7000); from step {} on, the run ends once the training views' PSNR trends up by less than {:.3} dB per {} steps (through the last {} windows, at {} window ends in a row), after a final phase of {} steps at the final position learning rate; at most {} steps.",
+                "--iters auto: schedules made for {base} steps ({made_for}); from step {} on, the run ends once the training views' PSNR trends up by less than {:.3} dB per {} steps (through the last {} windows, at {} window ends in a row), after a final phase of {} steps at the final position learning rate; at most {} steps.",
                 rule.not_before,
                 rule.min_gain_db,
                 rule.window,
