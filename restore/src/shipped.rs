@@ -29,7 +29,8 @@ pub struct Shipped {
     pub name: &'static str,
 }
 
-/// What `auto` tries, in order: the network trained on the default lens at the scale it was
+/// What `auto` tries, in order (those trained on the capture's scale first,
+/// [`for_capture_on`]): the network trained on the default lens at the scale it was
 /// made for, then the one trained over the lens family at every scale (on the default lens
 /// at 57 px they are within 0.1 dB; the family one is 1-4 dB above the Wiener image where the
 /// first declines: RESULTS.md).
@@ -105,24 +106,45 @@ pub fn for_capture(native: &PsfGrid, psf_px: Option<usize>) -> Result<Choice> {
     for_capture_on(native, psf_px, burn::tensor::Device::flex())
 }
 
-/// The first of the [`SHIPPED`] restorers that serves a capture, on a device, or why none
-/// does.
+/// The [`SHIPPED`] restorer `auto` takes for a capture, on a device, or why none serves: of
+/// those that serve its lens and scale, the first trained on its very scale, else the first
+/// that reaches it through the margin around its trained scales (a network trained at 55-57
+/// px serves 44-71 px, but one trained across 15-140 px saw 60 px itself, and scored above
+/// it from 38 to 85 px: restore/README.md).
 pub fn for_capture_on(
     native: &PsfGrid,
     psf_px: Option<usize>,
     device: burn::tensor::Device,
 ) -> Result<Choice> {
     let mut declined = Vec::new();
+    let mut serving = Vec::new();
     for s in SHIPPED {
-        match verdict(&header_of(s)?, native, psf_px) {
-            (true, why) => {
-                let r = Restorer::from_bytes_on(s.bytes, Path::new(s.name), native, device)?;
-                return Ok(Choice::Network(Box::new(r), why, s.name));
-            }
+        let header = header_of(s)?;
+        match verdict(&header, native, psf_px) {
+            (true, why) => serving.push((s, trained_on(&header, psf_px), why)),
             (false, why) => declined.push(why),
         }
     }
-    Ok(Choice::Declined(declined.join("; ")))
+    let chosen = serving
+        .iter()
+        .position(|(_, on_scale, _)| *on_scale)
+        .unwrap_or(0);
+    match serving.into_iter().nth(chosen) {
+        Some((s, _, why)) => {
+            let r = Restorer::from_bytes_on(s.bytes, Path::new(s.name), native, device)?;
+            Ok(Choice::Network(Box::new(r), why, s.name))
+        }
+        None => Ok(Choice::Declined(declined.join("; "))),
+    }
+}
+
+/// Whether `header`'s weights were trained on PSFs of `psf_px` (any scale when either is
+/// unknown).
+fn trained_on(header: &Header, psf_px: Option<usize>) -> bool {
+    match (header.trained_psf_px, psf_px) {
+        (Some([lo, hi]), Some(px)) => (lo..=hi).contains(&px),
+        _ => true,
+    }
 }
 
 /// The shipped restorer when it serves the lens of `native` (any blur scale); `Ok(None)` for

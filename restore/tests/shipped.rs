@@ -124,6 +124,16 @@ fn auto_takes_the_network_where_it_serves_and_says_why_not_elsewhere() {
         shipped::Choice::Network(_, _, name) => assert_eq!(name, shipped::TINY_NAME),
         shipped::Choice::Declined(why) => panic!("{why}"),
     }
+    // Inside `tiny`'s margin but off the scales it saw, the general network, trained there,
+    // is taken over it.
+    let margin = hi + 7;
+    assert!(shipped::verdict(&header, native, Some(margin)).0);
+    match shipped::for_capture(native, Some(margin)).unwrap() {
+        shipped::Choice::Network(_, why, name) => {
+            assert_eq!(name, shipped::FAMILY_NAME, "{margin} px: {why}")
+        }
+        shipped::Choice::Declined(why) => panic!("{why}"),
+    }
     let (small, _) = simulate_grid(&SimConfig::small(21), &|_, _| {}).unwrap();
     match shipped::for_capture(&small, Some(21)).unwrap() {
         shipped::Choice::Declined(why) => assert!(
