@@ -22,6 +22,13 @@ pub const FAMILY: &[u8] = include_bytes!("../weights/family_tiny_5.bin");
 /// The name the general weights go by in messages.
 pub const FAMILY_NAME: &str = "restore/weights/family_tiny_5.bin (shipped)";
 
+/// The general network fine-tuned on the family's widest blur only, PSFs of 85-140 px
+/// (`restore/weights/README.md`): `auto`'s choice there, before [`FAMILY`].
+pub const LARGE: &[u8] = include_bytes!("../weights/large_tiny_1.bin");
+
+/// The name the wide-blur weights go by in messages.
+pub const LARGE_NAME: &str = "restore/weights/large_tiny_1.bin (shipped)";
+
 /// Weights shipped inside the binary.
 #[derive(Clone, Copy, Debug)]
 pub struct Shipped {
@@ -31,13 +38,17 @@ pub struct Shipped {
 
 /// What `auto` tries, in order (those trained on the capture's scale first,
 /// [`for_capture_on`]): the network trained on the default lens at the scale it was
-/// made for, then the one trained over the lens family at every scale (on the default lens
-/// at 57 px they are within 0.1 dB; the family one is 1-4 dB above the Wiener image where the
-/// first declines: RESULTS.md).
-pub const SHIPPED: [Shipped; 2] = [
+/// made for, then the family's for the widest blur (85-140 px, 0.13-0.2 dB above the general
+/// one at 113-135 px), then the one trained over the lens family at every scale (1-5 dB above
+/// the Wiener image: RESULTS.md).
+pub const SHIPPED: [Shipped; 3] = [
     Shipped {
         bytes: TINY,
         name: TINY_NAME,
+    },
+    Shipped {
+        bytes: LARGE,
+        name: LARGE_NAME,
     },
     Shipped {
         bytes: FAMILY,
@@ -46,7 +57,7 @@ pub const SHIPPED: [Shipped; 2] = [
 ];
 
 /// The general network `--any-grid` measures outside what every shipped one covers.
-pub const GENERAL: Shipped = SHIPPED[1];
+pub const GENERAL: Shipped = SHIPPED[2];
 
 /// The first shipped network's header ([`TINY`]).
 pub fn header() -> Result<Header> {

@@ -108,12 +108,21 @@ fn auto_takes_the_network_where_it_serves_and_says_why_not_elsewhere() {
         why.contains("does not serve this lens") && why.contains("this grid is"),
         "{why}"
     );
-    // Where `tiny` declines, auto takes the general network: other scales, the lens 3 %
-    // longer; another design neither serves, and the reason names both.
-    for (grid, px) in [(native, 19), (native, 113), (&other, inside)] {
+    // Where `tiny` declines, auto takes a network of the family: the one for the widest blur
+    // at 113 and 150 px (past what any saw, inside its margin), the general one elsewhere (at
+    // 19 px, on the lens 3 % longer at tiny's scale, and at 75 px, which the wide-blur one
+    // reaches only through its margin); another design neither serves, and the reason names
+    // all three.
+    for (grid, px, expect) in [
+        (native, 19, shipped::FAMILY_NAME),
+        (native, 75, shipped::FAMILY_NAME),
+        (native, 113, shipped::LARGE_NAME),
+        (native, 150, shipped::LARGE_NAME),
+        (&other, inside, shipped::FAMILY_NAME),
+    ] {
         match shipped::for_capture(grid, Some(px)).unwrap() {
             shipped::Choice::Network(r, why, name) => {
-                assert_eq!(name, shipped::FAMILY_NAME, "{px} px: {why}");
+                assert_eq!(name, expect, "{px} px: {why}");
                 assert!(why.contains("general restorer"), "{why}");
                 assert!(r.header.family.is_some());
             }
@@ -202,8 +211,9 @@ fn off_its_range_the_shipped_network_still_beats_wiener() {
     }
 }
 
-/// Where `auto` takes the general network (the default lens at 19 and 113 px, the lens 3 %
-/// longer at 57 px), it beats the Wiener filter by at least 2 dB on kodim05's centre 256².
+/// Where `auto` takes a network of the family (the general one at 19 px and on the lens 3 %
+/// longer at 57 px, the wide-blur one at 113 px), it beats the Wiener filter by at least 2 dB
+/// on kodim05's centre 256².
 #[test]
 fn the_general_network_beats_wiener_where_auto_takes_it() {
     let photo =
@@ -237,7 +247,12 @@ fn the_general_network_beats_wiener_where_auto_takes_it() {
         .unwrap();
         let restorer = match shipped::for_capture(native, Some(model.psf().size())).unwrap() {
             shipped::Choice::Network(r, _, n) => {
-                assert_eq!(n, shipped::FAMILY_NAME, "{name}");
+                let expect = if px > 85 {
+                    shipped::LARGE_NAME
+                } else {
+                    shipped::FAMILY_NAME
+                };
+                assert_eq!(n, expect, "{name}");
                 r
             }
             shipped::Choice::Declined(why) => panic!("{name}: {why}"),
@@ -291,6 +306,12 @@ fn the_family_increment_serves_the_default_lens_and_a_perturbed_one_at_every_sca
     );
     let other = simulate_grid(&ideal, &|_, _| {}).unwrap().0;
     assert!(header.serves(&other).is_err());
+    // The wide-blur network: the same family, its scales 85-140 px.
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("weights/large_tiny_1.bin");
+    let (large, _) = restore::weights::read(&path).unwrap();
+    assert_eq!(large.trained_psf_px, Some([85, 140]));
+    assert!(large.serves(&perturbed_grid()).is_ok() && large.serves(&other).is_err());
+    assert!(large.fits_psf_px(113) && !large.fits_psf_px(57));
 }
 
 /// Each shipped network's name is the repository path of the very file embedded, so messages

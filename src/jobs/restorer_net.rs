@@ -37,8 +37,8 @@ impl Tiling {
 #[derive(Args, Clone, Debug)]
 pub struct Inference {
     /// Restorer weights; without it, the network shipped in the binary
-    /// (`restore/weights/tiny.bin`, else the general `family_tiny_5.bin`), when one serves this
-    /// PSF grid.
+    /// (`restore/weights/tiny.bin`, else `large_tiny_1.bin` for 85-140 px PSFs, else the
+    /// general `family_tiny_5.bin`), when one serves this PSF grid.
     #[arg(long)]
     pub weights: Option<PathBuf>,
     /// PSF grid (`.npy`, from `psf simulate`) the images were aberrated with.
