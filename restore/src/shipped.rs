@@ -79,12 +79,17 @@ pub enum Choice {
 /// Whether the shipped network serves a capture whose native grid is `native` and whose PSFs
 /// are `psf_px` wide at its images' size (None: any size), and why.
 pub fn verdict(header: &Header, native: &PsfGrid, psf_px: Option<usize>) -> (bool, String) {
-    let name = match header.family {
-        Some(_) => format!(
+    // Two shipped networks are of the family: their scales tell them apart.
+    let name = match (&header.family, header.trained_psf_px) {
+        (Some(_), Some([lo, hi])) => format!(
+            "the shipped general restorer ('{}', a lens family, {lo}-{hi} px)",
+            header.config.name
+        ),
+        (Some(_), None) => format!(
             "the shipped general restorer ('{}', a lens family)",
             header.config.name
         ),
-        None => format!("the shipped restorer ('{}')", header.config.name),
+        (None, _) => format!("the shipped restorer ('{}')", header.config.name),
     };
     let lens = match header.serves(native) {
         Ok(why) => why,

@@ -147,7 +147,8 @@ fn auto_takes_the_network_where_it_serves_and_says_why_not_elsewhere() {
     match shipped::for_capture(&small, Some(21)).unwrap() {
         shipped::Choice::Declined(why) => assert!(
             why.contains("the shipped restorer ('tiny')")
-                && why.contains("the shipped general restorer"),
+                && why.contains("a lens family, 15-140 px")
+                && why.contains("a lens family, 85-140 px"),
             "{why}"
         ),
         shipped::Choice::Network(_, _, name) => panic!("{name} took another design"),
