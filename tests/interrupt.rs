@@ -629,37 +629,12 @@ fn a_restorer_run_stops_between_the_lenses_of_its_bank() {
     }
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let (psf, _) =
-        aberration::optics::simulate_grid(&aberration::optics::SimConfig::small(21), &|_, _| {})
-            .unwrap();
-    let psf_path = d.join("psf.npy");
-    psf.save_npy(&psf_path).unwrap();
-    common::photos(&d.join("train"), 2, 96, 96);
-    common::photos(&d.join("val"), 1, 96, 96);
+    let (_, psf_path, train, val) = common::restorer_inputs(d, 96, 96);
     let out = d.join("f.bin");
-    let (train, val) = (s(&d.join("train")), s(&d.join("val")));
-    let (psf_arg, out_arg) = (s(&psf_path), s(&out));
-    let flags = [
-        "train",
-        "--images",
-        &train,
-        "--val",
-        &val,
-        "--psf",
-        &psf_arg,
-        "--out",
-        &out_arg,
-        "--steps",
-        "2",
-        "--batch",
-        "1",
-        "--val-crop",
-        "64",
-        "--family",
-        "--lenses",
-        "3",
-    ];
-    let prepared = prepare(&Args::parse_from(flags).a, "test").unwrap();
+    let mut flags = vec!["train".to_string()];
+    flags.extend(common::restorer_flags(&train, &val, &psf_path, &out));
+    flags.extend(["--family", "--lenses", "3"].map(String::from));
+    let prepared = prepare(&Args::parse_from(&flags).a, "test").unwrap();
     base::interrupt::request();
     let result = prepared.run(&mut |_| {});
     base::interrupt::clear();
@@ -674,5 +649,5 @@ fn a_restorer_run_stops_between_the_lenses_of_its_bank() {
     );
     assert!(!out.exists() && !restore::train_state::state_path(&out).exists());
     // `--out` is free again.
-    drop(prepare(&Args::parse_from(flags).a, "test").unwrap());
+    drop(prepare(&Args::parse_from(&flags).a, "test").unwrap());
 }

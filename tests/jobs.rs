@@ -4,14 +4,13 @@
 
 mod common;
 
-use aberration::optics::{SimConfig, simulate_grid};
 use clap::Parser;
 use metasplat::TrainError;
 use metasplat::jobs::restore::{RestoreEvent, Restored};
 use metasplat::jobs::restorer_eval::evaluate;
 use metasplat::jobs::restorer_train::{RestorerEvent, RestorerTrainRequest, prepare};
 use restore::train::Event;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 #[derive(Parser)]
 struct Args {
@@ -23,18 +22,6 @@ fn request(flags: &[&str]) -> RestorerTrainRequest {
     Args::parse_from(std::iter::once("train").chain(flags.iter().copied())).a
 }
 
-/// A small simulated grid saved as `d/psf.npy`, two training photos in `d/train` and one
-/// validation photo in `d/val`, all `w × h`: what a `restorer train` request reads.
-fn restorer_inputs(d: &Path, w: u32, h: u32) -> (aberration::PsfGrid, PathBuf, PathBuf, PathBuf) {
-    let (psf, _) = simulate_grid(&SimConfig::small(21), &|_, _| {}).unwrap();
-    let psf_path = d.join("psf.npy");
-    psf.save_npy(&psf_path).unwrap();
-    let (train, val) = (d.join("train"), d.join("val"));
-    common::photos(&train, 2, w, h);
-    common::photos(&val, 1, w, h);
-    (psf, psf_path, train, val)
-}
-
 /// Two steps of `tiny`, stopped after the first by a zero-minute budget and resumed: the
 /// events say how it starts and every validation, the report what it reached; a request
 /// that validates on its training photos is refused by `prepare` before anything is
@@ -43,27 +30,11 @@ fn restorer_inputs(d: &Path, w: u32, h: u32) -> (aberration::PsfGrid, PathBuf, P
 fn restorer_training_runs_through_the_library_and_reports() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let (psf, psf_path, train, val) = restorer_inputs(d, 80, 72);
+    let (psf, psf_path, train, val) = common::restorer_inputs(d, 80, 72);
     let out = d.join("w.bin");
     let s = common::cli::s;
-    let flags = [
-        "--images",
-        s(&train),
-        "--val",
-        s(&val),
-        "--psf",
-        s(&psf_path),
-        "--out",
-        s(&out),
-        "--steps",
-        "2",
-        "--batch",
-        "1",
-        "--val-every",
-        "1",
-        "--val-crop",
-        "64",
-    ];
+    let flags = common::restorer_flags(&train, &val, &psf_path, &out);
+    let flags: Vec<&str> = flags.iter().map(String::as_str).collect();
     let run = |extra: &[&str]| {
         let all: Vec<&str> = flags.iter().chain(extra).copied().collect();
         let prepared = prepare(&request(&all), "test").unwrap();
@@ -202,30 +173,11 @@ struct RestoreArgs {
 fn a_family_run_resumes_only_with_its_own_scale_draw() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let (_, psf_path, train, val) = restorer_inputs(d, 96, 96);
+    let (_, psf_path, train, val) = common::restorer_inputs(d, 96, 96);
     let out = d.join("f.bin");
-    let s = common::cli::s;
-    let flags = [
-        "--images",
-        s(&train),
-        "--val",
-        s(&val),
-        "--psf",
-        s(&psf_path),
-        "--out",
-        s(&out),
-        "--steps",
-        "2",
-        "--batch",
-        "1",
-        "--val-every",
-        "1",
-        "--val-crop",
-        "64",
-        "--family",
-        "--lenses",
-        "1",
-    ];
+    let mut flags = common::restorer_flags(&train, &val, &psf_path, &out);
+    flags.extend(["--family", "--lenses", "1"].map(String::from));
+    let flags: Vec<&str> = flags.iter().map(String::as_str).collect();
     let req = |extra: &[&str]| request(&[&flags[..], extra].concat());
     let range = ["--psf-px-draw", "linear", "--psf-px-range", "60-90"];
     let held = prepare(&req(&[&range[..], &["--minutes", "0"]].concat()), "test").unwrap();

@@ -89,3 +89,45 @@ pub fn photos(dir: &Path, n: u32, w: u32, h: u32) {
         img.save(dir.join(format!("p{i}.png"))).unwrap();
     }
 }
+
+/// A small simulated grid saved as `d/psf.npy`, two training photos in `d/train` and one
+/// validation photo in `d/val`, all `w × h`: what a `restorer train` request reads.
+pub fn restorer_inputs(
+    d: &Path,
+    w: u32,
+    h: u32,
+) -> (aberration::PsfGrid, PathBuf, PathBuf, PathBuf) {
+    let (psf, _) = simulate_grid(&SimConfig::small(21), &|_, _| {}).unwrap();
+    let psf_path = d.join("psf.npy");
+    psf.save_npy(&psf_path).unwrap();
+    let (train, val) = (d.join("train"), d.join("val"));
+    photos(&train, 2, w, h);
+    photos(&val, 1, w, h);
+    (psf, psf_path, train, val)
+}
+
+/// `restorer train`'s flags for two steps of batch 1 on those inputs, validated every step on
+/// 64 px crops, writing `out`.
+pub fn restorer_flags(train: &Path, val: &Path, psf: &Path, out: &Path) -> Vec<String> {
+    let s = cli::s;
+    [
+        "--images",
+        s(train),
+        "--val",
+        s(val),
+        "--psf",
+        s(psf),
+        "--out",
+        s(out),
+        "--steps",
+        "2",
+        "--batch",
+        "1",
+        "--val-every",
+        "1",
+        "--val-crop",
+        "64",
+    ]
+    .map(String::from)
+    .to_vec()
+}
