@@ -42,11 +42,20 @@ pub fn conv(cin: usize, cout: usize, k: usize, bias: bool, device: &Device) -> C
         .init(device)
 }
 
-/// A 1×1 convolution; in training, as a matrix product over the pixels: the same weights and
-/// the same sums, but its weight gradient is a matrix product too, where burn's convolution
-/// backward takes a generic path. Without gradients burn's own 1×1 convolution is the
-/// faster of the two (its matrix product allocates its output twice).
+/// A 1×1 convolution: on burn's CPU backend with the fast kernels through the register-blocked
+/// loop of [`super::pointwise`] (forward and backward); on another backend in training as a
+/// matrix product over the pixels (burn's convolution weight gradient takes a generic path
+/// there), else burn's `Conv2d`.
 pub fn pointwise(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    let plain1 = conv.kernel_size == [1, 1]
+        && conv.stride == [1, 1]
+        && conv.dilation == [1, 1]
+        && conv.groups == 1
+        && conv.padding == PaddingConfig2d::Explicit(0, 0, 0, 0);
+    if plain1 && extension_applies(&x) {
+        let bias = conv.bias.as_ref().map(|b| b.val());
+        return super::pointwise::pointwise_tensor(x, conv.weight.val(), bias);
+    }
     let weight = conv.weight.val();
     let [cout, cin, kh, kw] = weight.dims();
     if current() == Kernels::Reference || kh != 1 || kw != 1 || !weight.is_require_grad() {

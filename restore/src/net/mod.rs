@@ -12,6 +12,7 @@ pub mod lanes;
 pub mod layers;
 pub mod mafg;
 pub mod norm_direct;
+pub mod pointwise;
 pub mod query_box;
 pub mod staf;
 pub mod window;
