@@ -29,10 +29,6 @@ use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension, tensor
 use burn::tensor::{Tensor, TensorData};
 use rayon::prelude::*;
 
-/// Output channels per register tile.
-const ROWS: usize = 6;
-/// Pixels per register tile: two AVX2 registers.
-const COLS: usize = 2 * LANES;
 /// Pixels per task: enough work to amortise a task, small enough that a 512² plane makes
 /// a few hundred tasks for the threads to share.
 const TASK_PX: usize = 1024;
@@ -98,10 +94,15 @@ fn project(
     range: std::ops::Range<usize>,
 ) {
     #[cfg(target_arch = "x86_64")]
-    if base::isa::Isa::chosen() != base::isa::Isa::Portable {
-        // SAFETY: `Isa::chosen` names a build the CPU has, and every build past the
-        // portable one has AVX2; the writes stay inside `range` (see `pointwise`).
-        return unsafe { project_avx2(dst, x, weight, bias, dims, range) };
+    match base::isa::Isa::chosen() {
+        // SAFETY: `Isa::chosen` names a build the CPU has; the writes stay inside `range`
+        // (see `pointwise`).
+        base::isa::Isa::Avx512 => {
+            return unsafe { project_avx512(dst, x, weight, bias, dims, range) };
+        }
+        // SAFETY: as above.
+        base::isa::Isa::Avx2 => return unsafe { project_avx2(dst, x, weight, bias, dims, range) },
+        base::isa::Isa::Portable => {}
     }
     // SAFETY: as above.
     unsafe { project_portable(dst, x, weight, bias, dims, range) }
@@ -144,12 +145,89 @@ unsafe fn project_avx2(
     x: &[f32],
     weight: &[f32],
     bias: Option<&[f32]>,
-    (cout, cin, plane): (usize, usize, usize),
+    dims: (usize, usize, usize),
     range: std::ops::Range<usize>,
 ) {
-    // The input planes lie a whole plane apart, so the same pixels of all of them fall in
-    // the same few cache sets; a block of them is first copied side by side, where every
-    // tile reads it from L1.
+    let plane = dims.2;
+    let tile = |rows: usize, src: *const f32, w: *const f32, b: &[f32], out: *mut f32| {
+        let cin = dims.1;
+        // SAFETY: `blocks`' contract for its tiles (AVX2 is enabled here).
+        unsafe {
+            match rows {
+                6 => tile8::<6>(src, w, b, out, cin, plane),
+                5 => tile8::<5>(src, w, b, out, cin, plane),
+                4 => tile8::<4>(src, w, b, out, cin, plane),
+                3 => tile8::<3>(src, w, b, out, cin, plane),
+                2 => tile8::<2>(src, w, b, out, cin, plane),
+                _ => tile8::<1>(src, w, b, out, cin, plane),
+            }
+        }
+    };
+    // SAFETY: the caller's contract.
+    unsafe { blocks::<6, { 2 * LANES }>(dst, x, weight, bias, dims, range, tile) }
+}
+
+/// # Safety
+/// As [`project_portable`]; the CPU has AVX-512 F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl,avx2")]
+unsafe fn project_avx512(
+    dst: Out,
+    x: &[f32],
+    weight: &[f32],
+    bias: Option<&[f32]>,
+    dims: (usize, usize, usize),
+    range: std::ops::Range<usize>,
+) {
+    let plane = dims.2;
+    let tile = |rows: usize, src: *const f32, w: *const f32, b: &[f32], out: *mut f32| {
+        let cin = dims.1;
+        // SAFETY: `blocks`' contract for its tiles (AVX-512 F is enabled here).
+        unsafe {
+            match rows {
+                12 => tile16::<12>(src, w, b, out, cin, plane),
+                11 => tile16::<11>(src, w, b, out, cin, plane),
+                10 => tile16::<10>(src, w, b, out, cin, plane),
+                9 => tile16::<9>(src, w, b, out, cin, plane),
+                8 => tile16::<8>(src, w, b, out, cin, plane),
+                7 => tile16::<7>(src, w, b, out, cin, plane),
+                6 => tile16::<6>(src, w, b, out, cin, plane),
+                5 => tile16::<5>(src, w, b, out, cin, plane),
+                4 => tile16::<4>(src, w, b, out, cin, plane),
+                3 => tile16::<3>(src, w, b, out, cin, plane),
+                2 => tile16::<2>(src, w, b, out, cin, plane),
+                _ => tile16::<1>(src, w, b, out, cin, plane),
+            }
+        }
+    };
+    // SAFETY: the caller's contract.
+    unsafe { blocks::<12, 32>(dst, x, weight, bias, dims, range, tile) }
+}
+
+/// Pixels copied side by side per block of [`blocks`].
+const BLOCK: usize = 64;
+
+/// The pixels `range` in blocks of [`BLOCK`]: each block's input planes copied side by side
+/// (the planes lie a whole plane apart, so the same pixels of all of them fall in the same
+/// few cache sets; side by side every tile reads them from L1), then `tile` over `ROWS`
+/// output channels × `COLS` pixels at a time; the pixels past the last whole block through
+/// the portable loop.
+///
+/// # Safety
+/// As [`project_portable`]; `tile(rows, src, w, bias, out)` may be called with `src` at `cin`
+/// rows of `BLOCK` values (reading `COLS` from each), `w` at `rows ≤ ROWS` rows of `cin`
+/// weights, `bias` with at least `rows` values and `out` at `rows` output rows `plane` apart
+/// with `COLS` writable values each; `COLS` divides [`BLOCK`].
+#[inline(always)]
+unsafe fn blocks<const ROWS: usize, const COLS: usize>(
+    dst: Out,
+    x: &[f32],
+    weight: &[f32],
+    bias: Option<&[f32]>,
+    (cout, cin, plane): (usize, usize, usize),
+    range: std::ops::Range<usize>,
+    tile: impl Fn(usize, *const f32, *const f32, &[f32], *mut f32),
+) {
     let mut buf = vec![0.0f32; cin * BLOCK];
     let biases: Vec<f32> = (0..cout).map(|o| bias.map_or(0.0, |b| b[o])).collect();
     let mut q = range.start;
@@ -161,23 +239,16 @@ unsafe fn project_avx2(
         while o0 < cout {
             let rows = ROWS.min(cout - o0);
             for t in (0..BLOCK).step_by(COLS) {
-                let src = buf[t..].as_ptr();
-                let w = weight[o0 * cin..].as_ptr();
-                // SAFETY: rows `o0..o0 + rows` of the weights and biases exist; `src` reads
-                // `cin` rows of `BLOCK` strided values from `t`, inside `buf`; the tile writes
-                // 16 pixels from `q + t < range.end` of output planes `o0..o0 + rows`.
-                unsafe {
-                    let out = dst.0.add(o0 * plane + q + t);
-                    let b = &biases[o0..];
-                    match rows {
-                        6 => tile::<6>(src, w, b, out, cin, plane),
-                        5 => tile::<5>(src, w, b, out, cin, plane),
-                        4 => tile::<4>(src, w, b, out, cin, plane),
-                        3 => tile::<3>(src, w, b, out, cin, plane),
-                        2 => tile::<2>(src, w, b, out, cin, plane),
-                        _ => tile::<1>(src, w, b, out, cin, plane),
-                    }
-                }
+                // SAFETY: rows `o0..o0 + rows` of the weights, biases and output planes
+                // exist; pixels `q + t .. q + t + COLS` lie in `range` (the caller owns them).
+                let out = unsafe { dst.0.add(o0 * plane + q + t) };
+                tile(
+                    rows,
+                    buf[t..].as_ptr(),
+                    weight[o0 * cin..].as_ptr(),
+                    &biases[o0..],
+                    out,
+                );
             }
             o0 += ROWS;
         }
@@ -189,10 +260,8 @@ unsafe fn project_avx2(
     }
 }
 
-/// Pixels copied side by side per block of [`project_avx2`].
-const BLOCK: usize = 64;
-
-/// `R` output channels × 16 pixels: `out[j][k] = bias[j] + Σ_i w[j·cin + i] · src[i·BLOCK + k]`.
+/// `R` output channels × 16 pixels in AVX2 registers:
+/// `out[j][k] = bias[j] + Σ_i w[j·cin + i] · src[i·BLOCK + k]`, summed in `i`'s order.
 ///
 /// # Safety
 /// `src` has `cin` rows of [`BLOCK`] values (16 read from each), `w` `R` rows of `cin`,
@@ -201,7 +270,7 @@ const BLOCK: usize = 64;
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn tile<const R: usize>(
+unsafe fn tile8<const R: usize>(
     src: *const f32,
     w: *const f32,
     bias: &[f32],
@@ -233,6 +302,49 @@ unsafe fn tile<const R: usize>(
             let p = out.add(j * plane);
             _mm256_storeu_ps(p, a[0]);
             _mm256_storeu_ps(p.add(LANES), a[1]);
+        }
+    }
+}
+
+/// [`tile8`] over 32 pixels in AVX-512 registers (32 of them: up to 12 rows).
+///
+/// # Safety
+/// As [`tile8`] with 32 values per row; AVX-512 F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+unsafe fn tile16<const R: usize>(
+    src: *const f32,
+    w: *const f32,
+    bias: &[f32],
+    out: *mut f32,
+    cin: usize,
+    plane: usize,
+) {
+    use std::arch::x86_64::*;
+    let mut acc = [[_mm512_setzero_ps(); 2]; R];
+    for (j, a) in acc.iter_mut().enumerate() {
+        let b = _mm512_set1_ps(bias[j]);
+        *a = [b, b];
+    }
+    for i in 0..cin {
+        // SAFETY: the caller's contract.
+        unsafe {
+            let p = src.add(i * BLOCK);
+            let (x0, x1) = (_mm512_loadu_ps(p), _mm512_loadu_ps(p.add(16)));
+            for (j, a) in acc.iter_mut().enumerate() {
+                let wv = _mm512_set1_ps(*w.add(j * cin + i));
+                a[0] = _mm512_add_ps(a[0], _mm512_mul_ps(wv, x0));
+                a[1] = _mm512_add_ps(a[1], _mm512_mul_ps(wv, x1));
+            }
+        }
+    }
+    for (j, a) in acc.iter().enumerate() {
+        // SAFETY: the caller's contract.
+        unsafe {
+            let p = out.add(j * plane);
+            _mm512_storeu_ps(p, a[0]);
+            _mm512_storeu_ps(p.add(16), a[1]);
         }
     }
 }
@@ -594,6 +706,42 @@ mod tests {
         };
         let err = rel_err(&out, &reference(&x, &weight, Some(&bias), cout, d));
         assert!(err < 1e-6, "{err:.2e} of the scale");
+    }
+
+    #[test]
+    fn every_build_gives_the_portable_loops_bits() {
+        for (k, &(cout, [b, cin, h, w])) in CASES.iter().enumerate() {
+            let plane = h * w;
+            let x = values(b * cin * plane, 60 + k as u64);
+            let weight = values(cout * cin, 70 + k as u64);
+            let bias = values(cout, 80 + k as u64);
+            let dims = (cout, cin, plane);
+            let run = |isa: base::isa::Isa| -> Vec<u32> {
+                let mut out = vec![f32::NAN; cout * plane];
+                let dst = Out(out.as_mut_ptr());
+                let x = &x[..cin * plane];
+                // SAFETY: `out` holds the item's `cout` planes and the call owns all their
+                // pixels; each build runs only where `Isa::available` lists it.
+                unsafe {
+                    match isa {
+                        #[cfg(target_arch = "x86_64")]
+                        base::isa::Isa::Avx512 => {
+                            project_avx512(dst, x, &weight, Some(&bias), dims, 0..plane)
+                        }
+                        #[cfg(target_arch = "x86_64")]
+                        base::isa::Isa::Avx2 => {
+                            project_avx2(dst, x, &weight, Some(&bias), dims, 0..plane)
+                        }
+                        _ => project_portable(dst, x, &weight, Some(&bias), dims, 0..plane),
+                    }
+                }
+                out.iter().map(|v| v.to_bits()).collect()
+            };
+            let portable = run(base::isa::Isa::Portable);
+            for isa in base::isa::Isa::available() {
+                assert_eq!(run(isa), portable, "{isa:?}, {cout}x{cin}x{plane}");
+            }
+        }
     }
 
     #[test]
