@@ -296,12 +296,30 @@ pub fn exp_nonpositive(x: f32) -> f32 {
         * r
         + 0.5;
     let e = p * r * r + r + 1.0;
-    f32::from_bits(((n as i32 + 127) as u32) << 23) * e
+    pow2(n) * e
+}
+
+/// `2ⁿ` for a whole number `n` in [−126, 127] (here −125 to 0, for `x` in [−87, 0]): added
+/// to 2²³, `n + 127` lands in the low mantissa bits and is read back as an integer, with no
+/// float-to-integer conversion (whose saturating form the compiler does not vectorise: with
+/// one, the softmax's exponentials went a lane at a time).
+#[inline(always)]
+fn pow2(n: f32) -> f32 {
+    const MAGIC: f32 = 8_388_608.0;
+    let biased = (n + 127.0 + MAGIC).to_bits().wrapping_sub(MAGIC.to_bits());
+    f32::from_bits(biased << 23)
 }
 
 #[cfg(test)]
 mod tests {
-    use super::exp_nonpositive;
+    use super::{exp_nonpositive, pow2};
+
+    #[test]
+    fn pow2_is_exact_over_the_normal_exponents() {
+        for n in -126..=127 {
+            assert_eq!(pow2(n as f32), 2f32.powi(n), "2^{n}");
+        }
+    }
 
     #[test]
     fn exp_nonpositive_is_within_a_few_ulp_of_f64_exp() {
