@@ -11,15 +11,17 @@ use burn::tensor::{Device, Tensor, TensorData};
 use super::gate_direct::gated_depthwise;
 use super::kernels::{Kernels, current, direct_applies, extension_applies, host};
 
-/// A layer made by [`conv`] applied to `x`: a dense 3×3 one in training on the CPU through the hand-written backward of [`super::conv_train`] (burn's
-/// weight gradient is slow), else burn's `Conv2d`.
+/// A layer made by [`conv`] applied to `x`: a dense 3×3 one on the CPU through the plane
+/// loops of [`super::conv_train`] (in training for its hand-written backward, burn's weight
+/// gradient being slow; in inference because its forward beats burn's im2col and matrix
+/// product too), else burn's `Conv2d`.
 pub fn conv3(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     let same3 = conv.kernel_size == [3, 3]
         && conv.stride == [1, 1]
         && conv.dilation == [1, 1]
         && conv.groups == 1
         && conv.padding == PaddingConfig2d::Explicit(1, 1, 1, 1);
-    if current() == Kernels::Fast && same3 && super::conv_train::trained_applies(&x) {
+    if same3 && extension_applies(&x) {
         return super::conv_train::dense3(conv, x);
     }
     conv.forward(x)
