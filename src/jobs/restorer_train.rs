@@ -86,7 +86,7 @@ pub struct RestorerTrainRequest {
     /// e.g. `85-140` for weights meant for the widest blur only; the header records the range
     /// and `auto` offers the weights for captures inside it.
     #[arg(long, value_parser = crate::settings::values::psf_px_range, requires = "family")]
-    pub psf_px_range: Option<crate::settings::values::PsfPxRange>,
+    pub psf_px_range: Option<[usize; 2]>,
     /// Continue the interrupted run that writes `--out` exactly where its last checkpoint left
     /// it (weights, `OUT.state`: optimizer moments, schedule, sampler position); --steps,
     /// --batch, --lr, --seed and --refresh-every must be the run's own (others are refused).
@@ -479,7 +479,7 @@ fn family_of(a: &RestorerTrainRequest) -> LensFamily {
     let base = LensFamily::default();
     LensFamily {
         psf_px_draw: a.psf_px_draw,
-        psf_px: a.psf_px_range.map_or(base.psf_px, |r| r.0),
+        psf_px: a.psf_px_range.unwrap_or(base.psf_px),
         ..base
     }
 }

@@ -136,8 +136,8 @@ pub const MAX_TRAIN_CROP: usize = 1024;
 pub const MIN_CROP: usize = 16;
 
 /// `restorer train --psf-px-range`: the PSF sides a family run draws from, `LO-HI` pixels,
-/// 1 ≤ LO ≤ HI ≤ the largest mapped PSF.
-pub fn psf_px_range(s: &str) -> Result<PsfPxRange, String> {
+/// 1 ≤ LO ≤ HI ≤ the largest mapped PSF; both ends included.
+pub fn psf_px_range(s: &str) -> Result<[usize; 2], String> {
     let (lo, hi) = s
         .split_once('-')
         .ok_or_else(|| format!("'{s}' is not LO-HI (e.g. 85-140)"))?;
@@ -146,12 +146,8 @@ pub fn psf_px_range(s: &str) -> Result<PsfPxRange, String> {
     if lo == 0 || lo > hi || hi > max {
         return Err(format!("{lo}-{hi} px: use 1 ≤ LO ≤ HI ≤ {max}"));
     }
-    Ok(PsfPxRange([lo, hi]))
+    Ok([lo, hi])
 }
-
-/// A range of PSF sides in pixels, both ends included.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct PsfPxRange(pub [usize; 2]);
 
 /// Held-out view spacing: 0 (none held out) or at least 2 (1 would hold out every view).
 pub fn llffhold(s: &str) -> Result<usize, String> {
@@ -249,7 +245,7 @@ mod tests {
         assert_eq!(weight("0").unwrap(), 0.0);
         assert!(field_angle("90").is_err() && field_angle("0").is_err());
         assert!(llffhold("1").is_err());
-        assert_eq!(psf_px_range(" 85-140").unwrap(), PsfPxRange([85, 140]));
+        assert_eq!(psf_px_range(" 85-140").unwrap(), [85, 140]);
         for bad in ["85", "140-85", "0-10", "10-99999", "a-b", "-5-10"] {
             assert!(psf_px_range(bad).is_err(), "{bad}");
         }

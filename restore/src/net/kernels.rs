@@ -14,7 +14,7 @@ use std::cell::Cell;
 pub enum Kernels {
     /// Attention as one fused op per window batch (no logits tensor for the whole tile, no
     /// materialised mask), query enhancement as two 1-D box passes, 1×1 convolutions as
-    /// matrix products (whose weight gradient is a matrix product too).
+    /// register-blocked loops on the CPU (`net/pointwise`) or matrix products elsewhere.
     Fast,
     /// The operations as first written: logits, additive mask and softmax as tensors, a
     /// `k × k` average pool, 1×1 convolutions through burn's `Conv2d`.
