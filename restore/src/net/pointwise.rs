@@ -136,73 +136,49 @@ unsafe fn project_portable(
     }
 }
 
-/// # Safety
-/// As [`project_portable`]; the CPU has AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn project_avx2(
-    dst: Out,
-    x: &[f32],
-    weight: &[f32],
-    bias: Option<&[f32]>,
-    dims: (usize, usize, usize),
-    range: std::ops::Range<usize>,
-) {
-    let plane = dims.2;
-    let tile = |rows: usize, src: *const f32, w: *const f32, b: &[f32], out: *mut f32| {
-        let cin = dims.1;
-        // SAFETY: `blocks`' contract for its tiles (AVX2 is enabled here).
-        unsafe {
-            match rows {
-                6 => tile8::<6>(src, w, b, out, cin, plane),
-                5 => tile8::<5>(src, w, b, out, cin, plane),
-                4 => tile8::<4>(src, w, b, out, cin, plane),
-                3 => tile8::<3>(src, w, b, out, cin, plane),
-                2 => tile8::<2>(src, w, b, out, cin, plane),
-                _ => tile8::<1>(src, w, b, out, cin, plane),
-            }
+/// A build of the projection over [`blocks`], its tiles `$tile::<R>` for `R` up to `$rows`
+/// output channels × `$cols` pixels, compiled with `$features`.
+macro_rules! project_build {
+    ($(#[$doc:meta])* $name:ident, $features:literal, $tile:ident, $rows:literal, $cols:expr,
+     [$($r:literal),*]) => {
+        $(#[$doc])*
+        /// # Safety
+        /// As [`project_portable`]; the CPU has the build's features.
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $features)]
+        unsafe fn $name(
+            dst: Out,
+            x: &[f32],
+            weight: &[f32],
+            bias: Option<&[f32]>,
+            dims: (usize, usize, usize),
+            range: std::ops::Range<usize>,
+        ) {
+            let (cin, plane) = (dims.1, dims.2);
+            let tile = |rows: usize, src: *const f32, w: *const f32, b: &[f32], out: *mut f32| {
+                // SAFETY: `blocks`' contract for its tiles; the build's features are enabled.
+                unsafe {
+                    match rows {
+                        $($r => $tile::<$r>(src, w, b, out, cin, plane),)*
+                        _ => unreachable!("a tile has 1 to {} rows", $rows),
+                    }
+                }
+            };
+            // SAFETY: the caller's contract.
+            unsafe { blocks::<$rows, { $cols }>(dst, x, weight, bias, dims, range, tile) }
         }
     };
-    // SAFETY: the caller's contract.
-    unsafe { blocks::<6, { 2 * LANES }>(dst, x, weight, bias, dims, range, tile) }
 }
 
-/// # Safety
-/// As [`project_portable`]; the CPU has AVX-512 F.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vl,avx2")]
-unsafe fn project_avx512(
-    dst: Out,
-    x: &[f32],
-    weight: &[f32],
-    bias: Option<&[f32]>,
-    dims: (usize, usize, usize),
-    range: std::ops::Range<usize>,
-) {
-    let plane = dims.2;
-    let tile = |rows: usize, src: *const f32, w: *const f32, b: &[f32], out: *mut f32| {
-        let cin = dims.1;
-        // SAFETY: `blocks`' contract for its tiles (AVX-512 F is enabled here).
-        unsafe {
-            match rows {
-                12 => tile16::<12>(src, w, b, out, cin, plane),
-                11 => tile16::<11>(src, w, b, out, cin, plane),
-                10 => tile16::<10>(src, w, b, out, cin, plane),
-                9 => tile16::<9>(src, w, b, out, cin, plane),
-                8 => tile16::<8>(src, w, b, out, cin, plane),
-                7 => tile16::<7>(src, w, b, out, cin, plane),
-                6 => tile16::<6>(src, w, b, out, cin, plane),
-                5 => tile16::<5>(src, w, b, out, cin, plane),
-                4 => tile16::<4>(src, w, b, out, cin, plane),
-                3 => tile16::<3>(src, w, b, out, cin, plane),
-                2 => tile16::<2>(src, w, b, out, cin, plane),
-                _ => tile16::<1>(src, w, b, out, cin, plane),
-            }
-        }
-    };
-    // SAFETY: the caller's contract.
-    unsafe { blocks::<12, 32>(dst, x, weight, bias, dims, range, tile) }
-}
+project_build!(
+    /// 6 output channels × 16 pixels per tile, in 12 of AVX2's 16 registers.
+    project_avx2, "avx2", tile8, 6, 2 * LANES, [1, 2, 3, 4, 5, 6]
+);
+project_build!(
+    /// 12 output channels × 32 pixels per tile, in 24 of AVX-512's 32 registers.
+    project_avx512, "avx512f,avx512vl,avx2", tile16, 12, 32,
+    [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12]
+);
 
 /// Pixels copied side by side per block of [`blocks`].
 const BLOCK: usize = 64;
@@ -524,31 +500,13 @@ impl PointwiseBackward {
     }
 }
 
-impl Backward<Flex, 2> for PointwiseBackward {
+/// Two parents (`x`, the weights) without a bias, three with.
+impl<const N: usize> Backward<Flex, N> for PointwiseBackward {
     type State = [NodeId; 2];
 
     fn backward(
         self,
-        ops: Ops<Self::State, 2>,
-        grads: &mut Gradients,
-        checkpointer: &mut Checkpointer,
-    ) {
-        let dy = grads.consume::<Flex>(&ops.node);
-        let tensors = Self::grads(dy, ops.state, checkpointer);
-        for (parent, grad) in ops.parents.into_iter().zip(tensors) {
-            if let Some(node) = parent {
-                grads.register::<Flex>(node.id, grad);
-            }
-        }
-    }
-}
-
-impl Backward<Flex, 3> for PointwiseBackward {
-    type State = [NodeId; 2];
-
-    fn backward(
-        self,
-        ops: Ops<Self::State, 3>,
+        ops: Ops<Self::State, N>,
         grads: &mut Gradients,
         checkpointer: &mut Checkpointer,
     ) {
