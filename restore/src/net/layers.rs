@@ -55,8 +55,12 @@ pub fn pointwise(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
         && conv.groups == 1
         && conv.padding == PaddingConfig2d::Explicit(0, 0, 0, 0);
     if plain1 && extension_applies(&x) {
+        // The weights read before the bias, as burn's `Conv2d` reads them: burn draws a
+        // parameter's initial values when it is first read, so this order is the network's
+        // initialisation from a seed.
+        let weight = conv.weight.val();
         let bias = conv.bias.as_ref().map(|b| b.val());
-        return super::pointwise::pointwise_tensor(x, conv.weight.val(), bias);
+        return super::pointwise::pointwise_tensor(x, weight, bias);
     }
     let weight = conv.weight.val();
     let [cout, cin, kh, kw] = weight.dims();
