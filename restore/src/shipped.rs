@@ -38,7 +38,7 @@ pub struct Shipped {
 
 /// What `auto` tries, in order (those trained on the capture's scale first,
 /// [`for_capture_on`]): the network trained on the default lens at the scale it was
-/// made for, then the family's for the widest blur (85-140 px, 0.13-0.2 dB above the general
+/// made for, then the family's for the widest blur (85-140 px, 0.20-0.29 dB above the general
 /// one at 113-135 px), then the one trained over the lens family at every scale (1-5 dB above
 /// the Wiener image: RESULTS.md).
 pub const SHIPPED: [Shipped; 3] = [

@@ -16,12 +16,7 @@ use super::kernels::{Kernels, current, direct_applies, extension_applies, host};
 /// gradient being slow; in inference because its forward beats burn's im2col and matrix
 /// product too), else burn's `Conv2d`.
 pub fn conv3(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
-    let same3 = conv.kernel_size == [3, 3]
-        && conv.stride == [1, 1]
-        && conv.dilation == [1, 1]
-        && conv.groups == 1
-        && conv.padding == PaddingConfig2d::Explicit(1, 1, 1, 1);
-    if same3 && extension_applies(&x) {
+    if is_plain(conv, 3) && extension_applies(&x) {
         return super::conv_train::dense3(conv, x);
     }
     conv.forward(x)
@@ -34,6 +29,18 @@ pub fn gelu(x: Tensor<4>) -> Tensor<4> {
         return super::gelu::gelu_tensor(x);
     }
     burn::tensor::activation::gelu(x)
+}
+
+/// Whether `conv` is a dense `k × k` convolution with same-size output, as [`conv`] makes
+/// them (stride 1, no dilation, one group, `k / 2` padding): the shape the hand-written
+/// kernels are written for.
+fn is_plain(conv: &Conv2d, k: usize) -> bool {
+    let p = k / 2;
+    conv.kernel_size == [k, k]
+        && conv.stride == [1, 1]
+        && conv.dilation == [1, 1]
+        && conv.groups == 1
+        && conv.padding == PaddingConfig2d::Explicit(p, p, p, p)
 }
 
 /// `k × k` convolution with same-size output.
@@ -49,12 +56,7 @@ pub fn conv(cin: usize, cout: usize, k: usize, bias: bool, device: &Device) -> C
 /// matrix product over the pixels (burn's convolution weight gradient takes a generic path
 /// there), else burn's `Conv2d`.
 pub fn pointwise(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
-    let plain1 = conv.kernel_size == [1, 1]
-        && conv.stride == [1, 1]
-        && conv.dilation == [1, 1]
-        && conv.groups == 1
-        && conv.padding == PaddingConfig2d::Explicit(0, 0, 0, 0);
-    if plain1 && extension_applies(&x) {
+    if is_plain(conv, 1) && extension_applies(&x) {
         // The weights read before the bias, as burn's `Conv2d` reads them: burn draws a
         // parameter's initial values when it is first read, so this order is the network's
         // initialisation from a seed.

@@ -236,94 +236,68 @@ unsafe fn blocks<const ROWS: usize, const COLS: usize>(
     }
 }
 
-/// `R` output channels × 16 pixels in AVX2 registers:
-/// `out[j][k] = bias[j] + Σ_i w[j·cin + i] · src[i·BLOCK + k]`, summed in `i`'s order.
-///
-/// # Safety
-/// `src` has `cin` rows of [`BLOCK`] values (16 read from each), `w` `R` rows of `cin`,
-/// `bias` at least `R` values, `out` `R` rows `plane` apart with 16 writable values each;
-/// AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-unsafe fn tile8<const R: usize>(
-    src: *const f32,
-    w: *const f32,
-    bias: &[f32],
-    out: *mut f32,
-    cin: usize,
-    plane: usize,
-) {
-    use std::arch::x86_64::*;
-    let mut acc = [[_mm256_setzero_ps(); 2]; R];
-    for (j, a) in acc.iter_mut().enumerate() {
-        let b = _mm256_set1_ps(bias[j]);
-        *a = [b, b];
-    }
-    for i in 0..cin {
-        // SAFETY: the caller's contract.
-        unsafe {
-            let p = src.add(i * BLOCK);
-            let (x0, x1) = (_mm256_loadu_ps(p), _mm256_loadu_ps(p.add(LANES)));
+/// A register tile `$name::<R>`: `R` output channels × two `$vec` registers of `$lanes`
+/// pixels, `out[j][k] = bias[j] + Σ_i w[j·cin + i] · src[i·BLOCK + k]`, multiplied and added
+/// in two roundings in `i`'s order (the portable loop's bits), compiled with `$features`.
+macro_rules! tile_build {
+    ($(#[$doc:meta])* $name:ident, $features:literal, $lanes:expr, $zero:ident, $splat:ident,
+     $load:ident, $add:ident, $mul:ident, $store:ident) => {
+        $(#[$doc])*
+        /// # Safety
+        /// `src` has `cin` rows of [`BLOCK`] values (two registers read from each), `w` `R`
+        /// rows of `cin`, `bias` at least `R` values, `out` `R` rows `plane` apart with two
+        /// registers' worth of writable values each; the CPU has the build's features.
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $features)]
+        #[inline]
+        unsafe fn $name<const R: usize>(
+            src: *const f32,
+            w: *const f32,
+            bias: &[f32],
+            out: *mut f32,
+            cin: usize,
+            plane: usize,
+        ) {
+            use std::arch::x86_64::*;
+            let mut acc = [[$zero(); 2]; R];
             for (j, a) in acc.iter_mut().enumerate() {
-                let wv = _mm256_broadcast_ss(&*w.add(j * cin + i));
-                a[0] = _mm256_add_ps(a[0], _mm256_mul_ps(wv, x0));
-                a[1] = _mm256_add_ps(a[1], _mm256_mul_ps(wv, x1));
+                let b = $splat(bias[j]);
+                *a = [b, b];
+            }
+            for i in 0..cin {
+                // SAFETY: the caller's contract.
+                unsafe {
+                    let p = src.add(i * BLOCK);
+                    let (x0, x1) = ($load(p), $load(p.add($lanes)));
+                    for (j, a) in acc.iter_mut().enumerate() {
+                        let wv = $splat(*w.add(j * cin + i));
+                        a[0] = $add(a[0], $mul(wv, x0));
+                        a[1] = $add(a[1], $mul(wv, x1));
+                    }
+                }
+            }
+            for (j, a) in acc.iter().enumerate() {
+                // SAFETY: the caller's contract.
+                unsafe {
+                    let p = out.add(j * plane);
+                    $store(p, a[0]);
+                    $store(p.add($lanes), a[1]);
+                }
             }
         }
-    }
-    for (j, a) in acc.iter().enumerate() {
-        // SAFETY: the caller's contract.
-        unsafe {
-            let p = out.add(j * plane);
-            _mm256_storeu_ps(p, a[0]);
-            _mm256_storeu_ps(p.add(LANES), a[1]);
-        }
-    }
+    };
 }
 
-/// [`tile8`] over 32 pixels in AVX-512 registers (32 of them: up to 12 rows).
-///
-/// # Safety
-/// As [`tile8`] with 32 values per row; AVX-512 F.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-#[inline]
-unsafe fn tile16<const R: usize>(
-    src: *const f32,
-    w: *const f32,
-    bias: &[f32],
-    out: *mut f32,
-    cin: usize,
-    plane: usize,
-) {
-    use std::arch::x86_64::*;
-    let mut acc = [[_mm512_setzero_ps(); 2]; R];
-    for (j, a) in acc.iter_mut().enumerate() {
-        let b = _mm512_set1_ps(bias[j]);
-        *a = [b, b];
-    }
-    for i in 0..cin {
-        // SAFETY: the caller's contract.
-        unsafe {
-            let p = src.add(i * BLOCK);
-            let (x0, x1) = (_mm512_loadu_ps(p), _mm512_loadu_ps(p.add(16)));
-            for (j, a) in acc.iter_mut().enumerate() {
-                let wv = _mm512_set1_ps(*w.add(j * cin + i));
-                a[0] = _mm512_add_ps(a[0], _mm512_mul_ps(wv, x0));
-                a[1] = _mm512_add_ps(a[1], _mm512_mul_ps(wv, x1));
-            }
-        }
-    }
-    for (j, a) in acc.iter().enumerate() {
-        // SAFETY: the caller's contract.
-        unsafe {
-            let p = out.add(j * plane);
-            _mm512_storeu_ps(p, a[0]);
-            _mm512_storeu_ps(p.add(16), a[1]);
-        }
-    }
-}
+tile_build!(
+    /// 16 pixels in AVX2 registers.
+    tile8, "avx2", LANES, _mm256_setzero_ps, _mm256_set1_ps, _mm256_loadu_ps, _mm256_add_ps,
+    _mm256_mul_ps, _mm256_storeu_ps
+);
+tile_build!(
+    /// 32 pixels in AVX-512 registers (32 of them: up to 12 rows).
+    tile16, "avx512f", 16, _mm512_setzero_ps, _mm512_set1_ps, _mm512_loadu_ps, _mm512_add_ps,
+    _mm512_mul_ps, _mm512_storeu_ps
+);
 
 /// The gradients of [`pointwise`] from the output gradient `dy: [b, cout, h, w]`:
 /// `(dx: [b, cin, h, w], dW: [cout, cin], db: [cout])`.
