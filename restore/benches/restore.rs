@@ -1,8 +1,10 @@
 //! Restorer memory and tiling: peak resident memory of a forward pass and of a training step
 //! per config, and tiled against whole-image inference (time and error). Forward and step
-//! times are `metasplat bench restorer`'s (restore::speed), not repeated here.
+//! times are `metasplat bench restorer`'s (restore::speed), not repeated here; the window
+//! attention kernel alone is timed here, to compare builds of it.
 //!
-//! `cargo bench -p restore --bench restore` (`-- tiny` for the tiny config only).
+//! `cargo bench -p restore --bench restore` (`-- tiny` for the tiny config only,
+//! `-- window_attention` for the kernel).
 
 use burn::module::Module;
 use burn::tensor::Device;
@@ -121,8 +123,49 @@ fn training_memory(_: &mut Criterion) {
     }
 }
 
+/// The window attention kernel on one `tiny` full-resolution map (16 channels, two heads of
+/// 8, 4² windows with 6² keys, the position terms on), as `metasplat restore` runs it.
+fn window_attention(c: &mut Criterion) {
+    use restore::net::window_direct::{WindowSpec, attend_maps};
+    let (ch, side, heads, win, kwin) = (16, 512, 2, 4, 6);
+    let map = |seed| {
+        random_planes(ch, side, side)
+            .data
+            .iter()
+            .map(|v| v * seed)
+            .collect::<Vec<f32>>()
+    };
+    let (q, k, v) = (map(0.5), map(0.7), map(1.0));
+    let small = |n: usize| {
+        (0..n)
+            .map(|i| ((i % 13) as f32 - 6.0) * 0.01)
+            .collect::<Vec<f32>>()
+    };
+    let (pos_q, pos_k, bias) = (
+        small(win * win * ch),
+        small(kwin * kwin * ch),
+        small(heads * win.pow(2) * kwin.pow(2)),
+    );
+    let spec = WindowSpec {
+        heads,
+        win,
+        kwin,
+        share: 1,
+        pos_q: Some(&pos_q),
+        pos_k: Some(&pos_k),
+        bias: Some(&bias),
+    };
+    let mut g = c.benchmark_group("kernels");
+    g.sample_size(20);
+    g.bench_function("window_attention_512", |b| {
+        b.iter(|| attend_maps(&q, &k, &v, [ch, side, side], &spec).unwrap())
+    });
+    g.finish();
+}
+
 criterion_group!(
     benches,
+    window_attention,
     inference_memory,
     tiled_against_whole,
     training_memory

@@ -179,70 +179,144 @@ fn strip_body<const D: usize>(
     let mut vb = vec![[0.0f32; D]; lk];
     let mut inside: Vec<(usize, usize)> = Vec::with_capacity(lk);
     let mut logits = vec![0.0f32; lq * lkp];
+    let mut invs = vec![0.0f32; lq];
     let mut kept = vec![0.0f32; if keep { nw * s.heads * lq * lkp } else { 0 }];
-    for wx in 0..nw {
-        let (y0, x0) = (wy * s.win, wx * s.win);
-        inside.clear();
-        for ky in 0..s.kwin {
-            for kx in 0..s.kwin {
-                let y = (y0 + ky) as isize - pad as isize;
-                let x = (x0 + kx) as isize - pad as isize;
-                if (0..h as isize).contains(&y) && (0..w as isize).contains(&x) {
-                    inside.push((ky * s.kwin + kx, y as usize * w + x as usize));
-                }
+    // The strip's rows of one head's channels, copied out of the maps before its windows
+    // read them: the maps' planes lie a megabyte apart, so gathering a window's pixels
+    // straight from them put every channel in the same cache sets and most loads missed.
+    // Keys and queries stay a plane per channel (`[D, rows, w]`), values go pixel-major
+    // (`[rows · w, D]`) so a key's values are one load.
+    let y0 = wy * s.win;
+    let (ylo, yhi) = (y0.saturating_sub(pad), (y0 + s.win + pad).min(h));
+    let rows = yhi - ylo;
+    let mut ks = vec![0.0f32; D * rows * w];
+    let mut qs = vec![0.0f32; D * s.win * w];
+    let mut vs = vec![[0.0f32; D]; rows * w];
+    for head in 0..s.heads {
+        let ch0 = head * D;
+        for i in 0..D {
+            let ch = ch0 + i;
+            // Rows `from..from + n` of channel `ch`'s plane.
+            let span = |from: usize, n: usize| ch * plane + from * w..ch * plane + (from + n) * w;
+            ks[i * rows * w..][..rows * w].copy_from_slice(&kmap[span(ylo, rows)]);
+            qs[i * s.win * w..][..s.win * w].copy_from_slice(&qmap[span(y0, s.win)]);
+            for (dst, &x) in vs.iter_mut().zip(&vmap[span(ylo, rows)]) {
+                dst[i] = x;
             }
         }
-        let n = inside.len();
-        let np = lanes::padded(n);
-        for head in 0..s.heads {
-            let ch0 = head * D;
+        for wx in 0..nw {
+            let x0 = wx * s.win;
+            inside.clear();
+            for ky in 0..s.kwin {
+                for kx in 0..s.kwin {
+                    let y = (y0 + ky) as isize - pad as isize;
+                    let x = (x0 + kx) as isize - pad as isize;
+                    if (0..h as isize).contains(&y) && (0..w as isize).contains(&x) {
+                        inside.push((ky * s.kwin + kx, (y as usize - ylo) * w + x as usize));
+                    }
+                }
+            }
+            let n = inside.len();
+            let np = lanes::padded(n);
             for i in 0..D {
                 let ch = ch0 + i;
-                let qp = &qmap[ch * plane..][..plane];
+                let qp = &qs[i * s.win * w..][..s.win * w];
                 for qy in 0..s.win {
                     for qx in 0..s.win {
                         let qi = qy * s.win + qx;
                         let pos = s.pos_q.map_or(0.0, |p| p[qi * c + ch]);
-                        qb[qi][i] = (qp[(y0 + qy) * w + x0 + qx] + pos) * scale;
+                        qb[qi][i] = (qp[qy * w + x0 + qx] + pos) * scale;
                     }
                 }
-                let kp = &kmap[ch * plane..][..plane];
-                let vp = &vmap[ch * plane..][..plane];
+                let kp = &ks[i * rows * w..][..rows * w];
                 let krow = &mut kt[i * np..][..np];
                 for (j, &(kj, px)) in inside.iter().enumerate() {
                     krow[j] = kp[px] + s.pos_k.map_or(0.0, |p| p[kj * c + ch]);
-                    vb[j][i] = vp[px];
                 }
                 krow[n..].fill(0.0);
+            }
+            for (dst, &(_, px)) in vb.iter_mut().zip(&inside) {
+                *dst = vs[px];
             }
             let logits = &mut logits[..lq * np];
             let bias = s.bias.map(|b| &b[head * lq * lk..][..lq * lk]);
             let slots = inside.iter().map(|&(kj, _)| kj);
             logit_rows(logits, slots, n, bias, &qb, &kt[..D * np]);
-            for qi in 0..lq {
+            for (qi, inv) in invs.iter_mut().enumerate() {
                 let row = &mut logits[qi * np..][..np];
-                let inv = lanes::exp_row(row, n, exp_nonpositive);
+                *inv = lanes::exp_row(row, n, exp_nonpositive);
                 if keep {
                     // As `lanes::softmax` normalises: the same bits.
                     let dst = &mut kept[((wx * s.heads + head) * lq + qi) * lkp..][..np];
                     for (d, &e) in dst.iter_mut().zip(row.iter()) {
-                        *d = e * inv;
+                        *d = e * *inv;
                     }
                 }
-                let mut acc = [0.0f32; D];
-                for (p, vrow) in row[..n].iter().zip(&vb[..n]) {
-                    for (a, v) in acc.iter_mut().zip(vrow) {
-                        *a += p * v;
+            }
+            // `P·V`, four queries at a time: each query's sum still runs over its keys in
+            // order (the bits of one at a time), but four independent chains of adds overlap
+            // where one would wait on each add.
+            let mut qi = 0;
+            while qi < lq {
+                let r = (lq - qi).min(QUERIES);
+                let acc = weighted_values::<D>(&logits[qi * np..][..r * np], np, &vb[..n]);
+                for (a, q) in acc[..r].iter().zip(qi..) {
+                    let (qy, qx) = (q / s.win, q % s.win);
+                    for (i, a) in a.iter().enumerate() {
+                        strip[((ch0 + i) * s.win + qy) * w + x0 + qx] = a * invs[q];
                     }
                 }
-                let (qy, qx) = (qi / s.win, qi % s.win);
-                for (i, a) in acc.iter().enumerate() {
-                    strip[((ch0 + i) * s.win + qy) * w + x0 + qx] = a * inv;
-                }
+                qi += r;
             }
         }
     }
     (strip, kept)
+}
+
+/// Queries whose `P·V` sums run side by side.
+const QUERIES: usize = 4;
+
+/// `Σⱼ pⱼ vⱼ` for up to [`QUERIES`] rows of `p` (`rows`: `r` rows of stride `np`) over the
+/// keys' values `vb`, each row's sum in key order.
+#[inline(always)]
+fn weighted_values<const D: usize>(
+    rows: &[f32],
+    np: usize,
+    vb: &[[f32; D]],
+) -> [[f32; D]; QUERIES] {
+    let r = rows.len().div_ceil(np);
+    let mut acc = [[0.0f32; D]; QUERIES];
+    let n = vb.len();
+    if r == QUERIES {
+        // Four named rows and sums, so they stay in registers.
+        let (p0, p1, p2, p3) = (
+            &rows[..n],
+            &rows[np..][..n],
+            &rows[2 * np..][..n],
+            &rows[3 * np..][..n],
+        );
+        let (mut a0, mut a1, mut a2, mut a3) = ([0.0f32; D], [0.0f32; D], [0.0f32; D], [0.0f32; D]);
+        for j in 0..n {
+            let v = vb[j];
+            let (x0, x1, x2, x3) = (p0[j], p1[j], p2[j], p3[j]);
+            for i in 0..D {
+                a0[i] += x0 * v[i];
+                a1[i] += x1 * v[i];
+                a2[i] += x2 * v[i];
+                a3[i] += x3 * v[i];
+            }
+        }
+        acc = [a0, a1, a2, a3];
+    } else {
+        for (q, a) in acc[..r].iter_mut().enumerate() {
+            for (p, v) in rows[q * np..][..n].iter().zip(vb) {
+                for (a, v) in a.iter_mut().zip(v) {
+                    *a += p * v;
+                }
+            }
+        }
+    }
+    acc
 }
 
 /// One window's and head's logits, `[lq, np]` rows for its `n` keys padded to `np`: the
@@ -263,8 +337,14 @@ pub(super) fn logit_rows<const D: usize>(
         Some(b) => {
             let lk = b.len() / qb.len();
             for (qi, row) in rows.chunks_exact_mut(np).enumerate() {
-                for (l, slot) in row.iter_mut().zip(slots.clone()) {
-                    *l = b[qi * lk + slot];
+                if n == lk {
+                    // A window inside the map: its keys are every slot in order, so the
+                    // row is copied, not gathered (a tenth of the kernel's time when it was).
+                    row[..n].copy_from_slice(&b[qi * lk..][..lk]);
+                } else {
+                    for (l, slot) in row.iter_mut().zip(slots.clone()) {
+                        *l = b[qi * lk + slot];
+                    }
                 }
                 row[n..].fill(0.0);
             }
