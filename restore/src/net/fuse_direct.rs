@@ -4,8 +4,6 @@
 //! output plane is made from its two input planes and the gate. It has no gradient:
 //! training takes the tensor formulation.
 
-use rayon::prelude::*;
-
 /// `sa`, `ca`: `[b, c, h, w]`; `gate`: `[b, 1, h, w]` (a weight per pixel) or `[b, c, 1, 1]`
 /// (a weight per channel) → `ca + (sa − ca) · gate`, `[b, c, h, w]`.
 pub fn blend(
@@ -23,27 +21,20 @@ pub fn blend(
         [b, c, h, w]
     );
     assert!(sa.len() == b * c * plane && ca.len() == sa.len());
-    let mut out = vec![0.0f32; b * c * plane];
-    if out.is_empty() {
-        return out;
-    }
-    out.par_chunks_mut(plane)
-        .enumerate()
-        .for_each(|(task, dst)| {
-            let (n, ch) = (task / c, task % c);
-            let s = &sa[task * plane..][..plane];
-            let a = &ca[task * plane..][..plane];
-            if per_pixel {
-                let g = &gate[n * plane..][..plane];
-                for (((o, &s), &a), &g) in dst.iter_mut().zip(s).zip(a).zip(g) {
-                    *o = a + (s - a) * g;
-                }
-            } else {
-                let g = gate[n * c + ch];
-                for ((o, &s), &a) in dst.iter_mut().zip(s).zip(a) {
-                    *o = a + (s - a) * g;
-                }
+    super::fresh::filled(b * c * plane, plane, |task, dst| {
+        let (n, ch) = (task / c, task % c);
+        let s = &sa[task * plane..][..plane];
+        let a = &ca[task * plane..][..plane];
+        if per_pixel {
+            let g = &gate[n * plane..][..plane];
+            for (((o, &s), &a), &g) in dst.iter_mut().zip(s).zip(a).zip(g) {
+                *o = a + (s - a) * g;
             }
-        });
-    out
+        } else {
+            let g = gate[n * c + ch];
+            for ((o, &s), &a) in dst.iter_mut().zip(s).zip(a) {
+                *o = a + (s - a) * g;
+            }
+        }
+    })
 }

@@ -6,8 +6,8 @@
 //! are in cache. It has no gradient: training takes the tensor formulation.
 
 use super::conv_train::depthwise_row;
+use super::fresh;
 use super::gelu::gelu;
-use rayon::prelude::*;
 
 /// `x: [b, 2·hid, h, w]` (the GDFN's first projection), `weight: [2·hid, 1, 3, 3]` (its
 /// depthwise 3×3 kernels, zero padding) → `[b, hid, h, w]`: channel `i` is
@@ -15,22 +15,18 @@ use rayon::prelude::*;
 pub fn gated_depthwise(x: &[f32], weight: &[f32], [b, c2, h, w]: [usize; 4]) -> Vec<f32> {
     let hid = c2 / 2;
     let plane = h * w;
-    let mut out = vec![0.0f32; b * hid * plane];
-    out.par_chunks_mut(plane)
-        .enumerate()
-        .for_each(|(task, dst)| {
-            let (n, i) = (task / hid, task % hid);
-            let src = |ch: usize| &x[(n * c2 + ch) * plane..][..plane];
-            let kernel = |ch: usize| -> &[f32; 9] { weight[ch * 9..][..9].try_into().unwrap() };
-            plane_task(
-                dst,
-                (src(i), kernel(i)),
-                (src(hid + i), kernel(hid + i)),
-                h,
-                w,
-            );
-        });
-    out
+    fresh::filled(b * hid * plane, plane, |task, dst| {
+        let (n, i) = (task / hid, task % hid);
+        let src = |ch: usize| &x[(n * c2 + ch) * plane..][..plane];
+        let kernel = |ch: usize| -> &[f32; 9] { weight[ch * 9..][..9].try_into().unwrap() };
+        plane_task(
+            dst,
+            (src(i), kernel(i)),
+            (src(hid + i), kernel(hid + i)),
+            h,
+            w,
+        );
+    })
 }
 
 type Plane<'a> = (&'a [f32], &'a [f32; 9]);

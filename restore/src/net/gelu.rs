@@ -16,7 +16,6 @@ use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension, tensor::FloatTensor};
 use burn::tensor::{Tensor, TensorData};
-use rayon::prelude::*;
 
 /// `erf(x)`, absolute error below 1.5e-7.
 #[inline(always)]
@@ -79,15 +78,13 @@ fn map_body(out: &mut [f32], x: &[f32], dy: Option<&[f32]>) {
 
 /// GELU of every value, or with `dy` the input gradient `dy · gelu'(x)`.
 pub fn gelu_values(x: &[f32], dy: Option<&[f32]>) -> Vec<f32> {
-    let mut out = vec![0.0f32; x.len()];
     if let Some(dy) = dy {
         assert_eq!(dy.len(), x.len());
     }
-    out.par_chunks_mut(CHUNK).enumerate().for_each(|(i, o)| {
+    super::fresh::filled(x.len(), CHUNK, |i, o| {
         let x = &x[i * CHUNK..][..o.len()];
         map_into(o, x, dy.map(|d| &d[i * CHUNK..][..o.len()]));
-    });
-    out
+    })
 }
 
 /// GELU of `x` (on burn's CPU backend) through [`GeluOps`].

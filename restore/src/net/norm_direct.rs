@@ -41,16 +41,12 @@ pub fn channel_norm(
         return Vec::new();
     }
     let (mean, rstd) = stats(x, eps, [b, c, h, w]);
-    let mut out = vec![0.0f32; b * c * plane];
-    out.par_chunks_mut(plane)
-        .enumerate()
-        .for_each(|(task, dst)| {
-            let (n, ch) = (task / c, task % c);
-            let src = &x[(n * c + ch) * plane..][..plane];
-            let stats = (&mean[n * plane..][..plane], &rstd[n * plane..][..plane]);
-            apply(dst, src, stats, weight[ch], bias[ch]);
-        });
-    out
+    super::fresh::filled(b * c * plane, plane, |task, dst| {
+        let (n, ch) = (task / c, task % c);
+        let src = &x[(n * c + ch) * plane..][..plane];
+        let stats = (&mean[n * plane..][..plane], &rstd[n * plane..][..plane]);
+        apply(dst, src, stats, weight[ch], bias[ch]);
+    })
 }
 
 /// Per pixel `(mean, 1/sqrt(var + eps))` over the channels, batch item by batch item, strip

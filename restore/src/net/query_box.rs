@@ -19,7 +19,6 @@ use burn::backend::autodiff::ops::{Backward, Ops};
 use burn::backend::flex::FlexTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension, tensor::FloatTensor};
 use burn::tensor::{Tensor, TensorData};
-use rayon::prelude::*;
 
 /// `x`: planes of `h × w`, one after another; `k` odd → `x − AvgPool_k(x)` with stride 1 and
 /// zero padding counted in the mean (divided by `k²` everywhere), as
@@ -27,15 +26,13 @@ use rayon::prelude::*;
 pub fn enhance(x: &[f32], k: usize, h: usize, w: usize) -> Vec<f32> {
     assert!(k % 2 == 1, "an odd box, not {k}");
     let plane = h * w;
-    let mut out = vec![0.0f32; x.len()];
     if plane == 0 {
-        return out;
+        return vec![0.0f32; x.len()];
     }
     assert_eq!(x.len() % plane, 0, "planes of {h}x{w}");
-    out.par_chunks_mut(plane)
-        .zip(x.par_chunks(plane))
-        .for_each(|(dst, src)| plane_task(dst, src, k, h, w));
-    out
+    super::fresh::filled(x.len(), plane, |i, dst| {
+        plane_task(dst, &x[i * plane..][..plane], k, h, w)
+    })
 }
 
 fn plane_task(dst: &mut [f32], src: &[f32], k: usize, h: usize, w: usize) {
