@@ -705,6 +705,12 @@ fn the_channel_norm_trains_alike_through_the_hand_written_backward() {
             })
         };
         let (fast, reference) = (run(Kernels::Fast), run(Kernels::Reference));
+        // 300 off zero, both sides lose about log10(300 / σ) digits to the subtraction of
+        // the mean in f32 (σ of 5 channels can be well under 1), so that case is held to
+        // 1e-3; against an f64 LayerNorm the fast one keeps 1e-4 (the two-pass test above).
+        // The inputs come from the device's shared generator, which the tests running
+        // beside this one also draw from: the draw differs from run to run.
+        let tol = if offset == 0.0 { 1e-4 } else { 1e-3 };
         assert_within_scale(
             &[
                 "output",
@@ -714,7 +720,7 @@ fn the_channel_norm_trains_alike_through_the_hand_written_backward() {
             ],
             &fast,
             &reference,
-            1e-4,
+            tol,
             &format!("{c}x{h}x{w}+{offset}"),
         );
     }
