@@ -1,11 +1,12 @@
 //! Restorer memory and tiling: peak resident memory of a forward pass and of a training step
 //! per config, and tiled against whole-image inference (time and error). Forward and step
 //! times are `metasplat bench restorer`'s (restore::speed), not repeated here; the window
-//! attention kernel alone is timed here, to compare builds of it.
+//! attention kernel alone is timed here, to compare builds of it, and the dense 3×3 kernel
+//! beside burn's convolution it replaced.
 //!
 //! `cargo bench -p restore --bench restore` (`-- tiny` for the tiny config only,
-//! `-- window_attention` for the kernel's timing; the memory and tiling figures print on
-//! every run, whatever the filter).
+//! `-- window_attention` or `-- dense3` for a kernel's timing; the memory and tiling figures
+//! print on every run, whatever the filter).
 
 use burn::module::Module;
 use burn::tensor::Device;
@@ -165,9 +166,42 @@ fn window_attention(c: &mut Criterion) {
     g.finish();
 }
 
+/// The dense 3×3 convolution of `tiny`'s full-resolution layers (the down-sampling's 16 → 8
+/// and the output's 32 → 3) at 512²: the direct kernel beside burn's CPU convolution (im2col
+/// and a matrix product), which it replaced, on the same values.
+fn dense3(c: &mut Criterion) {
+    use burn::tensor::module::conv2d;
+    use burn::tensor::ops::ConvOptions;
+    use burn::tensor::{Tensor, TensorData};
+    use restore::net::dense_direct::dense3;
+    let side = 512;
+    let mut g = c.benchmark_group("kernels");
+    g.sample_size(10);
+    for (cin, cout) in [(16, 8), (32, 3)] {
+        let x = random_planes(cin, side, side).data;
+        let weight: Vec<f32> = (0..cout * cin * 9)
+            .map(|i| ((i % 17) as f32 - 8.0) * 0.01)
+            .collect();
+        let d = [1, cin, side, side];
+        g.bench_function(format!("dense3_512_{cin}to{cout}/direct"), |b| {
+            b.iter(|| dense3(&x, &weight, cout, d))
+        });
+        let device = Device::flex();
+        let xt = Tensor::<4>::from_data(TensorData::new(x.clone(), d), &device);
+        let wt =
+            Tensor::<4>::from_data(TensorData::new(weight.clone(), [cout, cin, 3, 3]), &device);
+        let options = ConvOptions::new([1, 1], [1, 1], [1, 1], 1);
+        g.bench_function(format!("dense3_512_{cin}to{cout}/burn"), |b| {
+            b.iter(|| conv2d(xt.clone(), wt.clone(), None, options.clone()).into_data())
+        });
+    }
+    g.finish();
+}
+
 criterion_group!(
     benches,
     window_attention,
+    dense3,
     inference_memory,
     tiled_against_whole,
     training_memory

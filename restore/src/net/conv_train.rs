@@ -8,9 +8,9 @@
 //! - depthwise: the forward, the input gradient (the same correlation with each kernel turned
 //!   half a turn) and the weight gradient (nine dot products per plane) are loops over one
 //!   plane at a time, planes in parallel;
-//! - dense: the forward and the input gradient are burn's forward convolution (the latter with
-//!   the kernels transposed and turned half a turn), the weight gradient one matrix product of
-//!   the input's 3×3 neighbourhoods with the output gradient.
+//! - dense: the forward and the input gradient are [`super::dense_direct`]'s kernel (the latter
+//!   with the kernels transposed and turned half a turn), the weight gradient one matrix product
+//!   of the input's 3×3 neighbourhoods with the output gradient.
 //!
 //! Registered with burn as a backend extension, so autodiff records each as one node; they
 //! stand in only on burn's CPU backend under autodiff ([`trained_applies`]), and the reference
@@ -23,10 +23,9 @@ use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
-use burn::backend::ops::{FloatTensorOps, ModuleOps};
+use burn::backend::ops::FloatTensorOps;
 use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension, tensor::FloatTensor};
 use burn::nn::conv::Conv2d;
-use burn::tensor::ops::ConvOptions;
 use burn::tensor::{Device, Tensor, TensorData};
 use rayon::prelude::*;
 
@@ -79,19 +78,20 @@ pub trait DenseOps: Backend {
     fn dense3_w_grad(x: FloatTensor<Self>, dy: FloatTensor<Self>) -> FloatTensor<Self>;
 }
 
-fn same3() -> ConvOptions<2> {
-    ConvOptions::new([1, 1], [1, 1], [1, 1], 1)
-}
-
 impl DenseOps for Flex {
     fn dense3(x: FlexTensor, weight: FlexTensor) -> FlexTensor {
-        <Flex as ModuleOps<Flex>>::conv2d(x, weight, None, same3())
+        let (x, d @ [b, _, h, w]) = values(x);
+        let (weight, [cout, ..]) = values(weight);
+        let y = super::dense_direct::dense3(flex_slice(&x), flex_slice(&weight), cout, d);
+        tensor(y, [b, cout, h, w])
     }
 
     fn dense3_x_grad(weight: FlexTensor, dy: FlexTensor) -> FlexTensor {
         let (weight, [cout, cin, _, _]) = values(weight);
         let turned = transposed_half_turn(flex_slice(&weight), cout, cin);
-        <Flex as ModuleOps<Flex>>::conv2d(dy, tensor(turned, [cin, cout, 3, 3]), None, same3())
+        let (dy, d @ [b, _, h, w]) = values(dy);
+        let dx = super::dense_direct::dense3(flex_slice(&dy), &turned, cin, d);
+        tensor(dx, [b, cin, h, w])
     }
 
     fn dense3_w_grad(x: FlexTensor, dy: FlexTensor) -> FlexTensor {

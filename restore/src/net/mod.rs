@@ -3,6 +3,7 @@
 
 pub mod channel;
 pub mod conv_train;
+pub mod dense_direct;
 pub mod fresh;
 pub mod fuse_direct;
 pub mod gate_direct;

@@ -36,7 +36,7 @@ const TASK_PX: usize = 1024;
 /// A raw output pointer the tasks write through: each task writes its own pixels of every
 /// output plane, so no two tasks touch one value.
 #[derive(Clone, Copy)]
-struct Out(*mut f32);
+pub(super) struct Out(pub(super) *mut f32);
 // SAFETY: tasks write disjoint elements (see `project`); the pointer outlives them.
 unsafe impl Send for Out {}
 unsafe impl Sync for Out {}
@@ -44,7 +44,7 @@ unsafe impl Sync for Out {}
 impl Out {
     /// # Safety
     /// As `pointer::add`: `count` values past the pointer stay inside its allocation.
-    unsafe fn add(self, count: usize) -> Out {
+    pub(super) unsafe fn add(self, count: usize) -> Out {
         // SAFETY: the caller's contract.
         Out(unsafe { self.0.add(count) })
     }
@@ -181,7 +181,7 @@ project_build!(
 );
 
 /// Pixels copied side by side per block of [`blocks`].
-const BLOCK: usize = 64;
+pub(super) const BLOCK: usize = 64;
 
 /// The pixels `range` in blocks of [`BLOCK`]: each block's input planes copied side by side
 /// (the planes lie a whole plane apart, so the same pixels of all of them fall in the same
@@ -250,7 +250,7 @@ macro_rules! tile_build {
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = $features)]
         #[inline]
-        unsafe fn $name<const R: usize>(
+        pub(super) unsafe fn $name<const R: usize>(
             src: *const f32,
             w: *const f32,
             bias: &[f32],
