@@ -347,11 +347,11 @@ fn half_turn(weight: &[f32]) -> Vec<f32> {
 /// `x: [b, c, h, w]` cross-correlated with each channel's 3×3 kernel (`weight: [c·9]`).
 pub fn forward(x: &[f32], weight: &[f32], [b, c, h, w]: [usize; 4]) -> Vec<f32> {
     let plane = h * w;
-    let mut out = vec![0.0f32; b * c * plane];
     if plane == 0 {
-        return out;
+        return vec![0.0; b * c * plane];
     }
-    out.par_chunks_mut(plane).enumerate().for_each(|(i, dst)| {
+    // Every row of every plane is written by `depthwise_row`: no zeros first.
+    super::fresh::filled(b * c * plane, plane, |i, dst| {
         let k: &[f32; 9] = weight[(i % c) * 9..][..9].try_into().unwrap();
         let src = &x[i * plane..][..plane];
         #[cfg(target_arch = "x86_64")]
@@ -361,8 +361,7 @@ pub fn forward(x: &[f32], weight: &[f32], [b, c, h, w]: [usize; 4]) -> Vec<f32> 
             return unsafe { plane_forward_avx2(dst, src, k, h, w) };
         }
         plane_forward(dst, src, k, h, w)
-    });
-    out
+    })
 }
 
 /// The same code compiled for AVX2 (no multiply-add contracted: the portable build's bits).
@@ -454,25 +453,128 @@ fn dot(a: &[f32], b: &[f32]) -> f32 {
     lanes.iter().sum::<f32>() + tail
 }
 
-/// Row `y` of a 3×3 cross-correlation with zero padding (what burn's `conv2d` computes).
+/// Row `y` of a 3×3 cross-correlation with zero padding (what burn's `conv2d` computes), in
+/// one pass over the row: each value is `0 + t₀ + t₁ + t₂` over the kernel rows that fall
+/// inside the map, `t = k₀·s[x−1] + k₁·s[x] + k₂·s[x+1]` (the sums of a pass per kernel row,
+/// which this replaced: the same bits, tested below).
 #[inline(always)]
 pub fn depthwise_row(row: &mut [f32], src: &[f32], k: &[f32; 9], y: usize, h: usize, w: usize) {
-    row.fill(0.0);
-    for ky in 0..3 {
-        let Some(sy) = (y + ky).checked_sub(1).filter(|&sy| sy < h) else {
-            continue;
-        };
-        let s = &src[sy * w..][..w];
-        let (k0, k1, k2) = (k[ky * 3], k[ky * 3 + 1], k[ky * 3 + 2]);
-        // Interior columns as shifted slices, so the loop vectorises; the two edges apart.
-        if w >= 2 {
-            for (x, r) in row[1..w - 1].iter_mut().enumerate() {
-                *r += k0 * s[x] + k1 * s[x + 1] + k2 * s[x + 2];
+    let tap = |ky: usize| {
+        let sy = (y + ky).checked_sub(1).filter(|&sy| sy < h)?;
+        Some((
+            &src[sy * w..][..w],
+            [k[ky * 3], k[ky * 3 + 1], k[ky * 3 + 2]],
+        ))
+    };
+    match (tap(0), tap(1), tap(2)) {
+        (Some(a), Some(b), Some(c)) => rows_sum([a.0, b.0, c.0], [a.1, b.1, c.1], row),
+        (None, Some(b), Some(c)) => rows_sum([b.0, c.0], [b.1, c.1], row),
+        (Some(a), Some(b), None) => rows_sum([a.0, b.0], [a.1, b.1], row),
+        (None, Some(b), None) => rows_sum([b.0], [b.1], row),
+        _ => unreachable!("row {y} of {h} reads its own input row"),
+    }
+}
+
+/// `row[x] = Σ_r (k[r][0]·s[r][x−1] + k[r][1]·s[r][x] + k[r][2]·s[r][x+1])`, zero past the
+/// ends, the rows `r` added in order from zero.
+#[inline(always)]
+fn rows_sum<const N: usize>(s: [&[f32]; N], k: [[f32; 3]; N], row: &mut [f32]) {
+    let w = row.len();
+    if w < 2 {
+        let mut a = 0.0f32;
+        for r in 0..N {
+            a += k[r][1] * s[r][0];
+        }
+        row[0] = a;
+        return;
+    }
+    // Interior columns from slices of one length, so the loop vectorises without checks.
+    let n = w - 2;
+    let (lo, mid, hi) = (
+        s.map(|s| &s[..n]),
+        s.map(|s| &s[1..][..n]),
+        s.map(|s| &s[2..][..n]),
+    );
+    for (i, out) in row[1..][..n].iter_mut().enumerate() {
+        let mut a = 0.0f32;
+        for r in 0..N {
+            a += k[r][0] * lo[r][i] + k[r][1] * mid[r][i] + k[r][2] * hi[r][i];
+        }
+        *out = a;
+    }
+    let (mut first, mut last) = (0.0f32, 0.0f32);
+    for r in 0..N {
+        first += k[r][1] * s[r][0] + k[r][2] * s[r][1];
+        last += k[r][0] * s[r][w - 2] + k[r][1] * s[r][w - 1];
+    }
+    row[0] = first;
+    row[w - 1] = last;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The row as it was computed before [`depthwise_row`]'s one pass: a pass per kernel row
+    /// added into the zeroed row.
+    fn row_by_passes(row: &mut [f32], src: &[f32], k: &[f32; 9], y: usize, h: usize, w: usize) {
+        row.fill(0.0);
+        for ky in 0..3 {
+            let Some(sy) = (y + ky).checked_sub(1).filter(|&sy| sy < h) else {
+                continue;
+            };
+            let s = &src[sy * w..][..w];
+            let (k0, k1, k2) = (k[ky * 3], k[ky * 3 + 1], k[ky * 3 + 2]);
+            if w >= 2 {
+                for (x, r) in row[1..w - 1].iter_mut().enumerate() {
+                    *r += k0 * s[x] + k1 * s[x + 1] + k2 * s[x + 2];
+                }
+                row[0] += k1 * s[0] + k2 * s[1];
+                row[w - 1] += k0 * s[w - 2] + k1 * s[w - 1];
+            } else {
+                row[0] += k1 * s[0];
             }
-            row[0] += k1 * s[0] + k2 * s[1];
-            row[w - 1] += k0 * s[w - 2] + k1 * s[w - 1];
-        } else {
-            row[0] += k1 * s[0];
+        }
+    }
+
+    /// Values in about [-1, 1], some of them ±0 (the sums must keep their signs' bits).
+    fn values(n: usize, seed: u64) -> Vec<f32> {
+        let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        (0..n)
+            .map(|i| {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                match i % 11 {
+                    3 => 0.0,
+                    7 => -0.0,
+                    _ => (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0,
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_one_pass_row_has_the_bits_of_a_pass_per_kernel_row() {
+        for (h, w) in [
+            (1, 1),
+            (1, 2),
+            (2, 1),
+            (2, 2),
+            (3, 3),
+            (5, 17),
+            (4, 64),
+            (7, 33),
+        ] {
+            let src = values(h * w, (h * 100 + w) as u64);
+            let k: [f32; 9] = values(9, w as u64).try_into().unwrap();
+            for y in 0..h {
+                let (mut fast, mut slow) = (vec![f32::NAN; w], vec![f32::NAN; w]);
+                depthwise_row(&mut fast, &src, &k, y, h, w);
+                row_by_passes(&mut slow, &src, &k, y, h, w);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&fast), bits(&slow), "{h}x{w}, row {y}");
+            }
         }
     }
 }

@@ -26,14 +26,19 @@ pub fn dense3(x: &[f32], weight: &[f32], cout: usize, [b, cin, h, w]: [usize; 4]
     let len = b * cout * plane;
     let mut out = Vec::<f32>::with_capacity(len);
     let dst = Out(out.as_mut_ptr());
-    (0..b * h).into_par_iter().for_each(|task| {
-        let (n, y) = (task / h, task % h);
-        let src = &x[n * cin * plane..][..cin * plane];
-        // SAFETY: `out` has capacity for `b·cout·plane` values; this task writes only row `y`
-        // of item `n`'s `cout` planes, inside that capacity.
-        let row = unsafe { dst.add(n * cout * plane + y * w) };
-        output_row(row, src, weight, Dims { cout, cin, h, w }, y);
-    });
+    // One gathering buffer per rayon job, not per row (every value is written before it is
+    // read, so its zeros are not needed again).
+    let buffer = || vec![0.0f32; 9 * cin * BLOCK];
+    (0..b * h)
+        .into_par_iter()
+        .for_each_init(buffer, |buf, task| {
+            let (n, y) = (task / h, task % h);
+            let src = &x[n * cin * plane..][..cin * plane];
+            // SAFETY: `out` has capacity for `b·cout·plane` values; this task writes only row `y`
+            // of item `n`'s `cout` planes, inside that capacity.
+            let row = unsafe { dst.add(n * cout * plane + y * w) };
+            output_row(row, buf, src, weight, Dims { cout, cin, h, w }, y);
+        });
     // SAFETY: the tasks above wrote every row of every plane of every item.
     unsafe { out.set_len(len) };
     out
@@ -49,31 +54,31 @@ struct Dims {
 }
 
 /// Row `y` of all `cout` output planes of one image.
-fn output_row(dst: Out, x: &[f32], weight: &[f32], dims: Dims, y: usize) {
+fn output_row(dst: Out, buf: &mut [f32], x: &[f32], weight: &[f32], dims: Dims, y: usize) {
     #[cfg(target_arch = "x86_64")]
     match base::isa::Isa::chosen() {
         // SAFETY: `Isa::chosen` names a build the CPU has; the writes stay in row `y` of each
         // plane (see `dense3`).
-        base::isa::Isa::Avx512 => return unsafe { row_avx512(dst, x, weight, dims, y) },
+        base::isa::Isa::Avx512 => return unsafe { row_avx512(dst, buf, x, weight, dims, y) },
         // SAFETY: as above.
-        base::isa::Isa::Avx2 => return unsafe { row_avx2(dst, x, weight, dims, y) },
+        base::isa::Isa::Avx2 => return unsafe { row_avx2(dst, buf, x, weight, dims, y) },
         base::isa::Isa::Portable => {}
     }
     // SAFETY: as above.
-    unsafe { row_portable(dst, x, weight, dims, y) }
+    unsafe { row_portable(dst, buf, x, weight, dims, y) }
 }
 
 /// The portable build of the row: [`blocks`] over [`portable_tile`].
 ///
 /// # Safety
 /// As [`blocks`].
-unsafe fn row_portable(dst: Out, x: &[f32], weight: &[f32], dims: Dims, y: usize) {
+unsafe fn row_portable(dst: Out, buf: &mut [f32], x: &[f32], weight: &[f32], dims: Dims, y: usize) {
     let tile = |rows, src, w, out, taps, stride| {
         // SAFETY: `blocks`' contract for its tiles is `portable_tile`'s.
         unsafe { portable_tile(rows, src, w, out, taps, stride) }
     };
     // SAFETY: the caller's contract.
-    unsafe { blocks::<6, 16>(dst, x, weight, dims, y, tile) }
+    unsafe { blocks::<6, 16>(dst, buf, x, weight, dims, y, tile) }
 }
 
 /// The tile of the portable build: `out[j][k] = Σ_i w[j·taps + i] · src[i·BLOCK + k]` for
@@ -119,7 +124,7 @@ macro_rules! row_build {
         /// As [`blocks`]; the CPU has the build's features.
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = $features)]
-        unsafe fn $name(dst: Out, x: &[f32], weight: &[f32], dims: Dims, y: usize) {
+        unsafe fn $name(dst: Out, buf: &mut [f32], x: &[f32], weight: &[f32], dims: Dims, y: usize) {
             const ZEROS: [f32; $rows] = [0.0; $rows];
             let tile = |rows: usize, src: *const f32, w: *const f32, out: *mut f32, taps: usize,
                         stride: usize| {
@@ -132,7 +137,7 @@ macro_rules! row_build {
                 }
             };
             // SAFETY: the caller's contract.
-            unsafe { blocks::<$rows, $cols>(dst, x, weight, dims, y, tile) }
+            unsafe { blocks::<$rows, $cols>(dst, buf, x, weight, dims, y, tile) }
         }
     };
 }
@@ -148,18 +153,19 @@ row_build!(
 );
 
 /// Row `y` in blocks of [`BLOCK`] pixels: each block's 9·cin shifted input rows gathered side
-/// by side ([`gather`]), then `tile(rows, src, w, out, 9·cin, stride)` over `ROWS` output
+/// by side into `buf` ([`gather`]), then `tile(rows, src, w, out, 9·cin, stride)` over `ROWS` output
 /// channels × `COLS` pixels at a time. A tile that would run past the row's end writes into
 /// a scratch tile, of which the row's pixels are copied.
 ///
 /// # Safety
 /// `dst` points at pixel 0 of row `y` of the first of `cout` planes `h·w` apart, and the caller
-/// owns that row of each; `tile` may be called with `src` at `taps` rows of `BLOCK` values
+/// owns that row of each; `buf` holds at least `9·cin·BLOCK` values; `tile` may be called with `src` at `taps` rows of `BLOCK` values
 /// (reading `COLS` from each), `w` at `rows ≤ ROWS` rows of `taps` weights and `out` at `rows`
 /// rows `stride` apart with `COLS` writable values each; `COLS` divides [`BLOCK`].
 #[inline(always)]
 unsafe fn blocks<const ROWS: usize, const COLS: usize>(
     dst: Out,
+    buf: &mut [f32],
     x: &[f32],
     weight: &[f32],
     Dims { cout, cin, h, w }: Dims,
@@ -167,11 +173,11 @@ unsafe fn blocks<const ROWS: usize, const COLS: usize>(
     tile: impl Fn(usize, *const f32, *const f32, *mut f32, usize, usize),
 ) {
     let (plane, taps) = (h * w, 9 * cin);
-    let mut buf = vec![0.0f32; taps * BLOCK];
+    let buf = &mut buf[..taps * BLOCK];
     let mut scratch = [[0.0f32; COLS]; ROWS];
     for x0 in (0..w).step_by(BLOCK) {
         let len = BLOCK.min(w - x0);
-        gather(&mut buf, x, cin, (h, w), y, x0..x0 + len);
+        gather(buf, x, cin, (h, w), y, x0..x0 + len);
         for o0 in (0..cout).step_by(ROWS) {
             let rows = ROWS.min(cout - o0);
             let wt = weight[o0 * taps..].as_ptr();
@@ -328,6 +334,7 @@ mod tests {
             let dims = Dims { cout, cin, h, w };
             let run = |isa: base::isa::Isa| -> Vec<u32> {
                 let mut out = vec![f32::NAN; cout * plane];
+                let buf = &mut vec![f32::NAN; 9 * cin * BLOCK];
                 for y in 0..h {
                     let dst = Out(out[y * w..].as_mut_ptr());
                     // SAFETY: `out` holds the item's `cout` planes and each call owns its row
@@ -335,10 +342,10 @@ mod tests {
                     unsafe {
                         match isa {
                             #[cfg(target_arch = "x86_64")]
-                            base::isa::Isa::Avx512 => row_avx512(dst, &x, &weight, dims, y),
+                            base::isa::Isa::Avx512 => row_avx512(dst, buf, &x, &weight, dims, y),
                             #[cfg(target_arch = "x86_64")]
-                            base::isa::Isa::Avx2 => row_avx2(dst, &x, &weight, dims, y),
-                            _ => row_portable(dst, &x, &weight, dims, y),
+                            base::isa::Isa::Avx2 => row_avx2(dst, buf, &x, &weight, dims, y),
+                            _ => row_portable(dst, buf, &x, &weight, dims, y),
                         }
                     }
                 }
