@@ -555,6 +555,48 @@ mod tests {
     }
 
     #[test]
+    fn the_depthwise_weight_gradient_matches_an_f64_sum() {
+        for (b, c, h, w) in [
+            (1, 1, 1, 1),
+            (2, 3, 1, 2),
+            (1, 2, 2, 1),
+            (2, 2, 5, 17),
+            (1, 3, 6, 64),
+            (3, 1, 4, 9),
+        ] {
+            let n = b * c * h * w;
+            let (x, dy) = (values(n, 5 + n as u64), values(n, 9 + w as u64));
+            let fast = weight_grad(&x, &dy, [b, c, h, w]);
+            let mut exact = vec![0.0f64; c * 9];
+            for i in 0..b * c {
+                for y in 0..h {
+                    for xx in 0..w {
+                        for k in 0..9 {
+                            let (sy, sx) = (y + k / 3, xx + k % 3);
+                            if (1..=h).contains(&sy) && (1..=w).contains(&sx) {
+                                let at = (i * h + sy - 1) * w + sx - 1;
+                                exact[(i % c) * 9 + k] +=
+                                    dy[(i * h + y) * w + xx] as f64 * x[at] as f64;
+                            }
+                        }
+                    }
+                }
+            }
+            let scale = exact.iter().fold(1e-9f64, |m, v| m.max(v.abs()));
+            let err = fast
+                .iter()
+                .zip(&exact)
+                .map(|(&f, &e)| (f as f64 - e).abs())
+                .fold(0.0, f64::max);
+            assert!(
+                err / scale < 1e-6,
+                "{b}x{c}x{h}x{w}: {:.2e} of the scale",
+                err / scale
+            );
+        }
+    }
+
+    #[test]
     fn the_one_pass_row_has_the_bits_of_a_pass_per_kernel_row() {
         for (h, w) in [
             (1, 1),
