@@ -537,21 +537,18 @@ mod tests {
         }
     }
 
-    /// Values in about [-1, 1], some of them ±0 (the sums must keep their signs' bits).
+    /// The shared test stream with every eleventh value from the fourth +0 and from the eighth
+    /// −0 (the sums must keep their signs' bits).
     fn values(n: usize, seed: u64) -> Vec<f32> {
-        let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-        (0..n)
-            .map(|i| {
-                s ^= s << 13;
-                s ^= s >> 7;
-                s ^= s << 17;
-                match i % 11 {
-                    3 => 0.0,
-                    7 => -0.0,
-                    _ => (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0,
-                }
-            })
-            .collect()
+        let mut v = super::super::test_values::values(n, seed);
+        for (i, x) in v.iter_mut().enumerate() {
+            match i % 11 {
+                3 => *x = 0.0,
+                7 => *x = -0.0,
+                _ => {}
+            }
+        }
+        v
     }
 
     #[test]

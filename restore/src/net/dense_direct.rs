@@ -244,20 +244,8 @@ fn gather(
 
 #[cfg(test)]
 mod tests {
+    use super::super::test_values::{rel_err, values};
     use super::*;
-
-    /// A deterministic spread of values in about [-1, 1].
-    fn values(n: usize, seed: u64) -> Vec<f32> {
-        let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-        (0..n)
-            .map(|_| {
-                s ^= s << 13;
-                s ^= s >> 7;
-                s ^= s << 17;
-                (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
-            })
-            .collect()
-    }
 
     /// The convolution summed in f64, the obvious way.
     fn reference(x: &[f32], weight: &[f32], cout: usize, [b, cin, h, w]: [usize; 4]) -> Vec<f64> {
@@ -285,17 +273,6 @@ mod tests {
             }
         }
         out
-    }
-
-    fn rel_err(a: &[f32], r: &[f64]) -> f64 {
-        assert_eq!(a.len(), r.len());
-        assert!(a.iter().all(|v| v.is_finite()));
-        let scale = r.iter().fold(1e-12f64, |m, v| m.max(v.abs()));
-        a.iter()
-            .zip(r)
-            .map(|(&a, &r)| (a as f64 - r).abs())
-            .fold(0.0, f64::max)
-            / scale
     }
 
     // Sizes that reach every path: rows of one pixel, narrower than a tile, a whole block and

@@ -17,6 +17,8 @@ pub mod norm_direct;
 pub mod pointwise;
 pub mod query_box;
 pub mod staf;
+#[cfg(test)]
+mod test_values;
 pub mod window;
 pub mod window_direct;
 pub mod window_train;

@@ -660,17 +660,10 @@ impl<C: CheckpointStrategy> WindowTrainOps for Autodiff<Flex, C> {
 mod tests {
     use super::*;
 
-    /// Values in [-2, 2) from a fixed sequence (no RNG crate needed in a unit test).
+    /// Values in [-2, 2): the shared test stream, doubled.
     fn values(n: usize, seed: u64) -> Vec<f32> {
-        let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-        (0..n)
-            .map(|_| {
-                x ^= x << 13;
-                x ^= x >> 7;
-                x ^= x << 17;
-                (x >> 40) as f32 / (1u64 << 24) as f32 * 4.0 - 2.0
-            })
-            .collect()
+        let v = super::super::test_values::values(n, seed);
+        v.into_iter().map(|x| 2.0 * x).collect()
     }
 
     /// The softmax a forward kept gives the backward the bits it computes without it, for
