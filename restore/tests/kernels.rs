@@ -731,7 +731,6 @@ fn the_channel_norm_trains_alike_through_the_hand_written_backward() {
             })
         };
         let (fast, reference) = (run(Kernels::Fast), run(Kernels::Reference));
-        let tol = 1e-4;
         assert_within_scale(
             &[
                 "output",
@@ -741,7 +740,7 @@ fn the_channel_norm_trains_alike_through_the_hand_written_backward() {
             ],
             &fast,
             &reference,
-            tol,
+            1e-4,
             &format!("{c}x{h}x{w}+{offset}"),
         );
     }

@@ -347,10 +347,8 @@ fn half_turn(weight: &[f32]) -> Vec<f32> {
 /// `x: [b, c, h, w]` cross-correlated with each channel's 3×3 kernel (`weight: [c·9]`).
 pub fn forward(x: &[f32], weight: &[f32], [b, c, h, w]: [usize; 4]) -> Vec<f32> {
     let plane = h * w;
-    if plane == 0 {
-        return vec![0.0; b * c * plane];
-    }
-    // Every row of every plane is written by `depthwise_row`: no zeros first.
+    // Every row of every plane is written by `depthwise_row`: no zeros first (an empty map
+    // makes an empty output without calling it).
     super::fresh::filled(b * c * plane, plane, |i, dst| {
         let k: &[f32; 9] = weight[(i % c) * 9..][..9].try_into().unwrap();
         let src = &x[i * plane..][..plane];
@@ -590,6 +588,13 @@ mod tests {
                 "{b}x{c}x{h}x{w}: {:.2e} of the scale",
                 err / scale
             );
+        }
+    }
+
+    #[test]
+    fn empty_maps_give_empty_depthwise_outputs() {
+        for d in [[0, 2, 3, 3], [1, 2, 0, 3], [1, 2, 3, 0], [1, 0, 3, 3]] {
+            assert!(forward(&[], &[0.5; 18], d).is_empty(), "{d:?}");
         }
     }
 

@@ -153,15 +153,16 @@ row_build!(
 );
 
 /// Row `y` in blocks of [`BLOCK`] pixels: each block's 9·cin shifted input rows gathered side
-/// by side into `buf` ([`gather`]), then `tile(rows, src, w, out, 9·cin, stride)` over `ROWS` output
-/// channels × `COLS` pixels at a time. A tile that would run past the row's end writes into
-/// a scratch tile, of which the row's pixels are copied.
+/// by side into `buf` ([`gather`]), then `tile(rows, src, w, out, 9·cin, stride)` over `ROWS`
+/// output channels × `COLS` pixels at a time. A tile that would run past the row's end writes
+/// into a scratch tile, of which the row's pixels are copied.
 ///
 /// # Safety
 /// `dst` points at pixel 0 of row `y` of the first of `cout` planes `h·w` apart, and the caller
-/// owns that row of each; `buf` holds at least `9·cin·BLOCK` values; `tile` may be called with `src` at `taps` rows of `BLOCK` values
-/// (reading `COLS` from each), `w` at `rows ≤ ROWS` rows of `taps` weights and `out` at `rows`
-/// rows `stride` apart with `COLS` writable values each; `COLS` divides [`BLOCK`].
+/// owns that row of each; `buf` holds at least `9·cin·BLOCK` values; `tile` may be called with
+/// `src` at `taps` rows of `BLOCK` values (reading `COLS` from each), `w` at `rows ≤ ROWS` rows
+/// of `taps` weights and `out` at `rows` rows `stride` apart with `COLS` writable values each;
+/// `COLS` divides [`BLOCK`].
 #[inline(always)]
 unsafe fn blocks<const ROWS: usize, const COLS: usize>(
     dst: Out,
