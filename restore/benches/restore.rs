@@ -1,12 +1,12 @@
 //! Restorer memory and tiling: peak resident memory of a forward pass and of a training step
 //! per config, and tiled against whole-image inference (time and error). Forward and step
 //! times are `metasplat bench restorer`'s (restore::speed), not repeated here; the window
-//! attention kernel alone is timed here, to compare builds of it, and the dense 3×3 kernel
-//! beside burn's convolution it replaced.
+//! attention kernel alone is timed here (inference, and training's forward and backward), to
+//! compare builds of it, and the dense 3×3 kernel beside burn's convolution it replaced.
 //!
 //! `cargo bench -p restore --bench restore` (`-- tiny` for the tiny config only,
-//! `-- window_attention` or `-- dense3` for a kernel's timing; the memory and tiling figures
-//! print on every run, whatever the filter).
+//! `-- window_attention`, `-- window_train` or `-- dense3` for a kernel's timing; the memory
+//! and tiling figures print on every run, whatever the filter).
 
 use burn::module::Module;
 use burn::tensor::Device;
@@ -166,6 +166,53 @@ fn window_attention(c: &mut Criterion) {
     g.finish();
 }
 
+/// The window attention's training pass on the same kind of map at a `tiny` step's size (a
+/// 128² map: four 64² crops' pixels): the forward that keeps its softmax rows, and the
+/// backward from them.
+fn window_attention_train(c: &mut Criterion) {
+    use restore::net::window_direct::{WindowSpec, attend_maps_keeping};
+    use restore::net::window_train::attend_backward;
+    let (ch, side, heads, win, kwin) = (16, 128, 2, 4, 6);
+    let map = |scale| {
+        random_planes(ch, side, side)
+            .data
+            .iter()
+            .map(|v| v * scale)
+            .collect::<Vec<f32>>()
+    };
+    let (q, k, v, dout) = (map(0.5), map(0.7), map(1.0), map(0.3));
+    let small = |n: usize| {
+        (0..n)
+            .map(|i| ((i % 13) as f32 - 6.0) * 0.01)
+            .collect::<Vec<f32>>()
+    };
+    let (pos_q, pos_k, bias) = (
+        small(win * win * ch),
+        small(kwin * kwin * ch),
+        small(heads * win.pow(2) * kwin.pow(2)),
+    );
+    let spec = WindowSpec {
+        heads,
+        win,
+        kwin,
+        share: 1,
+        pos_q: Some(&pos_q),
+        pos_k: Some(&pos_k),
+        bias: Some(&bias),
+    };
+    let dims = [ch, side, side];
+    let mut g = c.benchmark_group("kernels");
+    g.sample_size(20);
+    g.bench_function("window_train_128/forward", |b| {
+        b.iter(|| attend_maps_keeping(&q, &k, &v, dims, &spec).unwrap())
+    });
+    let (_, kept) = attend_maps_keeping(&q, &k, &v, dims, &spec).unwrap();
+    g.bench_function("window_train_128/backward", |b| {
+        b.iter(|| attend_backward(&q, &k, &v, &dout, dims, &spec, Some(&kept)))
+    });
+    g.finish();
+}
+
 /// The dense 3×3 convolution of `tiny`'s full-resolution layers (the down-sampling's 16 → 8
 /// and the output's 32 → 3) at 512²: the direct kernel beside burn's CPU convolution (im2col
 /// and a matrix product), which it replaced, on the same values.
@@ -201,6 +248,7 @@ fn dense3(c: &mut Criterion) {
 criterion_group!(
     benches,
     window_attention,
+    window_attention_train,
     dense3,
     inference_memory,
     tiled_against_whole,
