@@ -87,6 +87,101 @@ pub fn axpy_dot(y: &mut [f32], a: f32, x: &[f32], z: &[f32]) -> f32 {
     reduce(acc)
 }
 
+/// Rows `out[r] = Σ_k a(r, k)·x[k]` over the rows `x[k]` (rows of `np`, whole chunks), each
+/// summed from zero in `k` order: what [`axpy`] into a zeroed row gives, bit for bit, with the
+/// row's chunks held in registers (up to four at a time) instead of loaded and stored once per
+/// `k` (the attention backward's `dP = dO·Vᵀ`, `dV = Pᵀ·dO` and `dK = dSᵀ·Q`).
+#[inline(always)]
+pub fn weighted_rows(out: &mut [f32], np: usize, x: &[f32], a: impl Fn(usize, usize) -> f32) {
+    let m = x.len() / np;
+    let chunks = np / LANES;
+    for (r, row) in out.chunks_exact_mut(np).enumerate() {
+        let mut c0 = 0;
+        while c0 < chunks {
+            let t = (chunks - c0).min(4);
+            let a = |k| a(r, k);
+            match t {
+                1 => row_tile::<1>(row, x, np, m, c0, a),
+                2 => row_tile::<2>(row, x, np, m, c0, a),
+                3 => row_tile::<3>(row, x, np, m, c0, a),
+                _ => row_tile::<4>(row, x, np, m, c0, a),
+            }
+            c0 += t;
+        }
+    }
+}
+
+/// `T` chunks of one row of [`weighted_rows`] from chunk `c0`.
+#[inline(always)]
+fn row_tile<const T: usize>(
+    row: &mut [f32],
+    x: &[f32],
+    np: usize,
+    m: usize,
+    c0: usize,
+    a: impl Fn(usize) -> f32,
+) {
+    let mut acc = [[0.0f32; LANES]; T];
+    for k in 0..m {
+        let ak = a(k);
+        let xs = x[k * np + c0 * LANES..][..T * LANES].as_chunks::<LANES>().0;
+        for t in 0..T {
+            let xv = xs[t];
+            for l in 0..LANES {
+                acc[t][l] += ak * xv[l];
+            }
+        }
+    }
+    for (o, v) in row[c0 * LANES..][..T * LANES]
+        .as_chunks_mut::<LANES>()
+        .0
+        .iter_mut()
+        .zip(acc)
+    {
+        *o = v;
+    }
+}
+
+/// `[dot(x, rows[i]) for i in 0..D]` over the `D` rows of `rows` (each as long as `x`; `D` a
+/// multiple of 4, as every head width the kernels serve): the same bits as [`dot`] row by row,
+/// with `x` read once for eight rows (four when `D` is 4).
+#[inline(always)]
+pub fn dots<const D: usize>(x: &[f32], rows: &[f32]) -> [f32; D] {
+    assert!(D.is_multiple_of(4), "rows in fours");
+    let mut out = [0.0f32; D];
+    if D.is_multiple_of(LANES) {
+        for b in (0..D).step_by(LANES) {
+            out[b..b + LANES].copy_from_slice(&dots_block::<LANES>(x, rows, b));
+        }
+    } else {
+        for b in (0..D).step_by(4) {
+            out[b..b + 4].copy_from_slice(&dots_block::<4>(x, rows, b));
+        }
+    }
+    out
+}
+
+/// [`dots`] of rows `i0..i0 + B`.
+#[inline(always)]
+fn dots_block<const B: usize>(x: &[f32], rows: &[f32], i0: usize) -> [f32; B] {
+    let np = x.len();
+    let rows = &rows[i0 * np..][..B * np];
+    let mut acc = [[0.0f32; LANES]; B];
+    for (c, xv) in x.as_chunks::<LANES>().0.iter().enumerate() {
+        for (i, acc) in acc.iter_mut().enumerate() {
+            let r = rows[i * np + c * LANES..][..LANES].as_chunks::<LANES>().0[0];
+            for l in 0..LANES {
+                acc[l] += xv[l] * r[l];
+            }
+        }
+    }
+    let mut out = [0.0f32; B];
+    for (o, a) in out.iter_mut().zip(acc) {
+        *o = reduce(a);
+    }
+    out
+}
+
 /// A softmax row in place: the first `n` entries are logits, the rest padding; afterwards
 /// the padding is zero and the first `n` sum to 1. `exp` is the caller's (for `x ≤ 0`).
 #[inline(always)]
@@ -162,6 +257,36 @@ mod tests {
             for (a, w) in acc.iter().zip(&want_acc) {
                 assert!((*a as f64 - w).abs() < 1e-5);
             }
+        }
+    }
+
+    /// The register-held rows and dots give the bits of the row-at-a-time loops they stand
+    /// for, over rows of one to six chunks (every tile width and a remainder).
+    #[test]
+    fn weighted_rows_and_dots_are_the_plain_loops_bit_for_bit() {
+        let bits = |x: &[f32]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        for chunks in 1..=6 {
+            let np = chunks * LANES;
+            let (m, rows) = (5, 3);
+            let x = row(m * np, 11);
+            let a = row(rows * m, 13);
+            let mut want = vec![0.0f32; rows * np];
+            for (r, out) in want.chunks_exact_mut(np).enumerate() {
+                for k in 0..m {
+                    axpy(out, a[r * m + k], &x[k * np..][..np]);
+                }
+            }
+            let mut got = vec![f32::NAN; rows * np];
+            weighted_rows(&mut got, np, &x, |r, k| a[r * m + k]);
+            assert_eq!(bits(&got), bits(&want), "{chunks} chunks");
+            let y = row(np, 17);
+            let rows8 = row(8 * np, 19);
+            let want: Vec<f32> = rows8.chunks_exact(np).map(|r| dot(&y, r)).collect();
+            assert_eq!(bits(&dots::<8>(&y, &rows8)), bits(&want));
+            assert_eq!(bits(&dots::<4>(&y, &rows8[..4 * np])), bits(&want[..4]));
+            let rows16 = [rows8.clone(), rows8].concat();
+            let want16 = [want.clone(), want].concat();
+            assert_eq!(bits(&dots::<16>(&y, &rows16)), bits(&want16));
         }
     }
 

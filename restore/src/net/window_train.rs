@@ -374,6 +374,18 @@ unsafe fn strip_avx2<const D: usize>(
     strip_body::<D>(task, maps, z, s, kept)
 }
 
+/// Keys of one key-window row inside the map: adjacent in the map, in the band and in the
+/// window's slots.
+struct Run {
+    /// The first key's index among the window's keys inside the map, its slot in the key
+    /// window, its pixel in the map and in the band.
+    key: usize,
+    slot: usize,
+    px: usize,
+    band: usize,
+    len: usize,
+}
+
 #[inline(always)]
 fn strip_body<const D: usize>(
     task: usize,
@@ -406,7 +418,8 @@ fn strip_body<const D: usize>(
     // values and their gradients transposed, `[D, np]`, so that every inner loop runs along
     // contiguous keys (in chunks of 8, rows padded with zeros: [`super::lanes`]) instead of
     // summing across the few channels of a head; the softmax `p` and its gradient `ds`,
-    // `[lq, np]`.
+    // `[lq, np]`. The products are [`lanes::weighted_rows`] and [`lanes::dots`]: each sum in
+    // the order the reference loops (in the tests) take, held in registers.
     let lkp = lanes::padded(lk);
     let mut qb = vec![[0.0f32; D]; lq];
     let mut ob = vec![[0.0f32; D]; lq];
@@ -416,12 +429,32 @@ fn strip_body<const D: usize>(
     let mut dvt = vec![0.0f32; D * lkp];
     let mut p = vec![0.0f32; lq * lkp];
     let mut ds = vec![0.0f32; lq * lkp];
+    // The position embeddings by channel (`[c, lq]`, `[c, lk]`), so that a channel's terms
+    // are read along the window's pixels.
+    let by_channel = |pos: Option<&[f32]>, l: usize| {
+        pos.map(|pos| {
+            let mut t = vec![0.0f32; c * l];
+            for (slot, row) in pos.chunks_exact(c).take(l).enumerate() {
+                for (ch, &e) in row.iter().enumerate() {
+                    t[ch * l + slot] = e;
+                }
+            }
+            t
+        })
+    };
+    let (pos_q, pos_k) = (by_channel(s.pos_q, lq), by_channel(s.pos_k, lk));
+    // A query's pixel from its window's corner (the same offset in the map and in the strip).
+    let qrel: Vec<usize> = (0..lq).map(|qi| (qi / win) * w + qi % win).collect();
     // (slot in the key window, pixel in the map, pixel in the band)
     let mut inside: Vec<(usize, usize, usize)> = Vec::with_capacity(lk);
+    // The keys of one key-window row, adjacent in the map and in the band.
+    let mut runs: Vec<Run> = Vec::with_capacity(kwin);
     for wx in 0..nw {
         let (y0, x0) = (wy * win, wx * win);
         inside.clear();
+        runs.clear();
         for ky in 0..kwin {
+            let first = inside.len();
             for kx in 0..kwin {
                 let y = (y0 + ky) as isize - pad as isize;
                 let x = (x0 + kx) as isize - pad as isize;
@@ -430,56 +463,92 @@ fn strip_body<const D: usize>(
                     inside.push((ky * kwin + kx, px, ky * w + x as usize));
                 }
             }
+            if inside.len() > first {
+                let (slot, px, band) = inside[first];
+                runs.push(Run {
+                    key: first,
+                    slot,
+                    px,
+                    band,
+                    len: inside.len() - first,
+                });
+            }
         }
         let n = inside.len();
         let np = lanes::padded(n);
+        let corner = y0 * w + x0;
         for head in 0..heads {
             let ch0 = head * D;
             for i in 0..D {
                 let ch = (ch0 + i) * plane;
-                for qi in 0..lq {
-                    let px = (y0 + qi / win) * w + x0 + qi % win;
-                    let pos = s.pos_q.map_or(0.0, |p| p[qi * c + ch0 + i]);
-                    qb[qi][i] = (qmap[ch + px] + pos) * scale;
-                    ob[qi][i] = omap[ch + px];
+                let (qwin, owin) = (&qmap[ch + corner..], &omap[ch + corner..]);
+                // `+ 0` without a position term, as the forward adds it (−0 becomes +0).
+                match &pos_q {
+                    Some(pq) => {
+                        let pq = &pq[(ch0 + i) * lq..][..lq];
+                        for ((qi, &r), &e) in qrel.iter().enumerate().zip(pq) {
+                            qb[qi][i] = (qwin[r] + e) * scale;
+                        }
+                    }
+                    None => {
+                        for (qi, &r) in qrel.iter().enumerate() {
+                            qb[qi][i] = (qwin[r] + 0.0) * scale;
+                        }
+                    }
+                }
+                for (qi, &r) in qrel.iter().enumerate() {
+                    ob[qi][i] = owin[r];
                 }
                 let (krow, vrow) = (&mut kt[i * np..][..np], &mut vt[i * np..][..np]);
-                for (j, &(slot, px, _)) in inside.iter().enumerate() {
-                    krow[j] = kmap[ch + px] + s.pos_k.map_or(0.0, |p| p[slot * c + ch0 + i]);
-                    vrow[j] = vmap[ch + px];
+                for run in &runs {
+                    let (kr, km) = (&mut krow[run.key..][..run.len], &kmap[ch + run.px..]);
+                    match &pos_k {
+                        Some(pk) => {
+                            let pk = &pk[(ch0 + i) * lk + run.slot..][..run.len];
+                            for ((kv, &m), &e) in kr.iter_mut().zip(km).zip(pk) {
+                                *kv = m + e;
+                            }
+                        }
+                        None => {
+                            for (kv, &m) in kr.iter_mut().zip(km) {
+                                *kv = m + 0.0;
+                            }
+                        }
+                    }
+                    vrow[run.key..][..run.len].copy_from_slice(&vmap[ch + run.px..][..run.len]);
                 }
                 krow[n..].fill(0.0);
                 vrow[n..].fill(0.0);
             }
-            let p = &mut p[..lq * np];
             let ds = &mut ds[..lq * np];
-            if let Some(kept) = kept {
-                // The forward's softmax rows, as kept (the same bits as computed here).
-                let at = (wx * heads + head) * lq * lkp;
-                for (qi, row) in p.chunks_exact_mut(np).enumerate() {
-                    row.copy_from_slice(&kept[at + qi * lkp..][..np]);
+            let (kt, vt) = (&kt[..D * np], &vt[..D * np]);
+            let p: &[f32] = if let Some(kept) = kept {
+                // The forward's softmax rows, as kept (the same bits as computed here): read
+                // in place where the window has every key (rows of `lkp`), else copied out.
+                let kept = &kept[(wx * heads + head) * lq * lkp..][..lq * lkp];
+                if np == lkp {
+                    kept
+                } else {
+                    let p = &mut p[..lq * np];
+                    for (row, from) in p.chunks_exact_mut(np).zip(kept.chunks_exact(lkp)) {
+                        row.copy_from_slice(&from[..np]);
+                    }
+                    p
                 }
             } else {
+                let p = &mut p[..lq * np];
                 // Logits and softmax rows, as the forward computes them.
                 let bias = s.bias.map(|b| &b[head * lq * lk..][..lq * lk]);
                 let slots = inside.iter().map(|&(slot, _, _)| slot);
-                logit_rows(p, slots, n, bias, &qb, &kt[..D * np]);
+                logit_rows(p, slots, n, bias, &qb, kt);
                 for row in p.chunks_exact_mut(np) {
                     lanes::softmax(row, n, exp_nonpositive);
                 }
-            }
+                p
+            };
             // dP = dO·Vᵀ (into ds); dV = Pᵀ·dO.
-            ds.fill(0.0);
-            dvt[..D * np].fill(0.0);
-            for i in 0..D {
-                let vrow = &vt[i * np..][..np];
-                let dvrow = &mut dvt[i * np..][..np];
-                for qi in 0..lq {
-                    let o = ob[qi][i];
-                    lanes::axpy(&mut ds[qi * np..][..np], o, vrow);
-                    lanes::axpy(dvrow, o, &p[qi * np..][..np]);
-                }
-            }
+            lanes::weighted_rows(ds, np, vt, |qi, i| ob[qi][i]);
+            lanes::weighted_rows(&mut dvt[..D * np], np, p, |i, qi| ob[qi][i]);
             // dS = P ⊙ (dP − rowsum(P ⊙ dP)) (zero in the padding, where P is).
             for (dsrow, prow) in ds.chunks_exact_mut(np).zip(p.chunks_exact(np)) {
                 let total = lanes::dot(dsrow, prow);
@@ -488,36 +557,42 @@ fn strip_body<const D: usize>(
                 }
             }
             // dK = dSᵀ·(s·Q); dQ = s·dS·K (into the strip); the position terms.
-            dkt[..D * np].fill(0.0);
-            for i in 0..D {
-                let krow = &kt[i * np..][..np];
-                let dkrow = &mut dkt[i * np..][..np];
-                for qi in 0..lq {
-                    let dq = lanes::axpy_dot(dkrow, qb[qi][i], &ds[qi * np..][..np], krow);
-                    let g = dq * scale;
-                    let (qy, qx) = (qi / win, qi % win);
-                    out.dq[((ch0 + i) * win + qy) * w + x0 + qx] = g;
-                    if !out.dpos_q.is_empty() {
-                        out.dpos_q[qi * c + ch0 + i] += g;
-                    }
+            lanes::weighted_rows(&mut dkt[..D * np], np, ds, |i, qi| qb[qi][i]);
+            for (qi, dsrow) in ds.chunks_exact(np).enumerate() {
+                let mut dq = lanes::dots::<D>(dsrow, kt);
+                let strip = x0 + qrel[qi];
+                for (i, g) in dq.iter_mut().enumerate() {
+                    *g *= scale;
+                    out.dq[(ch0 + i) * win * w + strip] = *g;
+                }
+                if !out.dpos_q.is_empty() {
+                    add(&mut out.dpos_q[qi * c + ch0..][..D], &dq);
                 }
             }
             if !out.dbias.is_empty() {
                 for (qi, dsrow) in ds.chunks_exact(np).enumerate() {
                     let db = &mut out.dbias[(head * lq + qi) * lk..][..lk];
-                    for (&d, &(slot, _, _)) in dsrow.iter().zip(&inside) {
-                        db[slot] += d;
+                    if n == lk {
+                        // A whole key window: its slots in order.
+                        add(db, &dsrow[..lk]);
+                    } else {
+                        for (&d, &(slot, _, _)) in dsrow.iter().zip(&inside) {
+                            db[slot] += d;
+                        }
                     }
                 }
             }
             for i in 0..D {
                 let (dkrow, dvrow) = (&dkt[i * np..][..n], &dvt[i * np..][..n]);
-                for (j, &(slot, _, band)) in inside.iter().enumerate() {
-                    let at = (ch0 + i) * kwin * w + band;
-                    out.dk[at] += dkrow[j];
-                    out.dv[at] += dvrow[j];
-                    if !out.dpos_k.is_empty() {
-                        out.dpos_k[slot * c + ch0 + i] += dkrow[j];
+                let band = (ch0 + i) * kwin * w;
+                for run in &runs {
+                    let (j, at, len) = (run.key, band + run.band, run.len);
+                    add(&mut out.dk[at..][..len], &dkrow[j..][..len]);
+                    add(&mut out.dv[at..][..len], &dvrow[j..][..len]);
+                }
+                if !out.dpos_k.is_empty() {
+                    for (&d, &(slot, _, _)) in dkrow.iter().zip(&inside) {
+                        out.dpos_k[slot * c + ch0 + i] += d;
                     }
                 }
             }
@@ -660,10 +735,240 @@ impl<C: CheckpointStrategy> WindowTrainOps for Autodiff<Flex, C> {
 mod tests {
     use super::*;
 
+    /// The backward of one strip as first written: one `axpy` per key row and query, one
+    /// `axpy_dot` per query and channel, scalar scatters. The kernel must give its bits.
+    fn reference_strip<const D: usize>(
+        task: usize,
+        maps: [&[f32]; 4],
+        z: Sizes,
+        s: &WindowSpec,
+        kept: Option<&[f32]>,
+    ) -> StripGrads {
+        let [q, k, v, dout] = maps;
+        let Sizes { c, h, w } = z;
+        let (heads, win, kwin) = (s.heads, s.win, s.kwin);
+        let plane = h * w;
+        let (nh, nw) = (h / win, w / win);
+        let (lq, lk) = (win * win, kwin * kwin);
+        let pad = (kwin - win) / 2;
+        let scale = (D as f32).powf(-0.5);
+        let (g, wy) = (task / nh, task % nh);
+        let at = |m: usize| m * c * plane..(m + 1) * c * plane;
+        let (qmap, kmap, vmap, omap) = (&q[at(g / s.share)], &k[at(g)], &v[at(g)], &dout[at(g)]);
+        let size = |on: bool, n: usize| if on { n } else { 0 };
+        let mut out = StripGrads {
+            dq: vec![0.0f32; c * win * w],
+            dk: vec![0.0f32; c * kwin * w],
+            dv: vec![0.0f32; c * kwin * w],
+            dbias: vec![0.0f32; size(s.bias.is_some(), heads * lq * lk)],
+            dpos_q: vec![0.0f32; size(s.pos_q.is_some(), lq * c)],
+            dpos_k: vec![0.0f32; size(s.pos_k.is_some(), lk * c)],
+        };
+        // Per window and head: queries (scaled) and output gradients by query, `[lq, D]`; keys,
+        // values and their gradients transposed, `[D, np]`, so that every inner loop runs along
+        // contiguous keys (in chunks of 8, rows padded with zeros: [`super::lanes`]) instead of
+        // summing across the few channels of a head; the softmax `p` and its gradient `ds`,
+        // `[lq, np]`.
+        let lkp = lanes::padded(lk);
+        let mut qb = vec![[0.0f32; D]; lq];
+        let mut ob = vec![[0.0f32; D]; lq];
+        let mut kt = vec![0.0f32; D * lkp];
+        let mut vt = vec![0.0f32; D * lkp];
+        let mut dkt = vec![0.0f32; D * lkp];
+        let mut dvt = vec![0.0f32; D * lkp];
+        let mut p = vec![0.0f32; lq * lkp];
+        let mut ds = vec![0.0f32; lq * lkp];
+        // (slot in the key window, pixel in the map, pixel in the band)
+        let mut inside: Vec<(usize, usize, usize)> = Vec::with_capacity(lk);
+        for wx in 0..nw {
+            let (y0, x0) = (wy * win, wx * win);
+            inside.clear();
+            for ky in 0..kwin {
+                for kx in 0..kwin {
+                    let y = (y0 + ky) as isize - pad as isize;
+                    let x = (x0 + kx) as isize - pad as isize;
+                    if (0..h as isize).contains(&y) && (0..w as isize).contains(&x) {
+                        let px = y as usize * w + x as usize;
+                        inside.push((ky * kwin + kx, px, ky * w + x as usize));
+                    }
+                }
+            }
+            let n = inside.len();
+            let np = lanes::padded(n);
+            for head in 0..heads {
+                let ch0 = head * D;
+                for i in 0..D {
+                    let ch = (ch0 + i) * plane;
+                    for qi in 0..lq {
+                        let px = (y0 + qi / win) * w + x0 + qi % win;
+                        let pos = s.pos_q.map_or(0.0, |p| p[qi * c + ch0 + i]);
+                        qb[qi][i] = (qmap[ch + px] + pos) * scale;
+                        ob[qi][i] = omap[ch + px];
+                    }
+                    let (krow, vrow) = (&mut kt[i * np..][..np], &mut vt[i * np..][..np]);
+                    for (j, &(slot, px, _)) in inside.iter().enumerate() {
+                        krow[j] = kmap[ch + px] + s.pos_k.map_or(0.0, |p| p[slot * c + ch0 + i]);
+                        vrow[j] = vmap[ch + px];
+                    }
+                    krow[n..].fill(0.0);
+                    vrow[n..].fill(0.0);
+                }
+                let p = &mut p[..lq * np];
+                let ds = &mut ds[..lq * np];
+                if let Some(kept) = kept {
+                    // The forward's softmax rows, as kept (the same bits as computed here).
+                    let at = (wx * heads + head) * lq * lkp;
+                    for (qi, row) in p.chunks_exact_mut(np).enumerate() {
+                        row.copy_from_slice(&kept[at + qi * lkp..][..np]);
+                    }
+                } else {
+                    // Logits and softmax rows, as the forward computes them.
+                    let bias = s.bias.map(|b| &b[head * lq * lk..][..lq * lk]);
+                    let slots = inside.iter().map(|&(slot, _, _)| slot);
+                    logit_rows(p, slots, n, bias, &qb, &kt[..D * np]);
+                    for row in p.chunks_exact_mut(np) {
+                        lanes::softmax(row, n, exp_nonpositive);
+                    }
+                }
+                // dP = dO·Vᵀ (into ds); dV = Pᵀ·dO.
+                ds.fill(0.0);
+                dvt[..D * np].fill(0.0);
+                for i in 0..D {
+                    let vrow = &vt[i * np..][..np];
+                    let dvrow = &mut dvt[i * np..][..np];
+                    for qi in 0..lq {
+                        let o = ob[qi][i];
+                        lanes::axpy(&mut ds[qi * np..][..np], o, vrow);
+                        lanes::axpy(dvrow, o, &p[qi * np..][..np]);
+                    }
+                }
+                // dS = P ⊙ (dP − rowsum(P ⊙ dP)) (zero in the padding, where P is).
+                for (dsrow, prow) in ds.chunks_exact_mut(np).zip(p.chunks_exact(np)) {
+                    let total = lanes::dot(dsrow, prow);
+                    for (d, &pj) in dsrow.iter_mut().zip(prow) {
+                        *d = pj * (*d - total);
+                    }
+                }
+                // dK = dSᵀ·(s·Q); dQ = s·dS·K (into the strip); the position terms.
+                dkt[..D * np].fill(0.0);
+                for i in 0..D {
+                    let krow = &kt[i * np..][..np];
+                    let dkrow = &mut dkt[i * np..][..np];
+                    for qi in 0..lq {
+                        let dq = lanes::axpy_dot(dkrow, qb[qi][i], &ds[qi * np..][..np], krow);
+                        let g = dq * scale;
+                        let (qy, qx) = (qi / win, qi % win);
+                        out.dq[((ch0 + i) * win + qy) * w + x0 + qx] = g;
+                        if !out.dpos_q.is_empty() {
+                            out.dpos_q[qi * c + ch0 + i] += g;
+                        }
+                    }
+                }
+                if !out.dbias.is_empty() {
+                    for (qi, dsrow) in ds.chunks_exact(np).enumerate() {
+                        let db = &mut out.dbias[(head * lq + qi) * lk..][..lk];
+                        for (&d, &(slot, _, _)) in dsrow.iter().zip(&inside) {
+                            db[slot] += d;
+                        }
+                    }
+                }
+                for i in 0..D {
+                    let (dkrow, dvrow) = (&dkt[i * np..][..n], &dvt[i * np..][..n]);
+                    for (j, &(slot, _, band)) in inside.iter().enumerate() {
+                        let at = (ch0 + i) * kwin * w + band;
+                        out.dk[at] += dkrow[j];
+                        out.dv[at] += dvrow[j];
+                        if !out.dpos_k.is_empty() {
+                            out.dpos_k[slot * c + ch0 + i] += dkrow[j];
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+
     /// Values in [-2, 2): the shared test stream, doubled.
     fn values(n: usize, seed: u64) -> Vec<f32> {
         let v = super::super::test_values::values(n, seed);
         v.into_iter().map(|x| 2.0 * x).collect()
+    }
+
+    /// One strip's gradients from the kernel (the build the CPU runs) and from
+    /// [`reference_strip`] (portable), compared bit for bit.
+    fn same_strip<const D: usize>(
+        task: usize,
+        maps: [&[f32]; 4],
+        z: Sizes,
+        s: &WindowSpec,
+        kept: Option<&[f32]>,
+    ) {
+        let a = strip::<D>(task, maps, z, s, kept);
+        let b = reference_strip::<D>(task, maps, z, s, kept);
+        let bits = |x: &[f32]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        for (name, x, y) in [
+            ("dq", &a.dq, &b.dq),
+            ("dk", &a.dk, &b.dk),
+            ("dv", &a.dv, &b.dv),
+            ("dbias", &a.dbias, &b.dbias),
+            ("dpos_q", &a.dpos_q, &b.dpos_q),
+            ("dpos_k", &a.dpos_k, &b.dpos_k),
+        ] {
+            assert_eq!(bits(x), bits(y), "{name}: task {task}, head width {D}");
+        }
+        assert!(a.dk.iter().any(|&v| v != 0.0) && a.dq.iter().any(|&v| v != 0.0));
+    }
+
+    /// The kernel's strips are the reference's bit for bit: window attention (position
+    /// logits) and cross-attention (embeddings, three maps per query map), heads of 4, 8 and
+    /// 16 channels, every strip of a map whose windows are cut off at each edge, with the
+    /// forward's softmax and without.
+    #[test]
+    fn strips_are_the_reference_strips_bit_for_bit() {
+        let (h, w, win, kwin) = (12, 16, 4, 6);
+        for (c, heads) in [(16, 4), (16, 2), (32, 2)] {
+            let plane = c * h * w;
+            let bias = values(heads * win * win * kwin * kwin, 5);
+            let pos_q = values(win * win * c, 6);
+            let pos_k = values(kwin * kwin * c, 7);
+            let window = WindowSpec {
+                heads,
+                win,
+                kwin,
+                share: 1,
+                pos_q: None,
+                pos_k: None,
+                bias: Some(&bias),
+            };
+            let cross = WindowSpec {
+                heads,
+                win,
+                kwin,
+                share: 3,
+                pos_q: Some(&pos_q),
+                pos_k: Some(&pos_k),
+                bias: None,
+            };
+            for (groups, spec) in [(1, window), (3, cross)] {
+                let q = values(plane, 1);
+                let k = values(groups * plane, 2);
+                let v = values(groups * plane, 3);
+                let dout = values(groups * plane, 4);
+                let (_, kept) = attend_maps_keeping(&q, &k, &v, [c, h, w], &spec).unwrap();
+                let z = Sizes { c, h, w };
+                let maps = [&q[..], &k[..], &v[..], &dout[..]];
+                assert_eq!(kept.len(), groups * (h / win), "a softmax per strip");
+                for (task, rows) in kept.iter().enumerate() {
+                    for probs in [Some(rows.as_slice()), None] {
+                        match c / heads {
+                            4 => same_strip::<4>(task, maps, z, &spec, probs),
+                            8 => same_strip::<8>(task, maps, z, &spec, probs),
+                            _ => same_strip::<16>(task, maps, z, &spec, probs),
+                        }
+                    }
+                }
+            }
+        }
     }
 
     /// The softmax a forward kept gives the backward the bits it computes without it, for
