@@ -125,90 +125,87 @@ fn training_memory(_: &mut Criterion) {
     }
 }
 
-/// The window attention kernel on one `tiny` full-resolution map (16 channels, two heads of
-/// 8, 4² windows with 6² keys, the position terms on), as `metasplat restore` runs it.
+/// A `tiny` full-resolution layer's attention inputs at `side`² (16 channels, two heads of 8,
+/// 4² windows with 6² keys, the position terms on): maps `q, k, v` and an output gradient
+/// from one stream, scaled apart (the timing does not depend on the values), and the
+/// position embeddings and logits.
+struct WindowInputs {
+    maps: [Vec<f32>; 4],
+    pos: [Vec<f32>; 3],
+    dims: [usize; 3],
+}
+
+const HEADS: usize = 2;
+const WIN: usize = 4;
+const KWIN: usize = 6;
+
+impl WindowInputs {
+    fn new(side: usize) -> Self {
+        let ch = 16;
+        let map = |scale| {
+            random_planes(ch, side, side)
+                .data
+                .iter()
+                .map(|v| v * scale)
+                .collect::<Vec<f32>>()
+        };
+        let small = |n: usize| {
+            (0..n)
+                .map(|i| ((i % 13) as f32 - 6.0) * 0.01)
+                .collect::<Vec<f32>>()
+        };
+        WindowInputs {
+            maps: [map(0.5), map(0.7), map(1.0), map(0.3)],
+            pos: [
+                small(WIN * WIN * ch),
+                small(KWIN * KWIN * ch),
+                small(HEADS * WIN.pow(2) * KWIN.pow(2)),
+            ],
+            dims: [ch, side, side],
+        }
+    }
+
+    fn spec(&self) -> restore::net::window_direct::WindowSpec<'_> {
+        restore::net::window_direct::WindowSpec {
+            heads: HEADS,
+            win: WIN,
+            kwin: KWIN,
+            share: 1,
+            pos_q: Some(&self.pos[0]),
+            pos_k: Some(&self.pos[1]),
+            bias: Some(&self.pos[2]),
+        }
+    }
+}
+
+/// The window attention kernel on one 512² map, as `metasplat restore` runs it.
 fn window_attention(c: &mut Criterion) {
-    use restore::net::window_direct::{WindowSpec, attend_maps};
-    let (ch, side, heads, win, kwin) = (16, 512, 2, 4, 6);
-    // Three maps from one stream, scaled apart (the timing does not depend on the values).
-    let map = |scale| {
-        random_planes(ch, side, side)
-            .data
-            .iter()
-            .map(|v| v * scale)
-            .collect::<Vec<f32>>()
-    };
-    let (q, k, v) = (map(0.5), map(0.7), map(1.0));
-    let small = |n: usize| {
-        (0..n)
-            .map(|i| ((i % 13) as f32 - 6.0) * 0.01)
-            .collect::<Vec<f32>>()
-    };
-    let (pos_q, pos_k, bias) = (
-        small(win * win * ch),
-        small(kwin * kwin * ch),
-        small(heads * win.pow(2) * kwin.pow(2)),
-    );
-    let spec = WindowSpec {
-        heads,
-        win,
-        kwin,
-        share: 1,
-        pos_q: Some(&pos_q),
-        pos_k: Some(&pos_k),
-        bias: Some(&bias),
-    };
+    use restore::net::window_direct::attend_maps;
+    let x = WindowInputs::new(512);
+    let (spec, [q, k, v, _]) = (x.spec(), &x.maps);
     let mut g = c.benchmark_group("kernels");
     g.sample_size(20);
     g.bench_function("window_attention_512", |b| {
-        b.iter(|| attend_maps(&q, &k, &v, [ch, side, side], &spec).unwrap())
+        b.iter(|| attend_maps(q, k, v, x.dims, &spec).unwrap())
     });
     g.finish();
 }
 
-/// The window attention's training pass on the same kind of map at a `tiny` step's size (a
-/// 128² map: four 64² crops' pixels): the forward that keeps its softmax rows, and the
-/// backward from them.
+/// The window attention's training pass at a `tiny` step's size (a 128² map: four 64² crops'
+/// pixels): the forward that keeps its softmax rows, and the backward from them.
 fn window_attention_train(c: &mut Criterion) {
-    use restore::net::window_direct::{WindowSpec, attend_maps_keeping};
+    use restore::net::window_direct::attend_maps_keeping;
     use restore::net::window_train::attend_backward;
-    let (ch, side, heads, win, kwin) = (16, 128, 2, 4, 6);
-    let map = |scale| {
-        random_planes(ch, side, side)
-            .data
-            .iter()
-            .map(|v| v * scale)
-            .collect::<Vec<f32>>()
-    };
-    let (q, k, v, dout) = (map(0.5), map(0.7), map(1.0), map(0.3));
-    let small = |n: usize| {
-        (0..n)
-            .map(|i| ((i % 13) as f32 - 6.0) * 0.01)
-            .collect::<Vec<f32>>()
-    };
-    let (pos_q, pos_k, bias) = (
-        small(win * win * ch),
-        small(kwin * kwin * ch),
-        small(heads * win.pow(2) * kwin.pow(2)),
-    );
-    let spec = WindowSpec {
-        heads,
-        win,
-        kwin,
-        share: 1,
-        pos_q: Some(&pos_q),
-        pos_k: Some(&pos_k),
-        bias: Some(&bias),
-    };
-    let dims = [ch, side, side];
+    let x = WindowInputs::new(128);
+    let (spec, [q, k, v, dout], dims) = (x.spec(), &x.maps, x.dims);
     let mut g = c.benchmark_group("kernels");
     g.sample_size(20);
     g.bench_function("window_train_128/forward", |b| {
-        b.iter(|| attend_maps_keeping(&q, &k, &v, dims, &spec).unwrap())
+        b.iter(|| attend_maps_keeping(q, k, v, dims, &spec).unwrap())
     });
-    let (_, kept) = attend_maps_keeping(&q, &k, &v, dims, &spec).unwrap();
+    let (_, kept) = attend_maps_keeping(q, k, v, dims, &spec).unwrap();
     g.bench_function("window_train_128/backward", |b| {
-        b.iter(|| attend_backward(&q, &k, &v, &dout, dims, &spec, Some(&kept)))
+        b.iter(|| attend_backward(q, k, v, dout, dims, &spec, Some(&kept)))
     });
     g.finish();
 }
