@@ -65,10 +65,12 @@ pub fn dot(x: &[f32], y: &[f32]) -> f32 {
     reduce(acc)
 }
 
-/// `y += a·x` and `Σ x·z` in one pass over `x` (the attention backward's `dK += q·dS` beside
-/// `dQ = dS·K`).
+/// `y += a·x` and `Σ x·z` in one pass over `x`: the first attention backward's `dK += q·dS`
+/// beside `dQ = dS·K`, kept for the reference that `net/window_train`'s tests compare the
+/// kernel with ([`weighted_rows`] and [`dots`] took its place).
+#[cfg(test)]
 #[inline(always)]
-pub fn axpy_dot(y: &mut [f32], a: f32, x: &[f32], z: &[f32]) -> f32 {
+pub(crate) fn axpy_dot(y: &mut [f32], a: f32, x: &[f32], z: &[f32]) -> f32 {
     let mut acc = [0.0f32; LANES];
     for ((yc, xc), zc) in y
         .as_chunks_mut::<LANES>()
@@ -164,12 +166,12 @@ pub fn dots<const D: usize>(x: &[f32], rows: &[f32]) -> [f32; D] {
 /// [`dots`] of rows `i0..i0 + B`.
 #[inline(always)]
 fn dots_block<const B: usize>(x: &[f32], rows: &[f32], i0: usize) -> [f32; B] {
-    let np = x.len();
-    let rows = &rows[i0 * np..][..B * np];
+    let chunks = x.len() / LANES;
+    let rows = &rows.as_chunks::<LANES>().0[i0 * chunks..][..B * chunks];
     let mut acc = [[0.0f32; LANES]; B];
     for (c, xv) in x.as_chunks::<LANES>().0.iter().enumerate() {
         for (i, acc) in acc.iter_mut().enumerate() {
-            let r = rows[i * np + c * LANES..][..LANES].as_chunks::<LANES>().0[0];
+            let r = rows[i * chunks + c];
             for l in 0..LANES {
                 acc[l] += xv[l] * r[l];
             }

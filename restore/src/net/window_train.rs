@@ -445,36 +445,37 @@ fn strip_body<const D: usize>(
     let (pos_q, pos_k) = (by_channel(s.pos_q, lq), by_channel(s.pos_k, lk));
     // A query's pixel from its window's corner (the same offset in the map and in the strip).
     let qrel: Vec<usize> = (0..lq).map(|qi| (qi / win) * w + qi % win).collect();
-    // (slot in the key window, pixel in the map, pixel in the band)
-    let mut inside: Vec<(usize, usize, usize)> = Vec::with_capacity(lk);
-    // The keys of one key-window row, adjacent in the map and in the band.
+    // The slots (in the key window) of the keys inside the map, in order, and the same keys
+    // by key-window row.
+    let mut slots: Vec<usize> = Vec::with_capacity(lk);
     let mut runs: Vec<Run> = Vec::with_capacity(kwin);
     for wx in 0..nw {
         let (y0, x0) = (wy * win, wx * win);
-        inside.clear();
+        slots.clear();
         runs.clear();
         for ky in 0..kwin {
-            let first = inside.len();
+            let first = slots.len();
+            // The first key of the row inside the map: its pixel in the map and in the band.
+            let mut start = None;
             for kx in 0..kwin {
                 let y = (y0 + ky) as isize - pad as isize;
                 let x = (x0 + kx) as isize - pad as isize;
                 if (0..h as isize).contains(&y) && (0..w as isize).contains(&x) {
-                    let px = y as usize * w + x as usize;
-                    inside.push((ky * kwin + kx, px, ky * w + x as usize));
+                    slots.push(ky * kwin + kx);
+                    start.get_or_insert((y as usize * w + x as usize, ky * w + x as usize));
                 }
             }
-            if inside.len() > first {
-                let (slot, px, band) = inside[first];
+            if let Some((px, band)) = start {
                 runs.push(Run {
                     key: first,
-                    slot,
+                    slot: slots[first],
                     px,
                     band,
-                    len: inside.len() - first,
+                    len: slots.len() - first,
                 });
             }
         }
-        let n = inside.len();
+        let n = slots.len();
         let np = lanes::padded(n);
         let corner = y0 * w + x0;
         for head in 0..heads {
@@ -539,8 +540,7 @@ fn strip_body<const D: usize>(
                 let p = &mut p[..lq * np];
                 // Logits and softmax rows, as the forward computes them.
                 let bias = s.bias.map(|b| &b[head * lq * lk..][..lq * lk]);
-                let slots = inside.iter().map(|&(slot, _, _)| slot);
-                logit_rows(p, slots, n, bias, &qb, kt);
+                logit_rows(p, slots.iter().copied(), n, bias, &qb, kt);
                 for row in p.chunks_exact_mut(np) {
                     lanes::softmax(row, n, exp_nonpositive);
                 }
@@ -576,7 +576,7 @@ fn strip_body<const D: usize>(
                         // A whole key window: its slots in order.
                         add(db, &dsrow[..lk]);
                     } else {
-                        for (&d, &(slot, _, _)) in dsrow.iter().zip(&inside) {
+                        for (&d, &slot) in dsrow.iter().zip(&slots) {
                             db[slot] += d;
                         }
                     }
@@ -591,7 +591,7 @@ fn strip_body<const D: usize>(
                     add(&mut out.dv[at..][..len], &dvrow[j..][..len]);
                 }
                 if !out.dpos_k.is_empty() {
-                    for (&d, &(slot, _, _)) in dkrow.iter().zip(&inside) {
+                    for (&d, &slot) in dkrow.iter().zip(&slots) {
                         out.dpos_k[slot * c + ch0 + i] += d;
                     }
                 }
