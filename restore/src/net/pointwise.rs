@@ -12,8 +12,8 @@
 //! products over the pixels for `dW` and `db`, summed in lanes in a fixed order, batch item
 //! by batch item (so a gradient does not depend on the thread count).
 //!
-//! Both builds multiply and add in two roundings, in the same order (no FMA: with it the
-//! `tiny` forward pass was no faster here), so they give the same bits; the output is within
+//! Every build fuses each multiply-add (one rounding: FMA in the vector builds, `mul_add` in
+//! the portable one) in the same order, so they give the same bits; the output is within
 //! 1e-6 of its scale of an f64 sum (the tests below; `restore/tests/kernels.rs` checks the
 //! network's bits in both builds and its gradients against burn's).
 
@@ -126,7 +126,7 @@ unsafe fn project_portable(
             let wv = weight[o * cin + i];
             let row = &x[i * plane + range.start..][..range.len()];
             for (a, &v) in acc.iter_mut().zip(row) {
-                *a += wv * v;
+                *a = wv.mul_add(v, *a);
             }
         }
         for (k, &a) in acc.iter().enumerate() {
@@ -172,11 +172,11 @@ macro_rules! project_build {
 
 project_build!(
     /// 6 output channels × 16 pixels per tile, in 12 of AVX2's 16 registers.
-    project_avx2, "avx2", tile8, 6, 2 * LANES, [1, 2, 3, 4, 5, 6]
+    project_avx2, "avx2,fma", tile8, 6, 2 * LANES, [1, 2, 3, 4, 5, 6]
 );
 project_build!(
     /// 12 output channels × 32 pixels per tile, in 24 of AVX-512's 32 registers.
-    project_avx512, "avx512f,avx512vl,avx2", tile16, 12, 32,
+    project_avx512, "avx512f,avx512vl,avx2,fma", tile16, 12, 32,
     [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12]
 );
 
@@ -237,11 +237,11 @@ unsafe fn blocks<const ROWS: usize, const COLS: usize>(
 }
 
 /// A register tile `$name::<R>`: `R` output channels × two `$vec` registers of `$lanes`
-/// pixels, `out[j][k] = bias[j] + Σ_i w[j·cin + i] · src[i·BLOCK + k]`, multiplied and added
-/// in two roundings in `i`'s order (the portable loop's bits), compiled with `$features`.
+/// pixels, `out[j][k] = bias[j] + Σ_i w[j·cin + i] · src[i·BLOCK + k]`, each product added
+/// fused (one rounding) in `i`'s order (the portable loop's bits), compiled with `$features`.
 macro_rules! tile_build {
     ($(#[$doc:meta])* $name:ident, $features:literal, $lanes:expr, $zero:ident, $splat:ident,
-     $load:ident, $add:ident, $mul:ident, $store:ident) => {
+     $load:ident, $fma:ident, $store:ident) => {
         $(#[$doc])*
         /// # Safety
         /// `src` has `cin` rows of [`BLOCK`] values (two registers read from each), `w` `R`
@@ -271,8 +271,8 @@ macro_rules! tile_build {
                     let (x0, x1) = ($load(p), $load(p.add($lanes)));
                     for (j, a) in acc.iter_mut().enumerate() {
                         let wv = $splat(*w.add(j * cin + i));
-                        a[0] = $add(a[0], $mul(wv, x0));
-                        a[1] = $add(a[1], $mul(wv, x1));
+                        a[0] = $fma(wv, x0, a[0]);
+                        a[1] = $fma(wv, x1, a[1]);
                     }
                 }
             }
@@ -290,13 +290,13 @@ macro_rules! tile_build {
 
 tile_build!(
     /// 16 pixels in AVX2 registers.
-    tile8, "avx2", LANES, _mm256_setzero_ps, _mm256_set1_ps, _mm256_loadu_ps, _mm256_add_ps,
-    _mm256_mul_ps, _mm256_storeu_ps
+    tile8, "avx2,fma", LANES, _mm256_setzero_ps, _mm256_set1_ps, _mm256_loadu_ps,
+    _mm256_fmadd_ps, _mm256_storeu_ps
 );
 tile_build!(
     /// 32 pixels in AVX-512 registers (32 of them: up to 12 rows).
-    tile16, "avx512f", 16, _mm512_setzero_ps, _mm512_set1_ps, _mm512_loadu_ps, _mm512_add_ps,
-    _mm512_mul_ps, _mm512_storeu_ps
+    tile16, "avx512f,fma", 16, _mm512_setzero_ps, _mm512_set1_ps, _mm512_loadu_ps,
+    _mm512_fmadd_ps, _mm512_storeu_ps
 );
 
 /// The gradients of [`pointwise`] from the output gradient `dy: [b, cout, h, w]`:
