@@ -11,7 +11,8 @@
 //! turned half a turn is the input gradient ([`super::conv_train`]).
 //!
 //! Every build adds the 9·cin products in the same order, each fused (one rounding, the
-//! portable loop's `mul_add` and the vector builds' FMA: the same bits); the output is within 1e-6 of its scale of an f64 sum (the tests below).
+//! portable loop's `mul_add` and the vector builds' FMA: the same bits); the output is within
+//! 1e-6 of its scale of an f64 sum (the tests below).
 
 use super::pointwise::{BLOCK, Out};
 use rayon::prelude::*;
