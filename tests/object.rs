@@ -342,6 +342,7 @@ fn outside_the_mask_the_render_is_pulled_to_the_background() {
             imaging: Some(&imaging),
             width: SIDE,
             height: SIDE,
+            outside: None,
         };
         // A render that shows a grey haze over the empty surround.
         let rendered: Vec<Vec3> = m

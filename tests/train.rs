@@ -373,6 +373,7 @@ fn l_abr_gradient_through_the_blur_adjoint_matches_finite_differences() {
             imaging: data.imaging.as_ref(),
             width: data.width,
             height: data.height,
+            outside: None,
         };
         let loss = |m: &splat::Gaussians| -> f64 {
             let out = render(m, &view.camera, &settings).unwrap();
@@ -392,7 +393,12 @@ fn l_abr_gradient_through_the_blur_adjoint_matches_finite_differences() {
             ..objective
         };
         let l_abr = one_term(Mode::Plain)
-            .value(&objective.as_observed(&out.color).unwrap(), view)
+            .value(
+                &objective
+                    .as_observed(&out.color, view.mask.as_deref())
+                    .unwrap(),
+                view,
+            )
             .unwrap() as f64;
         let l_ac = one_term(Mode::Restored).value(&out.color, view).unwrap() as f64;
         let want = l_abr + lambda as f64 * l_ac;
@@ -723,6 +729,7 @@ fn sh_bands_are_judged_on_the_loss_training_minimises() {
             imaging: data.imaging.as_ref(),
             width: data.width,
             height: data.height,
+            outside: None,
         };
         let (n, m) = (data.train.len(), data.train.len().min(8));
         let loss = |degree: u32| {
@@ -831,7 +838,12 @@ fn the_log_file_holds_every_evaluation_while_the_run_trains() {
 /// differences of the loss, in plain and in aware mode (through the blur and its adjoint).
 #[test]
 fn masked_pixels_leave_the_loss_and_the_gradient_matches_finite_differences() {
-    for mode in [Mode::Plain, Mode::Aware] {
+    let through = Some(glam::Vec3::new(0.2, 0.1, 0.0));
+    for (mode, outside) in [
+        (Mode::Plain, None),
+        (Mode::Aware, None),
+        (Mode::Aware, through),
+    ] {
         let mut data = data::load(&fixture().aberrated, mode, &options()).unwrap();
         let cfg = config(mode, 10, &data);
         let (w, h) = (data.width, data.height);
@@ -853,6 +865,7 @@ fn masked_pixels_leave_the_loss_and_the_gradient_matches_finite_differences() {
             imaging: data.imaging.as_ref(),
             width: w,
             height: h,
+            outside,
         };
         let rendered: Vec<glam::Vec3> = view
             .observed
@@ -882,7 +895,9 @@ fn masked_pixels_leave_the_loss_and_the_gradient_matches_finite_differences() {
             };
             let fd = (at(eps) - at(-eps)) / (2.0 * eps as f64);
             let g: f64 = grad.iter().zip(&d).map(|(a, b)| a.dot(*b) as f64).sum();
-            if keep == 0.0 && mode == Mode::Plain {
+            // Through the lens a masked pixel still reaches the kept ones, unless the lens is
+            // known to have seen a constant there.
+            if keep == 0.0 && (mode == Mode::Plain || outside.is_some()) {
                 assert!(
                     d.iter()
                         .zip(&grad)
@@ -896,7 +911,7 @@ fn masked_pixels_leave_the_loss_and_the_gradient_matches_finite_differences() {
                 // block), so the bound is that, not the gradient's own error.
                 assert!(
                     (g - fd).abs() <= 5e-2 * fd.abs() + 1e-5,
-                    "{mode} mask {keep}: gradient {g:e}, finite differences {fd:e}"
+                    "{mode} ({outside:?} outside) mask {keep}: gradient {g:e}, finite differences {fd:e}"
                 );
                 assert!(
                     fd.abs() > 1e-4,
@@ -905,6 +920,65 @@ fn masked_pixels_leave_the_loss_and_the_gradient_matches_finite_differences() {
             }
         }
     }
+}
+
+/// Aware mode with `loss` masks on a copy composited over a colour before the blur: the
+/// render is composited over it outside the mask before the blur, so a render that is right
+/// inside the mask matches the observation exactly (`L_abr` at its floor) whatever it shows
+/// outside, where blurring the render as it is does not.
+#[test]
+fn the_lens_sees_the_composite_colour_outside_loss_masks() {
+    let data = data::load(&fixture().aberrated, Mode::Aware, &options()).unwrap();
+    let imaging = data.imaging.as_ref().unwrap();
+    let (w, h) = (data.width, data.height);
+    let n = (w * h) as usize;
+    // A border two pixels wide leaves the loss, as undistortion's does.
+    let mask: Vec<f32> = (0..n)
+        .map(|i| {
+            let (x, y) = (i as u32 % w, i as u32 / w);
+            let inside = x >= 2 && y >= 2 && x + 2 < w && y + 2 < h;
+            if inside { 1.0 } else { 0.0 }
+        })
+        .collect();
+    let c0 = glam::Vec3::new(0.0, 0.05, 0.1);
+    let clean: Vec<glam::Vec3> = data.train[0]
+        .observed
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (*p + glam::Vec3::splat(((i * 7) % 5) as f32 / 40.0)).min(glam::Vec3::ONE))
+        .collect();
+    let composite: Vec<glam::Vec3> = clean
+        .iter()
+        .zip(&mask)
+        .map(|(p, &m)| *p * m + c0 * (1.0 - m))
+        .collect();
+    let mut view = data.train[0].clone();
+    view.observed = imaging.blur_pixels(&composite).unwrap();
+    view.mask = Some(mask.clone());
+    // The render: right inside, bright outside (nothing there constrains it).
+    let rendered: Vec<glam::Vec3> = clean
+        .iter()
+        .zip(&mask)
+        .map(|(p, &m)| if m > 0.0 { *p } else { glam::Vec3::ONE })
+        .collect();
+    let l_abr = |outside| {
+        let objective = Objective {
+            mode: Mode::Aware,
+            lambda: 0.0,
+            dssim_weight: 0.2,
+            imaging: Some(imaging),
+            width: w,
+            height: h,
+            outside,
+        };
+        objective.value(&rendered, &view).unwrap()
+    };
+    let (exact, as_is) = (l_abr(Some(c0)), l_abr(None));
+    assert!(exact < 1e-5, "composited before the blur: L_abr {exact:e}");
+    assert!(
+        as_is > 100.0 * exact.max(1e-6),
+        "the render blurred as it is should miss the observation: {as_is:e} against {exact:e}"
+    );
 }
 
 /// `--background random`: a render can no longer match a pixel by letting the background

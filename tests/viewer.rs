@@ -71,6 +71,7 @@ fn comparison_images_are_the_training_pipelines_pixels() {
         imaging: dataset.imaging.as_ref(),
         width: dataset.width,
         height: dataset.height,
+        outside: None,
     };
     let mut comparison = CaptureComparison::open(&f.aberrated, &options()).unwrap();
     let view = &dataset.train[1];
@@ -98,7 +99,7 @@ fn comparison_images_are_the_training_pipelines_pixels() {
     assert_eq!(get(RENDER).pixels, render);
     assert_eq!(
         get(REBLURRED).pixels,
-        objective.as_observed(&render).unwrap()
+        objective.as_observed(&render, None).unwrap()
     );
     assert_eq!(&get(RESTORED).pixels, view.restored.as_ref().unwrap());
     let clean = view.clean.as_ref().unwrap();

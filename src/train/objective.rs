@@ -3,6 +3,8 @@
 //! `aware`: `L_GS(PSF ⊛ r, I_abr) + λ·L_GS(r, I_ac)`; the first term's gradient reaches `r`
 //! through the blur's exact adjoint (`aberration::BlurPlan::adjoint`).
 
+use std::borrow::Cow;
+
 use aberration::ImagingModel;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -32,6 +34,12 @@ pub struct Objective<'a> {
     pub imaging: Option<&'a ImagingModel>,
     pub width: u32,
     pub height: u32,
+    /// In aware mode with `loss` masks on a copy that `scene aberrate` composited over this
+    /// colour before the blur (undistortion's border): what the lens saw outside each mask.
+    /// The render is composited over it there before the blur, so `PSF ⊛ render` models the
+    /// observation exactly and the pixels the loss leaves out, which nothing else constrains,
+    /// do not bleed into the ones it keeps. None: the render is blurred as it is.
+    pub outside: Option<Vec3>,
 }
 
 /// `image` with the pixels a mask leaves out taken from `target` (a soft mask blends), so they
@@ -84,13 +92,23 @@ impl Objective<'_> {
             .ok_or_else(|| TrainError::Invalid("aware mode without an imaging model".into()))
     }
 
-    /// The image the main term compares with the observation: the render itself, or in aware
-    /// mode the render as the metalens would have recorded it (without noise).
-    pub fn as_observed(&self, rendered: &[Vec3]) -> Result<Vec<Vec3>> {
+    /// What the lens sees of `rendered` for a view with `mask`: the render, over
+    /// [`Self::outside`] where the mask leaves pixels out.
+    fn lens_input<'r>(&self, rendered: &'r [Vec3], mask: Option<&[f32]>) -> Cow<'r, [Vec3]> {
+        match (self.outside, mask) {
+            (Some(c), Some(m)) => Cow::Owned(crate::train::object::over(rendered, m, c)),
+            _ => Cow::Borrowed(rendered),
+        }
+    }
+
+    /// The image the main term compares with the observation of a view with `mask`: the
+    /// render itself, or in aware mode the render as the metalens would have recorded it
+    /// (without noise).
+    pub fn as_observed(&self, rendered: &[Vec3], mask: Option<&[f32]>) -> Result<Vec<Vec3>> {
         if self.mode != Mode::Aware {
             return Ok(rendered.to_vec());
         }
-        Ok(self.blur()?.blur_pixels(rendered)?)
+        Ok(self.blur()?.blur_pixels(&self.lens_input(rendered, mask))?)
     }
 
     /// The loss alone (what the SH-band probes read): the same value as [`Self::evaluate`]'s
@@ -123,7 +141,7 @@ impl Objective<'_> {
             Mode::Plain => term(rendered, &view.observed),
             Mode::Restored => term(rendered, restored()?),
             Mode::Aware => {
-                let v_abr = term(&self.as_observed(rendered)?, &view.observed)?;
+                let v_abr = term(&self.as_observed(rendered, mask)?, &view.observed)?;
                 let v_ac = if self.lambda != 0.0 {
                     term(rendered, restored()?)?
                 } else {
@@ -175,20 +193,24 @@ impl Objective<'_> {
                 ))
             }
             Mode::Aware => {
-                let blurred =
-                    tracing::info_span!("PSF blur").in_scope(|| self.as_observed(rendered))?;
+                let mask = view.mask.as_deref();
+                let seen = self.lens_input(rendered, mask);
+                let blurred = tracing::info_span!("PSF blur")
+                    .in_scope(|| -> Result<_> { Ok(self.blur()?.blur_pixels(&seen)?) })?;
                 let (v_abr, g_blurred, p) = tracing::info_span!("loss")
-                    .in_scope(|| self.term(&blurred, &view.observed, view.mask.as_deref()))?;
+                    .in_scope(|| self.term(&blurred, &view.observed, mask))?;
                 let g_abr = tracing::info_span!("blur adjoint").in_scope(|| -> Result<_> {
-                    Ok(self.blur()?.plan().adjoint_pixels(&g_blurred)?)
+                    let mut g = self.blur()?.plan().adjoint_pixels(&g_blurred)?;
+                    // Outside the mask the lens saw the constant, not the render.
+                    if let (Some(_), Some(m)) = (self.outside, mask) {
+                        g.iter_mut().zip(m).for_each(|(g, w)| *g *= *w);
+                    }
+                    Ok(g)
                 })?;
                 let g_psf = if psf_gradient {
                     Some(
                         tracing::info_span!("PSF gradient").in_scope(|| -> Result<_> {
-                            Ok(self
-                                .blur()?
-                                .plan()
-                                .psf_gradient_pixels(rendered, &g_blurred)?)
+                            Ok(self.blur()?.plan().psf_gradient_pixels(&seen, &g_blurred)?)
                         })?,
                     )
                 } else {
