@@ -13,7 +13,7 @@ use metasplat::splats::procedural::ProceduralOptions;
 use metasplat::train::config::{Mode, Strategy, TrainConfig};
 use metasplat::train::data::{self, Dataset};
 use metasplat::train::eval::Against;
-use metasplat::train::objective::Objective;
+use metasplat::train::objective::{self, Objective};
 use metasplat::train::{self, Event};
 use splat::{RenderSettings, render, render_backward, render_for_backward};
 
@@ -974,6 +974,23 @@ fn the_lens_sees_the_composite_colour_outside_loss_masks() {
         objective.value(&rendered, &view).unwrap()
     };
     let (exact, as_is) = (l_abr(Some(c0)), l_abr(None));
+    // Which runs composite: aware ones whose masks leave pixels out of the loss (none here, as
+    // undistortion's border, or `--mask-mode loss`), not object runs (their own targets), not
+    // the other modes, and only on a copy that says what it was composited over.
+    let c = Some([0.0, 0.05, 0.1]);
+    let mut cfg = config(Mode::Aware, 10, &data);
+    for (masks, want) in [
+        (None, Some(c0)),
+        (Some(metasplat::settings::MaskUse::Loss), Some(c0)),
+        (Some(metasplat::settings::MaskUse::Object), None),
+    ] {
+        cfg.masks = masks;
+        assert_eq!(objective::outside_colour(&cfg, c), want, "{masks:?}");
+        assert_eq!(objective::outside_colour(&cfg, None), None, "{masks:?}");
+    }
+    cfg.masks = None;
+    cfg.mode = Mode::Restored;
+    assert_eq!(objective::outside_colour(&cfg, c), None);
     assert!(exact < 1e-5, "composited before the blur: L_abr {exact:e}");
     assert!(
         as_is > 100.0 * exact.max(1e-6),

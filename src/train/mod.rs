@@ -284,10 +284,7 @@ impl<'a> Run<'a> {
                 imaging: data.imaging.as_ref(),
                 width: data.width,
                 height: data.height,
-                outside: (config.mode == crate::settings::Mode::Aware
-                    && config.masks == Some(crate::settings::MaskUse::Loss))
-                .then(|| data.composited_over.map(Vec3::from_array))
-                .flatten(),
+                outside: objective::outside_colour(config, data.composited_over),
             },
             position_lr,
             densify,

@@ -12,6 +12,7 @@ use splat::loss::photometric_loss;
 
 use crate::error::{Result, TrainError};
 use crate::settings::Mode;
+use crate::train::config::TrainConfig;
 use crate::train::data::View;
 
 /// Loss parts of one view.
@@ -40,6 +41,17 @@ pub struct Objective<'a> {
     /// observation exactly and the pixels the loss leaves out, which nothing else constrains,
     /// do not bleed into the ones it keeps. None: the render is blurred as it is.
     pub outside: Option<Vec3>,
+}
+
+/// [`Objective::outside`] for a run with `config` on a copy composited over `composited_over`
+/// (`aberration.json`) before the blur: that colour in aware mode, unless the masks are an
+/// object's in `object` mode, whose runs make their own targets (`ObjectTargets`); every
+/// other mask (undistortion's border, `--mask-mode loss`) leaves pixels out of the loss.
+pub fn outside_colour(config: &TrainConfig, composited_over: Option<[f32; 3]>) -> Option<Vec3> {
+    let loss_masks = config.masks != Some(crate::settings::MaskUse::Object);
+    (config.mode == Mode::Aware && loss_masks)
+        .then(|| composited_over.map(Vec3::from_array))
+        .flatten()
 }
 
 /// `image` with the pixels a mask leaves out taken from `target` (a soft mask blends), so they
