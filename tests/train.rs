@@ -974,10 +974,15 @@ fn the_lens_sees_the_composite_colour_outside_loss_masks() {
         objective.value(&rendered, &view).unwrap()
     };
     let (exact, as_is) = (l_abr(Some(c0)), l_abr(None));
+    assert!(exact < 1e-5, "composited before the blur: L_abr {exact:e}");
+    assert!(
+        as_is > 100.0 * exact.max(1e-6),
+        "the render blurred as it is should miss the observation: {as_is:e} against {exact:e}"
+    );
     // Which runs composite: aware ones whose masks leave pixels out of the loss (none here, as
     // undistortion's border, or `--mask-mode loss`), not object runs (their own targets), not
     // the other modes, and only on a copy that says what it was composited over.
-    let c = Some([0.0, 0.05, 0.1]);
+    let c = Some(c0.to_array());
     let mut cfg = config(Mode::Aware, 10, &data);
     for (masks, want) in [
         (None, Some(c0)),
@@ -991,11 +996,6 @@ fn the_lens_sees_the_composite_colour_outside_loss_masks() {
     cfg.masks = None;
     cfg.mode = Mode::Restored;
     assert_eq!(objective::outside_colour(&cfg, c), None);
-    assert!(exact < 1e-5, "composited before the blur: L_abr {exact:e}");
-    assert!(
-        as_is > 100.0 * exact.max(1e-6),
-        "the render blurred as it is should miss the observation: {as_is:e} against {exact:e}"
-    );
 }
 
 /// `--background random`: a render can no longer match a pixel by letting the background

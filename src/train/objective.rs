@@ -107,9 +107,9 @@ impl Objective<'_> {
     /// What the lens sees of `rendered` for a view with `mask`: the render, over
     /// [`Self::outside`] where the mask leaves pixels out.
     fn lens_input<'r>(&self, rendered: &'r [Vec3], mask: Option<&[f32]>) -> Cow<'r, [Vec3]> {
-        match (self.outside, mask) {
-            (Some(c), Some(m)) => Cow::Owned(crate::train::object::over(rendered, m, c)),
-            _ => Cow::Borrowed(rendered),
+        match self.outside.zip(mask) {
+            Some((c, m)) => Cow::Owned(crate::train::object::over(rendered, m, c)),
+            None => Cow::Borrowed(rendered),
         }
     }
 
@@ -214,7 +214,7 @@ impl Objective<'_> {
                 let g_abr = tracing::info_span!("blur adjoint").in_scope(|| -> Result<_> {
                     let mut g = self.blur()?.plan().adjoint_pixels(&g_blurred)?;
                     // Outside the mask the lens saw the constant, not the render.
-                    if let (Some(_), Some(m)) = (self.outside, mask) {
+                    if let Some((_, m)) = self.outside.zip(mask) {
                         g.iter_mut().zip(m).for_each(|(g, w)| *g *= *w);
                     }
                     Ok(g)
