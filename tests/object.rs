@@ -517,11 +517,11 @@ fn an_experiment_on_a_masked_capture_scores_every_row_on_the_object() {
 
 /// The viewer's comparison of a capture with object masks scores every panel on the object
 /// (inside the view's mask) and says so; a capture without masks is scored whole.
-#[test]
-fn the_viewers_comparison_scores_an_object_capture_on_the_object() {
-    let dir = tempfile::tempdir().unwrap();
-    let (masked, _) = turntable(&dir.path().join("masked"), true);
-    let psf = dir.path().join("psf.npy");
+/// `scene aberrate`'s copy of the masked turntable (composited over a colour outside the
+/// masks before the blur), in `dir`.
+fn aberrated_turntable(dir: &Path) -> PathBuf {
+    let (masked, _) = turntable(&dir.join("masked"), true);
+    let psf = dir.join("psf.npy");
     let (grid, _) =
         aberration::optics::simulate_grid(&aberration::optics::SimConfig::small(9), &|_, _| {})
             .unwrap();
@@ -534,7 +534,7 @@ fn the_viewers_comparison_scores_an_object_capture_on_the_object() {
         },
     )
     .unwrap();
-    let copy = dir.path().join("copy");
+    let copy = dir.join("copy");
     scenes::make_aberrated(
         &capture,
         &psf,
@@ -543,6 +543,13 @@ fn the_viewers_comparison_scores_an_object_capture_on_the_object() {
         &|| {},
     )
     .unwrap();
+    copy
+}
+
+#[test]
+fn the_viewers_comparison_scores_an_object_capture_on_the_object() {
+    let dir = tempfile::tempdir().unwrap();
+    let copy = aberrated_turntable(dir.path());
     let mut comparison =
         metasplat::output::view::CaptureComparison::open(&copy, &options()).unwrap();
     let data = data::load(&copy, Mode::Plain, &options()).unwrap();
@@ -558,6 +565,50 @@ fn the_viewers_comparison_scores_an_object_capture_on_the_object() {
         assert_eq!(p.psnr_vs_clean, want, "{}", p.name);
     }
     assert!(panels.iter().any(|p| p.psnr_vs_clean.is_some()));
+}
+
+/// The viewer's "render through the PSF" on a copy composited over `c₀` before the blur goes
+/// through the lens as the photo did, `PSF ⊛ (m·render + (1 − m)·c₀)`: a render right on the
+/// object and bright elsewhere (nothing in training constrains it there) then matches the
+/// photo to its noise, where blurring it as it is spreads the bright room over the object.
+#[test]
+fn the_viewers_reblurred_render_is_composited_as_the_photo_was() {
+    let dir = tempfile::tempdir().unwrap();
+    let copy = aberrated_turntable(dir.path());
+    let mut comparison =
+        metasplat::output::view::CaptureComparison::open(&copy, &options()).unwrap();
+    let data = data::load(&copy, Mode::Aware, &options()).unwrap();
+    let c0 = Vec3::from_array(data.composited_over.expect("the copy records its colour"));
+    let imaging = data.imaging.as_ref().unwrap();
+    let i = data.capture.split.train[0];
+    let view = &data.train[0];
+    let mask = view.mask.as_deref().unwrap();
+    let clean = view.clean.as_deref().unwrap();
+    let render: Vec<Vec3> = clean
+        .iter()
+        .zip(mask)
+        .map(|(p, &m)| if m > 0.0 { *p } else { Vec3::ONE })
+        .collect();
+    let panels = comparison.panels_for(i, &render).unwrap();
+    let panel = panels
+        .iter()
+        .find(|p| p.name == metasplat::output::view::REBLURRED)
+        .unwrap();
+    let want = imaging.blur_pixels(&over(&render, mask, c0)).unwrap();
+    let off = panel
+        .pixels
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (*a - *b).abs().max_element())
+        .fold(0.0f32, f32::max);
+    assert_eq!(off, 0.0, "the panel is not the composite through the lens");
+    let as_is = imaging.blur_pixels(&render).unwrap();
+    let to_photo = |img: &[Vec3]| base::psnr_rgb(img, &view.observed).unwrap();
+    let (composited, blurred) = (to_photo(&panel.pixels), to_photo(&as_is));
+    assert!(
+        composited > blurred + 10.0,
+        "composited {composited:.2} dB against the photo, as it is {blurred:.2} dB"
+    );
 }
 
 /// Masks that leave out every pixel of every training view are refused before any work,

@@ -1,6 +1,7 @@
 //! What `metasplat view` hands the viewer: a capture's comparison images, made by the training
 //! pipeline's own code, and a watch on a training run in progress.
 
+use std::borrow::Cow;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::time::SystemTime;
@@ -103,12 +104,22 @@ impl CaptureComparison {
             self.views.insert(i, (view, restored));
         }
         let (view, restored) = &self.views[&i];
+        // A copy composited over a colour outside its masks before the blur was made from
+        // `m·clean + (1 − m)·c₀`: the render goes through the lens the same way, so what it
+        // shows outside the mask (which nothing in training constrains) does not bleed into
+        // the panel, as training's own re-blur does.
+        let through_lens = match (self.model.composited_over, view.mask.as_deref()) {
+            (Some(c), Some(m)) => {
+                Cow::Owned(crate::train::object::over(render, m, Vec3::from_array(c)))
+            }
+            _ => Cow::Borrowed(render),
+        };
         let reblurred = match &self.model.imaging {
-            Some(m) => Some(m.blur_pixels(render)?),
+            Some(m) => Some(m.blur_pixels(&through_lens)?),
             None => None,
         };
         let refined = match &self.refined {
-            Some(m) => Some(m.blur_pixels(render)?),
+            Some(m) => Some(m.blur_pixels(&through_lens)?),
             None => None,
         };
         let mut images: Vec<(&str, &[Vec3])> = vec![(PHOTO, &view.observed), (RENDER, render)];
