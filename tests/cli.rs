@@ -557,9 +557,22 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
     args.extend(["--minutes", "0"]);
     let text = ok(&args);
     assert!(
-        text.contains("trained to step 1 of 3") && text.contains("stopped early"),
+        text.contains("trained to step 1 of 3")
+            && text.contains("validation (centred 64 px crops)")
+            && text.contains("stopped early"),
         "{text}"
     );
+    // Validation on whole photos (`--val-crop 0`) says so, not "0 px crops".
+    let whole_weights = d.join("w_whole.bin");
+    let mut whole = train_args.to_vec();
+    let at = whole.iter().position(|a| *a == "--val-crop").unwrap();
+    whole[at + 1] = "0";
+    let at = whole.iter().position(|a| *a == "--out").unwrap();
+    whole[at + 1] = s(&whole_weights);
+    let at = whole.iter().position(|a| *a == "--steps").unwrap();
+    whole[at + 1] = "1";
+    let text = ok(&whole);
+    assert!(text.contains("validation (whole photos)"), "{text}");
     // A resume whose flags say otherwise than the saved run is refused, naming the flag,
     // rather than run with the saved settings in silence.
     let mut other = train_args.to_vec();

@@ -110,13 +110,16 @@ impl Shown {
 
 fn print_report(r: &RestorerReport) {
     println!(
-        "trained to step {} of {} ({} steps in this run) in {:.1} min ({:.2} steps/s); validation (centred {} px crops): PSNR {:.2} dB, SSIM {:.4}; weights: {}, state: {}",
+        "trained to step {} of {} ({} steps in this run) in {:.1} min ({:.2} steps/s); validation ({}): PSNR {:.2} dB, SSIM {:.4}; weights: {}, state: {}",
         r.reached,
         r.steps,
         r.reached - r.first,
         r.seconds / 60.0,
         (r.reached - r.first) as f64 / r.seconds,
-        r.val_crop,
+        match r.val_crop {
+            0 => "whole photos".to_string(),
+            side => format!("centred {side} px crops"),
+        },
         r.val.0,
         r.val.1,
         r.weights.display(),
