@@ -515,8 +515,6 @@ fn an_experiment_on_a_masked_capture_scores_every_row_on_the_object() {
     }
 }
 
-/// The viewer's comparison of a capture with object masks scores every panel on the object
-/// (inside the view's mask) and says so; a capture without masks is scored whole.
 /// `scene aberrate`'s copy of the masked turntable (composited over a colour outside the
 /// masks before the blur), in `dir`.
 fn aberrated_turntable(dir: &Path) -> PathBuf {
@@ -546,6 +544,8 @@ fn aberrated_turntable(dir: &Path) -> PathBuf {
     copy
 }
 
+/// The viewer's comparison of a capture with object masks scores every panel on the object
+/// (inside the view's mask) and says so; a capture without masks is scored whole.
 #[test]
 fn the_viewers_comparison_scores_an_object_capture_on_the_object() {
     let dir = tempfile::tempdir().unwrap();

@@ -1,7 +1,6 @@
 //! What `metasplat view` hands the viewer: a capture's comparison images, made by the training
 //! pipeline's own code, and a watch on a training run in progress.
 
-use std::borrow::Cow;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::time::SystemTime;
@@ -108,12 +107,11 @@ impl CaptureComparison {
         // `m·clean + (1 − m)·c₀`: the render goes through the lens the same way, so what it
         // shows outside the mask (which nothing in training constrains) does not bleed into
         // the panel, as training's own re-blur does.
-        let through_lens = match (self.model.composited_over, view.mask.as_deref()) {
-            (Some(c), Some(m)) => {
-                Cow::Owned(crate::train::object::over(render, m, Vec3::from_array(c)))
-            }
-            _ => Cow::Borrowed(render),
-        };
+        let through_lens = crate::train::object::lens_input(
+            render,
+            view.mask.as_deref(),
+            self.model.composited_over.map(Vec3::from_array),
+        );
         let reblurred = match &self.model.imaging {
             Some(m) => Some(m.blur_pixels(&through_lens)?),
             None => None,

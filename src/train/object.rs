@@ -29,6 +29,19 @@ pub fn over(image: &[Vec3], mask: &[f32], background: Vec3) -> Vec<Vec3> {
         .collect()
 }
 
+/// What the lens sees of a render on a copy composited over `background` outside its masks
+/// before the blur (`scene aberrate`): [`over`] where both are known, else the render as is.
+pub fn lens_input<'r>(
+    render: &'r [Vec3],
+    mask: Option<&[f32]>,
+    background: Option<Vec3>,
+) -> Cow<'r, [Vec3]> {
+    match background.zip(mask) {
+        Some((c, m)) => Cow::Owned(over(render, m, c)),
+        None => Cow::Borrowed(render),
+    }
+}
+
 /// How the training views of an `object` run become their targets.
 #[derive(Clone, Debug, Default)]
 pub struct ObjectTargets {

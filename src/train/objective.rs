@@ -107,10 +107,7 @@ impl Objective<'_> {
     /// What the lens sees of `rendered` for a view with `mask`: the render, over
     /// [`Self::outside`] where the mask leaves pixels out.
     fn lens_input<'r>(&self, rendered: &'r [Vec3], mask: Option<&[f32]>) -> Cow<'r, [Vec3]> {
-        match self.outside.zip(mask) {
-            Some((c, m)) => Cow::Owned(crate::train::object::over(rendered, m, c)),
-            None => Cow::Borrowed(rendered),
-        }
+        crate::train::object::lens_input(rendered, mask, self.outside)
     }
 
     /// The image the main term compares with the observation of a view with `mask`: the
