@@ -1233,7 +1233,7 @@ fn nonsense_numbers_are_refused_naming_the_flag() {
     let render = ["render", "--ply", "x.ply", "--scene", "x", "--out", o];
     let psf = ["psf", "simulate", "--out", o];
     type Group<'a> = (&'a [&'a str], &'a [(&'a str, &'a str)]);
-    let groups: [Group; 8] = [
+    let groups: [Group; 10] = [
         (
             &train,
             &[
@@ -1275,6 +1275,14 @@ fn nonsense_numbers_are_refused_naming_the_flag() {
         (
             &["deconvolve", "--psf", "x", "--in", "x", "--out", o],
             &[("--k", "0")],
+        ),
+        (
+            &["restore", "--psf", "x", "--in", "x", "--out", o],
+            &[("--ensemble", "3"), ("--ensemble", "0")],
+        ),
+        (
+            &["restorer", "eval", "--psf", "x", "--val", "x"],
+            &[("--ensemble", "16")],
         ),
         (
             &["export", "--in", "x.ply", "--out", o],

@@ -3,6 +3,7 @@
 
 use crate::config::RestorerConfig;
 use crate::data::bank_images;
+use crate::ensemble;
 use crate::error::{RestoreError, Result};
 use crate::net::RestorerNet;
 use crate::tiles::{Planes, round_up, tiled};
@@ -56,6 +57,8 @@ pub struct Restorer {
     /// Tile side and overlap for large images (multiples of the config's padding unit).
     pub tile: usize,
     pub overlap: usize,
+    /// Members of the self-ensemble (1: one pass; see [`crate::ensemble`]).
+    pub ensemble: usize,
 }
 
 /// Memory a tile may take in inference.
@@ -83,6 +86,7 @@ impl Restorer {
             weights_fnv1a: None,
             tile,
             overlap: m,
+            ensemble: 1,
         }
     }
 
@@ -159,8 +163,47 @@ impl Restorer {
         Ok(self)
     }
 
+    /// Averages the network's answers on the bank mirrored and turned by the first `n` of
+    /// [`ensemble::members`] (1, 2, 4 or 8); `n` times the network's time.
+    pub fn with_ensemble(mut self, n: usize) -> Result<Self> {
+        if !ensemble::SIZES.contains(&n) {
+            return Err(RestoreError::BadInput(format!(
+                "a self-ensemble of {n}: it takes 1, 2, 4 or 8 members"
+            )));
+        }
+        self.ensemble = n;
+        Ok(self)
+    }
+
     /// Restores 13 Wiener images of one aberrated image; output clamped to [0, 1].
     pub fn restore_bank(&self, bank: &[Image]) -> Image {
+        let (w, h) = (bank[0].width, bank[0].height);
+        let mut img = if self.ensemble <= 1 {
+            self.network_pass(bank)
+        } else {
+            let members = ensemble::members(self.ensemble);
+            let mut sum = Image::new(w, h);
+            for s in members {
+                let turned: Vec<Image> = bank.iter().map(|b| s.apply(b)).collect();
+                let answer = s.undo(&self.network_pass(&turned), w, h);
+                for (a, b) in sum.data.iter_mut().zip(&answer.data) {
+                    *a += b;
+                }
+            }
+            let scale = 1.0 / members.len() as f32;
+            sum.data.iter_mut().for_each(|v| *v *= scale);
+            sum
+        };
+        // A non-finite output (never seen; guards the splat trainer) falls back to the median.
+        if !img.is_finite() {
+            img = bank[aberration::wiener::BANK_MEDIAN].clone();
+        }
+        img.clamp01();
+        img
+    }
+
+    /// The network's answer on the bank as it is, tiled, before any clamping.
+    fn network_pass(&self, bank: &[Image]) -> Image {
         let (w, h) = (bank[0].width, bank[0].height);
         let m = self.config().multiple();
         let x = bank_planes(bank).padded(round_up(h, m), round_up(w, m));
@@ -169,17 +212,11 @@ impl Restorer {
         })
         .unwrap_or_else(|e| match e {})
         .cropped(h, w);
-        let mut img = Image {
+        Image {
             width: w,
             height: h,
             data: y.data,
-        };
-        // A non-finite output (never seen; guards the splat trainer) falls back to the median.
-        if !img.is_finite() {
-            img = bank[aberration::wiener::BANK_MEDIAN].clone();
         }
-        img.clamp01();
-        img
     }
 
     /// Restores an aberrated image whose PSF grid at its scale is `psf`.

@@ -10,6 +10,7 @@ pub mod compute;
 pub mod config;
 pub mod coverage;
 pub mod data;
+pub mod ensemble;
 pub mod error;
 pub mod family;
 pub mod infer;

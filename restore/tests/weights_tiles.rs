@@ -508,3 +508,77 @@ fn weights_of_a_lens_family_load_for_its_grids_and_refuse_others_saying_both() {
     let old: Header = serde_json::from_value(json).unwrap();
     assert!(old.family.is_none());
 }
+
+/// Thirteen random "Wiener images" of a `w`×`h` photo.
+fn random_bank(w: usize, h: usize, seed: u64) -> Vec<aberration::Image> {
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    (0..aberration::wiener::BANK_SIZE)
+        .map(|_| aberration::Image {
+            width: w,
+            height: h,
+            data: (0..3 * w * h).map(|_| rng.random::<f32>()).collect(),
+        })
+        .collect()
+}
+
+#[test]
+fn an_eight_member_ensemble_answers_a_mirrored_or_turned_photo_with_its_answer_turned_alike() {
+    use restore::ensemble::members;
+    let cfg = RestorerConfig::tiny();
+    let device = Device::flex();
+    device.seed(5);
+    let m = cfg.multiple();
+    let r = restore::Restorer::new(
+        RestorerNet::new(&cfg, &device),
+        header(&cfg, &psf_a()),
+        device.clone(),
+    );
+    // One square tile with no padding, so that only the network's own asymmetry is left.
+    let bank = random_bank(m, m, 3);
+    let gap = |r: &restore::Restorer, s: &restore::ensemble::Symmetry| {
+        let turned: Vec<_> = bank.iter().map(|b| s.apply(b)).collect();
+        let a = s.apply(&r.restore_bank(&bank));
+        let b = r.restore_bank(&turned);
+        a.data
+            .iter()
+            .zip(&b.data)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max)
+    };
+    let single_worst = members(8)[1..]
+        .iter()
+        .map(|s| gap(&r, s))
+        .fold(0.0, f32::max);
+    // The random network alone is far from equivariant (so the check below can fail)...
+    assert!(single_worst > 1e-2, "{single_worst}");
+    let r8 = r.with_ensemble(8).unwrap();
+    for s in members(8) {
+        // ...and the mean over the whole group is, up to the order of the sum.
+        assert!(gap(&r8, s) < 1e-5, "{s:?}: {}", gap(&r8, s));
+    }
+    // The mean stays in the unit range.
+    let one = r8.restore_bank(&bank);
+    assert!(one.data.iter().all(|v| (0.0..=1.0).contains(v)));
+}
+
+#[test]
+fn an_ensemble_size_other_than_1_2_4_or_8_is_refused() {
+    let cfg = RestorerConfig::tiny();
+    let device = Device::flex();
+    let r = || {
+        restore::Restorer::new(
+            RestorerNet::new(&cfg, &device),
+            header(&cfg, &psf_a()),
+            device.clone(),
+        )
+    };
+    for n in [0, 3, 16] {
+        let err = r().with_ensemble(n).err().expect("refused").to_string();
+        assert!(
+            err.contains(&format!("ensemble of {n}")) && err.contains("1, 2, 4 or 8"),
+            "{err}"
+        );
+    }
+    assert_eq!(r().with_ensemble(4).unwrap().ensemble, 4);
+}

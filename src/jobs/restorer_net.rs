@@ -9,7 +9,8 @@ use std::path::{Path, PathBuf};
 use super::refused;
 use crate::error::{Result, TrainError};
 
-/// How large images are cut for the network.
+/// How the network runs over an image: the tiles large images are cut into, and how many
+/// mirrored and turned passes are averaged.
 #[derive(Args, Clone, Debug)]
 pub struct Tiling {
     /// Tile side in px (a multiple of the config's padding unit); default: the largest that
@@ -19,6 +20,19 @@ pub struct Tiling {
     /// Overlap of neighbouring tiles in px, blended by linear ramps.
     #[arg(long)]
     pub overlap: Option<usize>,
+    /// Self-ensemble: average the network's answers on the photo mirrored and turned, 1, 2,
+    /// 4 or 8 of them (each one more network pass; restore/README gives the gain per scale).
+    #[arg(long, default_value_t = 1, value_parser = ensemble_size)]
+    pub ensemble: usize,
+}
+
+/// `--ensemble`'s value, refused by the parser (before any file is read) unless the
+/// ensemble has that many members.
+fn ensemble_size(s: &str) -> std::result::Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if restore::ensemble::SIZES.contains(&n) => Ok(n),
+        _ => Err("an ensemble has 1, 2, 4 or 8 members".into()),
+    }
 }
 
 impl Tiling {
@@ -27,8 +41,11 @@ impl Tiling {
             self.tile.unwrap_or(r.tile),
             self.overlap.unwrap_or(r.overlap),
         );
-        r.with_tiling(tile, overlap)
-            .map_err(|e| TrainError::from(e).context(format!("--tile {tile} --overlap {overlap}")))
+        let r = r.with_tiling(tile, overlap).map_err(|e| {
+            TrainError::from(e).context(format!("--tile {tile} --overlap {overlap}"))
+        })?;
+        r.with_ensemble(self.ensemble)
+            .map_err(|e| TrainError::from(e).context(format!("--ensemble {}", self.ensemble)))
     }
 }
 
