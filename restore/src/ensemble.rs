@@ -59,18 +59,29 @@ impl Symmetry {
         (u, v, tw, th)
     }
 
+    /// For each pixel of a `w`×`h` image, its index there and in the transformed image
+    /// (the same within every colour plane).
+    fn index_pairs(&self, w: usize, h: usize) -> impl Iterator<Item = (usize, usize)> + '_ {
+        (0..h).flat_map(move |y| {
+            (0..w).map(move |x| {
+                let (u, v, tw, _) = self.map(x, y, w, h);
+                (y * w + x, v * tw + u)
+            })
+        })
+    }
+
     /// `img` transformed.
     pub fn apply(&self, img: &Image) -> Image {
         let (w, h) = (img.width, img.height);
         let (_, _, tw, th) = self.map(0, 0, w, h);
         let mut out = Image::new(tw, th);
-        for c in 0..3 {
-            let (src, dst) = (c * w * h, c * tw * th);
-            for y in 0..h {
-                for x in 0..w {
-                    let (u, v, _, _) = self.map(x, y, w, h);
-                    out.data[dst + v * tw + u] = img.data[src + y * w + x];
-                }
+        for (dst, src) in out
+            .data
+            .chunks_exact_mut(w * h)
+            .zip(img.data.chunks_exact(w * h))
+        {
+            for (a, b) in self.index_pairs(w, h) {
+                dst[b] = src[a];
             }
         }
         out
@@ -78,15 +89,14 @@ impl Symmetry {
 
     /// The inverse of [`Self::apply`]: `img` is a transformed `w`×`h` image.
     pub fn undo(&self, img: &Image, w: usize, h: usize) -> Image {
-        let (tw, th) = (img.width, img.height);
         let mut out = Image::new(w, h);
-        for c in 0..3 {
-            let (src, dst) = (c * tw * th, c * w * h);
-            for y in 0..h {
-                for x in 0..w {
-                    let (u, v, _, _) = self.map(x, y, w, h);
-                    out.data[dst + y * w + x] = img.data[src + v * tw + u];
-                }
+        for (dst, src) in out
+            .data
+            .chunks_exact_mut(w * h)
+            .zip(img.data.chunks_exact(w * h))
+        {
+            for (a, b) in self.index_pairs(w, h) {
+                dst[a] = src[b];
             }
         }
         out
