@@ -636,6 +636,23 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
         "{text}"
     );
     assert_eq!(image::image_dimensions(&out).unwrap(), (96, 80));
+    // The same with a two-member self-ensemble: said, and another image than one pass.
+    let out2 = d.join("restored2.png");
+    let text = ok(&[
+        "restore",
+        "--psf",
+        s(&psf),
+        "--weights",
+        s(&weights),
+        "--in",
+        s(&abr),
+        "--out",
+        s(&out2),
+        "--ensemble",
+        "2",
+    ]);
+    assert!(text.contains("with 'tiny, 2-member ensemble'"), "{text}");
+    assert_ne!(std::fs::read(&out).unwrap(), std::fs::read(&out2).unwrap());
 
     let text = ok(&[
         "restorer",
@@ -669,11 +686,16 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
         s(&imgs),
         "--psf-px",
         "9",
+        "--ensemble",
+        "2",
     ]);
-    assert!(
-        text.contains("PSFs of 9 px at the photos' size (--psf-px 9)"),
-        "{text}"
-    );
+    for said in [
+        "PSFs of 9 px at the photos' size (--psf-px 9)",
+        "network (tiny, 2-member ensemble)",
+        "2 passes a photo",
+    ] {
+        assert!(text.contains(said), "{said}: {text}");
+    }
 
     // Weights made for one grid are refused for another, naming the weights file.
     let other = d.join("other.npy");

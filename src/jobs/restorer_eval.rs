@@ -53,6 +53,8 @@ pub struct EvalReport {
     pub network_seconds: f64,
     pub megapixels: f64,
     pub tile: usize,
+    /// Members of the self-ensemble the network ran with (1: one pass).
+    pub ensemble: usize,
 }
 
 /// Blurs each photo of `photos` through `native` (its PSFs mapped to `psf_px` at the photo's
@@ -142,6 +144,7 @@ pub fn evaluate(
             .sum::<f64>()
             / 1e6,
         tile: restorer.tile,
+        ensemble: restorer.ensemble,
     })
 }
 
@@ -168,7 +171,13 @@ impl EvalReport {
                 format!("median MAFG Wiener ({kind} K {:.2e})", ks[BANK_MEDIAN]),
                 self.median,
             ),
-            (format!("network ({})", self.network_name), self.network),
+            (
+                match self.ensemble {
+                    0 | 1 => format!("network ({})", self.network_name),
+                    n => format!("network ({}, {n}-member ensemble)", self.network_name),
+                },
+                self.network,
+            ),
         ];
         if self.base_filter != BANK_MEDIAN {
             rows.insert(
@@ -203,14 +212,16 @@ impl EvalReport {
         let n = self.photos as f64;
         let net = self.network.psnr;
         format!(
-            "network: {:+.2} dB over the best single-K Wiener, {:+.2} dB over the median Wiener image, {:+.2} dB over its residual base (filter {}); inference {:.0} ms per megapixel ({} threads, tiles {} px)",
+            "network: {:+.2} dB over the best single-K Wiener, {:+.2} dB over the median Wiener image, {:+.2} dB over its residual base (filter {}); inference {:.0} ms per megapixel ({} threads, tiles {} px, {} pass{} a photo)",
             (net - self.best.psnr) / n,
             (net - self.median.psnr) / n,
             (net - self.base.psnr) / n,
             self.base_filter,
             1000.0 * self.network_seconds / self.megapixels,
             rayon::current_num_threads(),
-            self.tile
+            self.tile,
+            self.ensemble,
+            if self.ensemble == 1 { "" } else { "es" },
         )
     }
 }
