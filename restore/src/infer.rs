@@ -175,6 +175,15 @@ impl Restorer {
         Ok(self)
     }
 
+    /// The network as reports name it: its config, and the self-ensemble when it has more
+    /// than one member (`tiny, 8-member ensemble`).
+    pub fn label(&self) -> String {
+        match self.ensemble {
+            0 | 1 => self.config().name.clone(),
+            n => format!("{}, {n}-member ensemble", self.config().name),
+        }
+    }
+
     /// Restores 13 Wiener images of one aberrated image; output clamped to [0, 1].
     pub fn restore_bank(&self, bank: &[Image]) -> Image {
         let (w, h) = (bank[0].width, bank[0].height);

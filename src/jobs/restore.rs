@@ -196,7 +196,7 @@ fn restore_photo(
     Ok(RestoreReport {
         frames: 1,
         size,
-        network: network_label(&restorer),
+        network: restorer.label(),
         seconds,
         out: a.out.clone(),
         against_reference,
@@ -285,7 +285,7 @@ fn restore_folder(
     Ok(RestoreReport {
         frames: todo.len(),
         size,
-        network: network_label(&restorer),
+        network: restorer.label(),
         seconds: start.elapsed().as_secs_f64(),
         out: a.out.clone(),
         against_reference: None,
@@ -408,7 +408,7 @@ fn restore_gif(
     Ok(RestoreReport {
         frames: frames.len(),
         size: (w, h),
-        network: network_label(&restorer),
+        network: restorer.label(),
         seconds: start.elapsed().as_secs_f64(),
         out: a.out.clone(),
         against_reference: None,
@@ -489,13 +489,4 @@ fn restore_video(
         kind: Restored::Video(fps),
         ..restored
     })
-}
-
-/// The network's name as the report gives it, with the self-ensemble when it has more than
-/// one member.
-fn network_label(restorer: &restore::Restorer) -> String {
-    match restorer.ensemble {
-        0 | 1 => restorer.config().name.clone(),
-        n => format!("{}, {n}-member ensemble", restorer.config().name),
-    }
 }

@@ -46,6 +46,7 @@ pub struct EvalReport {
     pub base: Score,
     pub base_filter: usize,
     pub network: Score,
+    /// The network as [`restore::Restorer::label`] names it.
     pub network_name: String,
     /// Whether the bank's K follows each channel's intensity.
     pub adaptive_k: bool,
@@ -135,7 +136,7 @@ pub fn evaluate(
         base,
         base_filter,
         network,
-        network_name: restorer.config().name.clone(),
+        network_name: restorer.label(),
         adaptive_k: restorer.config().adaptive_k,
         network_seconds,
         megapixels: photos
@@ -171,13 +172,7 @@ impl EvalReport {
                 format!("median MAFG Wiener ({kind} K {:.2e})", ks[BANK_MEDIAN]),
                 self.median,
             ),
-            (
-                match self.ensemble {
-                    0 | 1 => format!("network ({})", self.network_name),
-                    n => format!("network ({}, {n}-member ensemble)", self.network_name),
-                },
-                self.network,
-            ),
+            (format!("network ({})", self.network_name), self.network),
         ];
         if self.base_filter != BANK_MEDIAN {
             rows.insert(
