@@ -581,6 +581,11 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
     other.push("--resume");
     let err = fails(&other);
     assert!(err.contains("--batch 2 (the run has 1)"), "{err}");
+    // So is another loss.
+    let mut other = train_args.to_vec();
+    other.extend(["--loss", "l2", "--resume"]);
+    let err = fails(&other);
+    assert!(err.contains("--loss l2 (the run has l1)"), "{err}");
     // So is another training crop (the config's field, not the schedule's).
     let mut other = train_args.to_vec();
     other.extend(["--crop", "32", "--resume"]);
@@ -1274,7 +1279,12 @@ fn nonsense_numbers_are_refused_naming_the_flag() {
         (&render, &[("--spiral", "0")]),
         (
             &restorer,
-            &[("--lr", "NaN"), ("--batch", "0"), ("--steps", "0")],
+            &[
+                ("--lr", "NaN"),
+                ("--batch", "0"),
+                ("--steps", "0"),
+                ("--loss", "l3"),
+            ],
         ),
         (
             &psf,

@@ -181,12 +181,13 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_state_json_is_one_flat_object_and_older_states_read_without_refresh() {
+    fn the_state_json_is_one_flat_object_and_older_states_read_without_refresh_or_loss() {
         let state = TrainState {
             step: 7,
             schedule: Schedule {
                 steps: 9,
                 refresh_every: 3,
+                loss: crate::train::Loss::L2,
                 ..Default::default()
             },
             rng_word_pos: "340282366920938463463374607431768211455".into(),
@@ -197,13 +198,17 @@ mod tests {
         let json = serde_json::to_value(&state).unwrap();
         assert_eq!(json["steps"], 9);
         assert_eq!(json["refresh_every"], 3);
+        assert_eq!(json["loss"], "l2");
         assert!(json.get("schedule").is_none(), "{json}");
         let back: TrainState = serde_json::from_value(json.clone()).unwrap();
         assert_eq!(back, state);
         // Written before `refresh_every` existed: those runs made their pairs once.
         let mut old = json;
         old.as_object_mut().unwrap().remove("refresh_every");
+        old.as_object_mut().unwrap().remove("loss");
         let back: TrainState = serde_json::from_value(old).unwrap();
         assert_eq!(back.schedule.refresh_every, 0);
+        // and before `loss` existed, with L1.
+        assert_eq!(back.schedule.loss, crate::train::Loss::L1);
     }
 }

@@ -8,7 +8,9 @@ use restore::data::{TrainSet, load_folder, load_pairs};
 use restore::family::{LensFamily, ScaleDraw};
 use restore::net::kernels::{Kernels, with_kernels};
 use restore::provenance::Lineage;
-use restore::train::{Event, Schedule, Start, TrainOptions, TrainRun, ValSet, round_seed, train};
+use restore::train::{
+    Event, Loss, Schedule, Start, TrainOptions, TrainRun, ValSet, round_seed, train,
+};
 use restore::{Guidance, Preset, RestorerConfig, weights};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -89,7 +91,8 @@ pub struct RestorerTrainRequest {
     pub psf_px_range: Option<[usize; 2]>,
     /// Continue the interrupted run that writes `--out` exactly where its last checkpoint left
     /// it (weights, `OUT.state`: optimizer moments, schedule, sampler position); --steps,
-    /// --batch, --lr, --seed and --refresh-every must be the run's own (others are refused).
+    /// --batch, --lr, --seed, --refresh-every and --loss must be the run's own (others are
+    /// refused).
     #[arg(long)]
     pub resume: bool,
     /// Stop after about this many minutes with a checkpoint (continue later with --resume).
@@ -99,6 +102,10 @@ pub struct RestorerTrainRequest {
     /// 0: never.
     #[arg(long, default_value_t = 200)]
     pub refresh_every: usize,
+    /// The pixel loss: `l1` (as the paper trains) or `l2`, the mean squared error, whose
+    /// optimum PSNR scores highest (a last fine-tune towards it).
+    #[arg(long, value_enum, default_value_t = Loss::L1)]
+    pub loss: Loss,
     /// How the Wiener bank enters the network; default: the config's (`residual` for tiny and
     /// small, `cross-attention` for paper); `concat` and `single` are ablations.
     #[arg(long, value_enum)]
@@ -192,6 +199,7 @@ pub fn prepare(request: &RestorerTrainRequest, command: &str) -> Result<Prepared
         lr: request.lr,
         seed: request.seed,
         refresh_every: request.refresh_every,
+        loss: request.loss,
         ..Default::default()
     };
     let mut notes = Vec::new();
@@ -366,6 +374,11 @@ fn changed_settings(schedule: &Schedule, saved: &Schedule) -> Vec<String> {
             "--refresh-every",
             schedule.refresh_every.to_string(),
             saved.refresh_every.to_string(),
+        ),
+        (
+            "--loss",
+            schedule.loss.name().to_string(),
+            saved.loss.name().to_string(),
         ),
     ]
     .into_iter()
