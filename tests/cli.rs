@@ -623,19 +623,22 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
         "--out",
         s(&abr),
     ]);
-    let text = ok(&[
-        "restore",
-        "--psf",
-        s(&psf),
-        "--weights",
-        s(&weights),
-        "--in",
-        s(&abr),
-        "--out",
-        s(&out),
-        "--reference",
-        s(&imgs.join("p0.png")),
-    ]);
+    let restore = |out: &Path, more: &[&str]| {
+        let mut args = vec![
+            "restore",
+            "--psf",
+            s(&psf),
+            "--weights",
+            s(&weights),
+            "--in",
+            s(&abr),
+            "--out",
+            s(out),
+        ];
+        args.extend(more);
+        ok(&args)
+    };
+    let text = restore(&out, &["--reference", s(&imgs.join("p0.png"))]);
     assert!(
         text.contains("restored 96x80") && text.contains("PSNR"),
         "{text}"
@@ -643,19 +646,7 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
     assert_eq!(image::image_dimensions(&out).unwrap(), (96, 80));
     // The same with a two-member self-ensemble: said, and another image than one pass.
     let out2 = d.join("restored2.png");
-    let text = ok(&[
-        "restore",
-        "--psf",
-        s(&psf),
-        "--weights",
-        s(&weights),
-        "--in",
-        s(&abr),
-        "--out",
-        s(&out2),
-        "--ensemble",
-        "2",
-    ]);
+    let text = restore(&out2, &["--ensemble", "2"]);
     assert!(text.contains("with 'tiny, 2-member ensemble'"), "{text}");
     assert_ne!(std::fs::read(&out).unwrap(), std::fs::read(&out2).unwrap());
 

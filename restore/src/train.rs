@@ -62,13 +62,6 @@ impl Loss {
             Loss::L2 => d.clone().mul(d).mean(),
         }
     }
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Loss::L1 => "l1",
-            Loss::L2 => "l2",
-        }
-    }
 }
 
 #[derive(Clone, Debug)]

@@ -375,11 +375,7 @@ fn changed_settings(schedule: &Schedule, saved: &Schedule) -> Vec<String> {
             schedule.refresh_every.to_string(),
             saved.refresh_every.to_string(),
         ),
-        (
-            "--loss",
-            schedule.loss.name().to_string(),
-            saved.loss.name().to_string(),
-        ),
+        ("--loss", value_name(schedule.loss), value_name(saved.loss)),
     ]
     .into_iter()
     .filter(|(_, now, then)| now != then)
@@ -459,8 +455,8 @@ fn starting_point(
         {
             return refused(format!(
                 "{out}: cannot resume with --psf-px-draw {}: the run draws its PSF scales {}",
-                draw_name(a.psf_px_draw),
-                draw_name(d.psf_px_draw),
+                value_name(a.psf_px_draw),
+                value_name(d.psf_px_draw),
             ));
         }
         let asked = family_of(a).psf_px;
@@ -497,10 +493,10 @@ fn family_of(a: &RestorerTrainRequest) -> LensFamily {
     }
 }
 
-fn draw_name(d: ScaleDraw) -> String {
-    use clap::ValueEnum;
-    d.to_possible_value()
-        .map_or_else(|| format!("{d:?}"), |v| v.get_name().to_string())
+/// A flag value as the command line spells it (`linear`, `l2`).
+fn value_name<T: clap::ValueEnum + std::fmt::Debug>(v: T) -> String {
+    v.to_possible_value()
+        .map_or_else(|| format!("{v:?}"), |p| p.get_name().to_string())
 }
 
 /// The lenses a family run draws from: `centre` (the `--psf` grid) and `count - 1` lenses
