@@ -6,8 +6,10 @@ use burn::nn::conv::Conv2d;
 use burn::tensor::activation::softmax;
 use burn::tensor::{Device, Tensor};
 
+use super::conv_train::{depthwise3_weights, trained_applies};
 use super::kernels::{Kernels, current};
 use super::layers::{conv, depthwise, depthwise3, enhance_query, pointwise};
+use super::pointwise::pointwise_tensor;
 
 /// `x / max(‖x‖₂, ε)` along the last dimension.
 pub fn l2_normalise(x: Tensor<4>) -> Tensor<4> {
@@ -45,10 +47,8 @@ impl ChannelAttention {
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let [b, c, h, w] = x.dims();
-        let mut parts = depthwise(&self.qkv_depthwise, pointwise(&self.qkv, x)).chunk(3, 1);
-        let v = parts.pop().expect("qkv");
-        let k = parts.pop().expect("qkv");
-        let q = enhance_query(parts.pop().expect("qkv"), self.qe);
+        let [q, k, v] = self.qkv(x);
+        let q = enhance_query(q, self.qe);
         let d = c / self.heads;
         let split = |t: Tensor<4>| t.reshape([b, self.heads, d, h * w]);
         let t = self.temperature.val().reshape([1, self.heads, 1, 1]);
@@ -64,5 +64,28 @@ impl ChannelAttention {
         };
         let attn = softmax(logits * t, 3);
         pointwise(&self.proj, attn.matmul(v).reshape([b, c, h, w]))
+    }
+
+    /// The queries, keys and values: the 1×1 convolution to `3c` channels, its depthwise 3×3,
+    /// split in three.
+    fn qkv(&self, x: Tensor<4>) -> [Tensor<4>; 3] {
+        let c = x.dims()[1];
+        let plain = self.qkv.bias.is_none() && self.qkv_depthwise.bias.is_none();
+        if plain && current() == Kernels::Fast && trained_applies(&x) {
+            // In training on the CPU, each part from its third of the weights: splitting the
+            // `3c`-channel map instead gives each part a backward that fills a zero map of all
+            // `3c` channels and burn sums the three, and hands on views that are copied to be
+            // reshaped. The same values; the weights read in the same order (burn draws a
+            // parameter's initial values when first read).
+            let (w, dw) = (self.qkv.weight.val(), self.qkv_depthwise.weight.val());
+            return std::array::from_fn(|i| {
+                let y = pointwise_tensor(x.clone(), w.clone().narrow(0, i * c, c), None);
+                depthwise3_weights(y, dw.clone().narrow(0, i * c, c))
+            });
+        }
+        let mut parts = depthwise(&self.qkv_depthwise, pointwise(&self.qkv, x)).chunk(3, 1);
+        let v = parts.pop().expect("qkv");
+        let k = parts.pop().expect("qkv");
+        [parts.pop().expect("qkv"), k, v]
     }
 }

@@ -38,10 +38,7 @@ pub fn trained_applies(t: &Tensor<4>) -> bool {
 /// `conv` (a depthwise 3×3 layer: `[c, 1, 3, 3]` weights, padding 1) applied to `x`
 /// `[b, c, h, w]` through the hand-written kernels; its bias, if any, added after.
 pub fn depthwise3(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
-    let y = Tensor::<4>::from_dispatch(<Dispatch as DepthwiseOps>::depthwise3(
-        x.into_dispatch(),
-        conv.weight.val().into_dispatch(),
-    ));
+    let y = depthwise3_weights(x, conv.weight.val());
     match &conv.bias {
         Some(bias) => {
             let c = bias.dims()[0];
@@ -49,6 +46,15 @@ pub fn depthwise3(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
         }
         None => y,
     }
+}
+
+/// Depthwise 3×3 weights `[c, 1, 3, 3]` (padding 1, no bias) applied to `x` `[b, c, h, w]`
+/// through the hand-written kernels.
+pub fn depthwise3_weights(x: Tensor<4>, weight: Tensor<4>) -> Tensor<4> {
+    Tensor::<4>::from_dispatch(<Dispatch as DepthwiseOps>::depthwise3(
+        x.into_dispatch(),
+        weight.into_dispatch(),
+    ))
 }
 
 /// `conv` (a dense 3×3 layer: `[cout, cin, 3, 3]` weights, padding 1, stride 1, one group)
@@ -170,16 +176,18 @@ fn neighbourhoods(x: &[f32], [b, c, h, w]: [usize; 4]) -> Vec<f32> {
 /// `[b, c, h, w]` → `[b·h·w, c]`: each pixel's channels side by side.
 fn pixels_by_channel(x: &[f32], [b, c, h, w]: [usize; 4]) -> Vec<f32> {
     let plane = h * w;
-    let mut out = vec![0.0f32; b * plane * c];
-    for n_img in 0..b {
-        for ch in 0..c {
-            let src = &x[(n_img * c + ch) * plane..][..plane];
-            for (p, &v) in src.iter().enumerate() {
-                out[(n_img * plane + p) * c + ch] = v;
+    assert_eq!(x.len(), b * c * plane);
+    // A permutation: every value is written once (`fresh`).
+    super::fresh::written(b * plane * c, |out| {
+        for n_img in 0..b {
+            for ch in 0..c {
+                let src = &x[(n_img * c + ch) * plane..][..plane];
+                for (p, &v) in src.iter().enumerate() {
+                    out[(n_img * plane + p) * c + ch] = v;
+                }
             }
         }
-    }
-    out
+    })
 }
 
 #[derive(Debug)]

@@ -28,9 +28,22 @@ pub fn filled(len: usize, chunk: usize, fill: impl Fn(usize, &mut [f32]) + Sync)
     out
 }
 
+/// `len` values made by one call: `fill` gets them all and **must write every one** before
+/// returning (in whatever order or split it likes); like [`filled`], it is handed memory that
+/// holds nothing yet and must not read it.
+pub fn written(len: usize, fill: impl FnOnce(&mut [f32])) -> Vec<f32> {
+    let mut out = Vec::<f32>::with_capacity(len);
+    let dst = &mut out.spare_capacity_mut()[..len];
+    // SAFETY: as in `filled`.
+    fill(unsafe { &mut *(dst as *mut [MaybeUninit<f32>] as *mut [f32]) });
+    // SAFETY: `fill` wrote every one of the `len` values.
+    unsafe { out.set_len(len) };
+    out
+}
+
 #[cfg(test)]
 mod tests {
-    use super::filled;
+    use super::{filled, written};
 
     #[test]
     fn every_chunk_lands_in_its_place() {
@@ -45,6 +58,22 @@ mod tests {
                 v.iter().enumerate().all(|(k, &x)| x == k as f32),
                 "{len}/{chunk}"
             );
+        }
+    }
+
+    #[test]
+    fn written_hands_over_every_value_in_place() {
+        for len in [0, 1, 7, 1000] {
+            let v = written(len, |dst| {
+                // Two halves from the two ends, as the gate's gradient writes its planes.
+                let (a, b) = dst.split_at_mut(len / 2);
+                a.iter_mut().enumerate().for_each(|(i, d)| *d = i as f32);
+                b.iter_mut()
+                    .enumerate()
+                    .for_each(|(i, d)| *d = (len / 2 + i) as f32);
+            });
+            assert_eq!(v.len(), len);
+            assert!(v.iter().enumerate().all(|(k, &x)| x == k as f32), "{len}");
         }
     }
 }

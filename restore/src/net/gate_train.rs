@@ -77,59 +77,57 @@ fn pair_planes<'a>(
 fn gate(d: &[f32], dims: [usize; 4]) -> Vec<f32> {
     let [b, c2, h, w] = dims;
     let plane = h * w;
-    let mut out = vec![0.0f32; b * c2 / 2 * plane];
     if plane == 0 {
-        return out;
+        return vec![0.0; b * c2 / 2 * plane];
     }
     let planes = pair_planes(d, dims);
-    out.par_chunks_mut(plane)
-        .enumerate()
-        .for_each(|(task, dst)| {
-            let (u, v) = planes(task);
-            #[cfg(target_arch = "x86_64")]
-            if base::isa::Isa::chosen() != base::isa::Isa::Portable {
-                // SAFETY: `Isa::chosen` names a build the CPU has, and every build past the
-                // portable one has AVX2.
-                return unsafe { gate_plane_avx2(dst, u, v) };
-            }
-            gate_plane(dst, u, v)
-        });
-    out
+    // Every value of every plane is written: no zeros first (`fresh`).
+    super::fresh::filled(b * c2 / 2 * plane, plane, |task, dst| {
+        let (u, v) = planes(task);
+        #[cfg(target_arch = "x86_64")]
+        if base::isa::Isa::chosen() != base::isa::Isa::Portable {
+            // SAFETY: `Isa::chosen` names a build the CPU has, and every build past the
+            // portable one has AVX2.
+            return unsafe { gate_plane_avx2(dst, u, v) };
+        }
+        gate_plane(dst, u, v)
+    })
 }
 
 /// `∂d` from `∂y`: `∂d₁ = ∂y · d₂ · GELU′(d₁)`, `∂d₂ = ∂y · GELU(d₁)`.
 fn gate_grad(d: &[f32], dy: &[f32], dims: [usize; 4]) -> Vec<f32> {
     let [b, c2, h, w] = dims;
     let (hid, plane) = (c2 / 2, h * w);
-    let mut out = vec![0.0f32; b * c2 * plane];
     if plane == 0 {
-        return out;
+        return vec![0.0; b * c2 * plane];
     }
     let planes = pair_planes(d, dims);
-    // Each task writes the two planes of one output plane: image n's channels i and hid + i.
-    let mut halves: Vec<(&mut [f32], &mut [f32])> = Vec::with_capacity(b * hid);
-    for image in out.chunks_exact_mut(c2 * plane) {
-        let (first, second) = image.split_at_mut(hid * plane);
-        halves.extend(
-            first
-                .chunks_exact_mut(plane)
-                .zip(second.chunks_exact_mut(plane)),
-        );
-    }
-    halves
-        .into_par_iter()
-        .enumerate()
-        .for_each(|(task, (du, dv))| {
-            let (u, v) = planes(task);
-            let g = &dy[task * plane..][..plane];
-            #[cfg(target_arch = "x86_64")]
-            if base::isa::Isa::chosen() != base::isa::Isa::Portable {
-                // SAFETY: as in `gate`.
-                return unsafe { gate_grad_plane_avx2(du, dv, [u, v, g]) };
-            }
-            gate_grad_plane(du, dv, [u, v, g])
-        });
-    out
+    // Each task writes the two planes of one output plane: image n's channels i and hid + i;
+    // together they write every value (`fresh`).
+    super::fresh::written(b * c2 * plane, |out| {
+        let mut halves: Vec<(&mut [f32], &mut [f32])> = Vec::with_capacity(b * hid);
+        for image in out.chunks_exact_mut(c2 * plane) {
+            let (first, second) = image.split_at_mut(hid * plane);
+            halves.extend(
+                first
+                    .chunks_exact_mut(plane)
+                    .zip(second.chunks_exact_mut(plane)),
+            );
+        }
+        halves
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(task, (du, dv))| {
+                let (u, v) = planes(task);
+                let g = &dy[task * plane..][..plane];
+                #[cfg(target_arch = "x86_64")]
+                if base::isa::Isa::chosen() != base::isa::Isa::Portable {
+                    // SAFETY: as in `gate`.
+                    return unsafe { gate_grad_plane_avx2(du, dv, [u, v, g]) };
+                }
+                gate_grad_plane(du, dv, [u, v, g])
+            });
+    })
 }
 
 #[inline(always)]

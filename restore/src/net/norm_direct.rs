@@ -98,27 +98,30 @@ pub fn channel_norm_backward(
         bx.iter_mut().for_each(|v| *v *= inv_c);
     });
     // Per plane: dx, and that plane's share of dγ and dβ.
-    let mut dx = vec![0.0f32; b * c * plane];
-    let partial: Vec<(f32, f32)> = dx
-        .par_chunks_mut(plane)
-        .enumerate()
-        .map(|(task, out)| {
-            let (n, ch) = (task / c, task % c);
-            let xs = &x[task * plane..][..plane];
-            let ds = &dy[task * plane..][..plane];
-            let (m, r) = (&mean[n * plane..][..plane], &rstd[n * plane..][..plane]);
-            let (a, bx) = (&a[n * plane..][..plane], &bx[n * plane..][..plane]);
-            let g = weight[ch];
-            let (mut dg, mut db) = (0.0f32, 0.0f32);
-            for i in 0..plane {
-                let xhat = (xs[i] - m[i]) * r[i];
-                out[i] = r[i] * (g * ds[i] - a[i] - xhat * bx[i]);
-                dg += ds[i] * xhat;
-                db += ds[i];
-            }
-            (dg, db)
-        })
-        .collect();
+    // Every value of dx is written, plane by plane (`fresh`).
+    let mut partial: Vec<(f32, f32)> = Vec::new();
+    let dx = super::fresh::written(b * c * plane, |dx| {
+        partial = dx
+            .par_chunks_mut(plane)
+            .enumerate()
+            .map(|(task, out)| {
+                let (n, ch) = (task / c, task % c);
+                let xs = &x[task * plane..][..plane];
+                let ds = &dy[task * plane..][..plane];
+                let (m, r) = (&mean[n * plane..][..plane], &rstd[n * plane..][..plane]);
+                let (a, bx) = (&a[n * plane..][..plane], &bx[n * plane..][..plane]);
+                let g = weight[ch];
+                let (mut dg, mut db) = (0.0f32, 0.0f32);
+                for i in 0..plane {
+                    let xhat = (xs[i] - m[i]) * r[i];
+                    out[i] = r[i] * (g * ds[i] - a[i] - xhat * bx[i]);
+                    dg += ds[i] * xhat;
+                    db += ds[i];
+                }
+                (dg, db)
+            })
+            .collect();
+    });
     let (mut dgamma, mut dbeta) = (vec![0.0f32; c], vec![0.0f32; c]);
     for (task, (dg, db)) in partial.into_iter().enumerate() {
         dgamma[task % c] += dg;
