@@ -6,10 +6,9 @@ use burn::nn::conv::Conv2d;
 use burn::tensor::activation::softmax;
 use burn::tensor::{Device, Tensor};
 
-use super::conv_train::{depthwise3_weights, trained_applies};
+use super::conv_train::depthwise3_weights;
 use super::kernels::{Kernels, current};
-use super::layers::{conv, depthwise, depthwise3, enhance_query, pointwise};
-use super::pointwise::pointwise_tensor;
+use super::layers::{conv, depthwise, depthwise3, enhance_query, pointwise, trained_parts};
 
 /// `x / max(‖x‖₂, ε)` along the last dimension.
 pub fn l2_normalise(x: Tensor<4>) -> Tensor<4> {
@@ -67,20 +66,17 @@ impl ChannelAttention {
     }
 
     /// The queries, keys and values: the 1×1 convolution to `3c` channels, its depthwise 3×3,
-    /// split in three.
+    /// split in three; in training on the CPU from the weights' thirds ([`trained_parts`]).
     fn qkv(&self, x: Tensor<4>) -> [Tensor<4>; 3] {
-        let c = x.dims()[1];
-        let plain = self.qkv.bias.is_none() && self.qkv_depthwise.bias.is_none();
-        if plain && current() == Kernels::Fast && trained_applies(&x) {
-            // In training on the CPU, each part from its third of the weights: splitting the
-            // `3c`-channel map instead gives each part a backward that fills a zero map of all
-            // `3c` channels and burn sums the three, and hands on views that are copied to be
-            // reshaped. The same values; the weights read in the same order (burn draws a
-            // parameter's initial values when first read).
-            let (w, dw) = (self.qkv.weight.val(), self.qkv_depthwise.weight.val());
-            return std::array::from_fn(|i| {
-                let y = pointwise_tensor(x.clone(), w.clone().narrow(0, i * c, c), None);
-                depthwise3_weights(y, dw.clone().narrow(0, i * c, c))
+        if self.qkv_depthwise.bias.is_none()
+            && let Some(parts) = trained_parts::<3>(&self.qkv, &x)
+        {
+            let dw = self.qkv_depthwise.weight.val();
+            let c = dw.dims()[0] / 3;
+            let mut parts = parts.into_iter().enumerate();
+            return std::array::from_fn(|_| {
+                let (i, part) = parts.next().expect("three parts");
+                depthwise3_weights(part, dw.clone().narrow(0, i * c, c))
             });
         }
         let mut parts = depthwise(&self.qkv_depthwise, pointwise(&self.qkv, x)).chunk(3, 1);

@@ -80,6 +80,31 @@ pub fn pointwise(conv: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     y.reshape([b, cout, h, w])
 }
 
+/// In training on the CPU, a 1×1 convolution's output (no bias) in `N` equal parts along its
+/// channels, as the channel attention splits its q/k/v map, each made from its share of the
+/// weights; `None` elsewhere (the caller splits the whole map).
+///
+/// Splitting the whole map in training gives each part a backward that fills a zero map of all
+/// its channels, and burn sums the `N`; and its views are copied when reshaped. The same
+/// values; the weights read as [`pointwise`] reads them (burn draws a parameter's initial
+/// values when it is first read). Not for the window attention's q/k/v: there, three narrow
+/// weight gradients cost more than the split saves (RESULTS.md, issue 50).
+pub fn trained_parts<const N: usize>(conv: &Conv2d, x: &Tensor<4>) -> Option<[Tensor<4>; N]> {
+    if conv.bias.is_some()
+        || !is_plain(conv, 1)
+        || current() != Kernels::Fast
+        || !super::conv_train::trained_applies(x)
+    {
+        return None;
+    }
+    let weight = conv.weight.val();
+    let c = weight.dims()[0] / N;
+    Some(std::array::from_fn(|i| {
+        let part = weight.clone().narrow(0, i * c, c);
+        super::pointwise::pointwise_tensor(x.clone(), part, None)
+    }))
+}
+
 /// A depthwise 3×3 layer applied to `x`: in training on the CPU through the hand-written
 /// kernels of [`super::depthwise`] (burn's grouped-convolution weight gradient is slow), else
 /// burn's `Conv2d`.
