@@ -763,6 +763,38 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
             && text.contains("trained to step 1"),
         "{text}"
     );
+    // Under another residual base and a fixed K: the same parameters load into the moved
+    // network, saying so (restoring under them would be refused).
+    let rebased = d.join("rebased.bin");
+    let text = ok(&[
+        "restorer",
+        "train",
+        "--images",
+        s(&imgs),
+        "--val",
+        s(&val),
+        "--psf",
+        s(&other),
+        "--config",
+        "tiny",
+        "--residual-base",
+        "2",
+        "--fixed-k",
+        "--out",
+        s(&rebased),
+        "--steps",
+        "1",
+        "--batch",
+        "1",
+        "--val-crop",
+        "64",
+        "--init",
+        s(&weights),
+    ]);
+    assert!(
+        text.contains("residual base differs") && text.contains("trained to step 1"),
+        "{text}"
+    );
     ok(&[
         "restore",
         "--psf",

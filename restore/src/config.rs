@@ -195,6 +195,19 @@ impl RestorerConfig {
         unnamed(self) == unnamed(other)
     }
 
+    /// The same parameters, whatever feeds the network or what its output is added to: the
+    /// bank's K (`adaptive_k`) and the residual base are switches without parameters of their
+    /// own, so weights trained under one fine-tune under the other (`restorer train --init`);
+    /// restoring with them still needs [`Self::same_network`].
+    pub fn same_parameters(&self, other: &Self) -> bool {
+        let bare = |c: &Self| Self {
+            adaptive_k: true,
+            residual_base: 0,
+            ..c.clone()
+        };
+        bare(self).same_network(&bare(other))
+    }
+
     /// Channels at level 0..3 of the encoder.
     pub fn level_dim(&self, level: usize) -> usize {
         self.dim << level
@@ -441,6 +454,18 @@ mod tests {
             ..a.clone()
         };
         assert!(!a.same_network(&median));
+        // Fine-tuning may move the base and the bank's K, not the parameters.
+        let fixed_k = RestorerConfig {
+            adaptive_k: false,
+            ..median.clone()
+        };
+        assert!(a.same_parameters(&fixed_k) && !a.same_network(&fixed_k));
+        assert!(!a.same_parameters(&RestorerConfig::small()));
+        let wider = RestorerConfig {
+            dim: a.dim + 8,
+            ..a.clone()
+        };
+        assert!(!a.same_parameters(&wider));
         let bad = RestorerConfig {
             residual_base: BANK_SIZE,
             ..a

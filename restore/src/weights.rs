@@ -383,6 +383,34 @@ pub fn load(
     build(header, record, path, device, expected, psf)
 }
 
+/// For fine-tuning (`restorer train --init`): the weights at `path` in a network of `cfg`,
+/// which may differ from theirs in the switches without parameters (the bank's K, the
+/// residual base: [`RestorerConfig::same_parameters`]); another network is refused naming
+/// both. The header returned is the file's.
+pub fn load_into(
+    path: &Path,
+    device: &Device,
+    cfg: &RestorerConfig,
+) -> Result<(RestorerNet, Header)> {
+    let (mut header, record) = read(path)?;
+    if !cfg.same_parameters(&header.config) {
+        return Err(bad(
+            path,
+            format!(
+                "weights are of config '{}' ({} parameters), expected '{}' ({} parameters)",
+                header.config.name,
+                header.config.analytic_params(),
+                cfg.name,
+                cfg.analytic_params()
+            ),
+        ));
+    }
+    let theirs = std::mem::replace(&mut header.config, cfg.clone());
+    let (net, mut header) = build(header, record, path, device, Some(cfg), None)?;
+    header.config = theirs;
+    Ok((net, header))
+}
+
 /// [`load`] from bytes already in memory (`path` names them in errors).
 pub fn load_bytes(
     bytes: &[u8],

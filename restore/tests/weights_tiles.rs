@@ -106,6 +106,42 @@ fn weights_of_another_config_or_psf_grid_are_refused_naming_both() {
     assert!(e.contains("do not fit config 'small'"), "{e}");
 }
 
+#[test]
+fn fine_tuning_loads_weights_under_another_residual_base_or_bank_k_but_not_another_network() {
+    let device = Device::flex();
+    device.seed(5);
+    let cfg = RestorerConfig::tiny();
+    let net = RestorerNet::new(&cfg, &device);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("tiny.bin");
+    weights::save(&net, &header(&cfg, &psf_a()), &path).unwrap();
+    let moved = RestorerConfig {
+        residual_base: 2,
+        adaptive_k: false,
+        ..cfg.clone()
+    };
+    // Restoring under other switches is refused; fine-tuning takes them.
+    assert!(weights::load(&path, &device, Some(&moved), None).is_err());
+    let (tuned, h) = weights::load_into(&path, &device, &moved).unwrap();
+    assert_eq!(h.config, cfg, "the header returned is the file's");
+    // The same parameters, the output added to bank image 2 instead of 0: the two answers
+    // differ by exactly those two images.
+    let bank = Tensor::<4>::random([1, 39, 32, 32], Distribution::Default, &device);
+    let (a, b) = (net.forward(bank.clone()), tuned.forward(bank.clone()));
+    let shift = bank.clone().narrow(1, 6, 3) - bank.narrow(1, 0, 3);
+    let err: f32 = (b - a - shift).abs().max().into_scalar();
+    assert!(err < 1e-5, "{err}");
+    let small = RestorerConfig::small();
+    let e = weights::load_into(&path, &device, &small)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("tiny.bin") && e.contains("'tiny'") && e.contains("'small'"),
+        "{e}"
+    );
+}
+
 /// `net` in the layout of version 3 (magic line, u64 header length, JSON header, burnpack
 /// record, XXH3 of what precedes it), made here from burn's record as that version wrote it.
 fn version_3(net: &RestorerNet, header: &Header) -> Vec<u8> {

@@ -404,7 +404,18 @@ fn starting_point(
     if !a.resume {
         return Ok(match &a.init {
             Some(p) => {
-                let (net, header) = load(p, None)?;
+                // Into this run's network: the weights' own bank K and residual base may
+                // differ (the network relearns what it adds to the new base).
+                let (net, header) = weights::load_into(p, &device.clone().autodiff(), cfg)?;
+                if !cfg.same_network(&header.config) {
+                    notes.push(format!(
+                        "Fine-tuning {} (config '{}') as '{}': the bank's K or the residual \
+                         base differs from the weights'",
+                        p.display(),
+                        header.config.name,
+                        cfg.name
+                    ));
+                }
                 if let Err(why) = header.serves(native) {
                     notes.push(format!(
                         "Fine-tuning {} to --psf {}: {why}",
