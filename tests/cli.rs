@@ -734,29 +734,31 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
     assert_eq!(image::image_dimensions(d.join("x.png")).unwrap(), (96, 80));
     // Fine-tuning to a user's own lens: --init takes weights made for another grid, and the
     // weights it writes serve that grid.
+    // `source`: the training and validation flags, and any more.
+    let fine_tune = |out: &Path, source: &[&str]| {
+        let mut args = vec!["restorer", "train"];
+        args.extend_from_slice(source);
+        args.extend_from_slice(&[
+            "--psf",
+            s(&other),
+            "--config",
+            "tiny",
+            "--out",
+            s(out),
+            "--steps",
+            "1",
+            "--batch",
+            "1",
+            "--val-crop",
+            "64",
+            "--init",
+            s(&weights),
+        ]);
+        ok(&args)
+    };
+    let photos = ["--images", s(&imgs), "--val", s(&val)];
     let tuned = d.join("tuned.bin");
-    let text = ok(&[
-        "restorer",
-        "train",
-        "--images",
-        s(&imgs),
-        "--val",
-        s(&val),
-        "--psf",
-        s(&other),
-        "--config",
-        "tiny",
-        "--out",
-        s(&tuned),
-        "--steps",
-        "1",
-        "--batch",
-        "1",
-        "--val-crop",
-        "64",
-        "--init",
-        s(&weights),
-    ]);
+    let text = fine_tune(&tuned, &photos);
     assert!(
         text.contains("Fine-tuning")
             && text.contains("w.bin")
@@ -765,32 +767,8 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
     );
     // Under another residual base and a fixed K: the same parameters load into the moved
     // network, saying so (restoring under them would be refused).
-    let rebased = d.join("rebased.bin");
-    let text = ok(&[
-        "restorer",
-        "train",
-        "--images",
-        s(&imgs),
-        "--val",
-        s(&val),
-        "--psf",
-        s(&other),
-        "--config",
-        "tiny",
-        "--residual-base",
-        "2",
-        "--fixed-k",
-        "--out",
-        s(&rebased),
-        "--steps",
-        "1",
-        "--batch",
-        "1",
-        "--val-crop",
-        "64",
-        "--init",
-        s(&weights),
-    ]);
+    let rebased = [&photos[..], &["--residual-base", "2", "--fixed-k"]].concat();
+    let text = fine_tune(&d.join("rebased.bin"), &rebased);
     assert!(
         text.contains("residual base differs") && text.contains("trained to step 1"),
         "{text}"
@@ -826,28 +804,7 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
         }
     }
     let paired = d.join("paired.bin");
-    let text = ok(&[
-        "restorer",
-        "train",
-        "--pairs",
-        s(&pairs),
-        "--val",
-        s(&val_pairs),
-        "--psf",
-        s(&other),
-        "--config",
-        "tiny",
-        "--out",
-        s(&paired),
-        "--steps",
-        "1",
-        "--batch",
-        "1",
-        "--val-crop",
-        "64",
-        "--init",
-        s(&weights),
-    ]);
+    let text = fine_tune(&paired, &["--pairs", s(&pairs), "--val", s(&val_pairs)]);
     assert!(
         text.contains("2 captured pairs; 2 validation pairs") && text.contains("trained to step 1"),
         "{text}"

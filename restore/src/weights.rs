@@ -394,16 +394,7 @@ pub fn load_into(
 ) -> Result<(RestorerNet, Header)> {
     let (mut header, record) = read(path)?;
     if !cfg.same_parameters(&header.config) {
-        return Err(bad(
-            path,
-            format!(
-                "weights are of config '{}' ({} parameters), expected '{}' ({} parameters)",
-                header.config.name,
-                header.config.analytic_params(),
-                cfg.name,
-                cfg.analytic_params()
-            ),
-        ));
+        return Err(other_config(path, &header.config, cfg));
     }
     let theirs = std::mem::replace(&mut header.config, cfg.clone());
     let (net, mut header) = build(header, record, path, device, Some(cfg), None)?;
@@ -423,6 +414,20 @@ pub fn load_bytes(
     build(header, record, path, device, expected, psf)
 }
 
+/// The refusal of weights of config `theirs` where `expected` was asked for.
+fn other_config(path: &Path, theirs: &RestorerConfig, expected: &RestorerConfig) -> RestoreError {
+    bad(
+        path,
+        format!(
+            "weights are of config '{}' ({} parameters), expected '{}' ({} parameters)",
+            theirs.name,
+            theirs.analytic_params(),
+            expected.name,
+            expected.analytic_params()
+        ),
+    )
+}
+
 fn build(
     header: Header,
     record: Record,
@@ -434,16 +439,7 @@ fn build(
     if let Some(cfg) = expected
         && !cfg.same_network(&header.config)
     {
-        return Err(bad(
-            path,
-            format!(
-                "weights are of config '{}' ({} parameters), expected '{}' ({} parameters)",
-                header.config.name,
-                header.config.analytic_params(),
-                cfg.name,
-                cfg.analytic_params()
-            ),
-        ));
+        return Err(other_config(path, &header.config, cfg));
     }
     if let Some(psf) = psf
         && let Err(why) = header.serves(psf)
