@@ -392,14 +392,11 @@ pub fn load_into(
     device: &Device,
     cfg: &RestorerConfig,
 ) -> Result<(RestorerNet, Header)> {
-    let (mut header, record) = read(path)?;
+    let (header, record) = read(path)?;
     if !cfg.same_parameters(&header.config) {
         return Err(other_config(path, &header.config, cfg));
     }
-    let theirs = std::mem::replace(&mut header.config, cfg.clone());
-    let (net, mut header) = build(header, record, path, device, Some(cfg), None)?;
-    header.config = theirs;
-    Ok((net, header))
+    Ok((assemble(cfg, record, path, device)?, header))
 }
 
 /// [`load`] from bytes already in memory (`path` names them in errors).
@@ -446,11 +443,22 @@ fn build(
     {
         return Err(bad(path, why));
     }
-    let fresh = RestorerNet::new(&header.config, device);
+    Ok((assemble(&header.config, record, path, device)?, header))
+}
+
+/// A network of `cfg` holding `record`'s weights, refused when they do not fit it or hold a
+/// value that is not finite.
+fn assemble(
+    cfg: &RestorerConfig,
+    record: Record,
+    path: &Path,
+    device: &Device,
+) -> Result<RestorerNet> {
+    let fresh = RestorerNet::new(cfg, device);
     let unfit = |e: String| {
         bad(
             path,
-            format!("weights do not fit config '{}': {e}", header.config.name),
+            format!("weights do not fit config '{}': {e}", cfg.name),
         )
     };
     let net = match record {
@@ -482,5 +490,5 @@ fn build(
             format!("{bad_tensors} weight tensors hold NaN or infinite values"),
         ));
     }
-    Ok((net, header))
+    Ok(net)
 }

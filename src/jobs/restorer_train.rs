@@ -397,16 +397,14 @@ fn starting_point(
 ) -> Result<(Start, Lineage)> {
     // A resumed run continues on the grid it was trained for; `--init` starts from weights of
     // any lens (fine-tuning to a user's own grid).
-    let load = |p: &Path, grid: Option<&PsfGrid>| {
-        let device = device.clone().autodiff();
-        weights::load(p, &device, Some(cfg), grid)
-    };
+    let device = device.clone().autodiff();
+    let load = |p: &Path, grid: Option<&PsfGrid>| weights::load(p, &device, Some(cfg), grid);
     if !a.resume {
         return Ok(match &a.init {
             Some(p) => {
                 // Into this run's network: the weights' own bank K and residual base may
                 // differ (the network relearns what it adds to the new base).
-                let (net, header) = weights::load_into(p, &device.clone().autodiff(), cfg)?;
+                let (net, header) = weights::load_into(p, &device, cfg)?;
                 if !cfg.same_network(&header.config) {
                     notes.push(format!(
                         "Fine-tuning {} (config '{}') as '{}': the bank's K or the residual \
