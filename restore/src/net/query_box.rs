@@ -35,7 +35,8 @@ pub fn enhance(x: &[f32], k: usize, h: usize, w: usize) -> Vec<f32> {
     })
 }
 
-fn plane_task(dst: &mut [f32], src: &[f32], k: usize, h: usize, w: usize) {
+/// One plane `src` (`h × w`) enhanced into `dst`, every value written (`k` odd).
+pub(super) fn plane_task(dst: &mut [f32], src: &[f32], k: usize, h: usize, w: usize) {
     #[cfg(target_arch = "x86_64")]
     if base::isa::Isa::chosen() != base::isa::Isa::Portable {
         // SAFETY: `Isa::chosen` names a build the CPU has, and every build past the

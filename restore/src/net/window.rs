@@ -206,7 +206,20 @@ impl WindowAttention {
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let mut parts = pointwise(&self.qkv, x).chunk(3, 1);
+        let qkv = pointwise(&self.qkv, x);
+        let c = qkv.dims()[1] / 3;
+        if current() == Kernels::Fast
+            && super::conv_train::trained_applies(&qkv)
+            && super::window_train::supported(c, self.heads)
+            && (self.qe <= 1 || self.qe % 2 == 1)
+        {
+            // In training on the CPU, one node from the q/k/v map to the answers (no slices).
+            let bias = self.position_bias();
+            let answers =
+                super::window_train::attend_qkv_tensor(qkv, bias, self.qe, self.win, self.kwin);
+            return pointwise(&self.proj, answers);
+        }
+        let mut parts = qkv.chunk(3, 1);
         let v = parts.pop().expect("qkv");
         let k = parts.pop().expect("qkv");
         let q = enhance_query(parts.pop().expect("qkv"), self.qe);

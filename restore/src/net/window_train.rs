@@ -56,6 +56,29 @@ pub fn attend_tensor(
     ))
 }
 
+/// STAF's window attention straight from the `[b, 3c, h, w]` map of its q/k/v convolution
+/// (q, k and v its channel thirds), the query enhanced first (`Q − AvgPool_qe(Q)`, `qe` odd,
+/// or ≤ 1 for none) → `[b, c, h, w]`: one node where there were three channel slices, the
+/// enhancement and the attention. burn's backward of each slice fills a zero map of all 3c
+/// channels and the three are summed; here the map's gradient is written once, third by
+/// third. The same values as the three nodes, bit for bit (the enhancement is its own
+/// adjoint, [`super::query_box`]).
+pub fn attend_qkv_tensor(
+    qkv: Tensor<4>,
+    bias: Tensor<3>,
+    qe: usize,
+    win: usize,
+    kwin: usize,
+) -> Tensor<4> {
+    Tensor::<4>::from_dispatch(<Dispatch as WindowTrainOps>::window_attention_qkv(
+        qkv.into_dispatch(),
+        bias.into_dispatch(),
+        qe,
+        win,
+        kwin,
+    ))
+}
+
 /// MAFG's cross-attention: query maps `q: [b, c, h, w]`, each asked of `share` key and value
 /// maps `k, v: [b·share, c, h, w]`, with position embeddings `pos_q: [win², c]` and
 /// `pos_k: [kwin², c]` added to queries and keys, `heads` heads → `[b·share, c, h, w]`.
@@ -90,6 +113,15 @@ pub trait WindowTrainOps: Backend {
         k: FloatTensor<Self>,
         v: FloatTensor<Self>,
         bias: FloatTensor<Self>,
+        win: usize,
+        kwin: usize,
+    ) -> FloatTensor<Self>;
+    /// `qkv: [b, 3c, h, w]`, `bias: [heads, win², kwin²]` → `[b, c, h, w]`, the query
+    /// third enhanced with a `qe` box first.
+    fn window_attention_qkv(
+        qkv: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+        qe: usize,
         win: usize,
         kwin: usize,
     ) -> FloatTensor<Self>;
@@ -200,6 +232,16 @@ impl WindowTrainOps for Flex {
         forward([q, k, v], vec![bias], Kind::Window, win, kwin, false).0
     }
 
+    fn window_attention_qkv(
+        qkv: FlexTensor,
+        bias: FlexTensor,
+        qe: usize,
+        win: usize,
+        kwin: usize,
+    ) -> FlexTensor {
+        qkv_forward(qkv, bias, qe, win, kwin, false).0
+    }
+
     fn cross_attention(
         q: FlexTensor,
         k: FlexTensor,
@@ -219,6 +261,147 @@ impl WindowTrainOps for Flex {
             false,
         )
         .0
+    }
+}
+
+/// The enhanced query and the key and value maps (`[b, c, h, w]` each) of a `[b, 3c, h, w]`
+/// q/k/v map, as the three channel slices and [`super::query_box::enhance`] give them.
+fn split_qkv(qkv: &[f32], [b, c, h, w]: [usize; 4], qe: usize) -> [Vec<f32>; 3] {
+    let plane = h * w;
+    let third = |part: usize, enhance: bool| {
+        super::fresh::filled(b * c * plane, plane, |i, dst| {
+            let src = &qkv[((i / c) * 3 * c + part * c + i % c) * plane..][..plane];
+            if enhance {
+                super::query_box::plane_task(dst, src, qe, h, w);
+            } else {
+                dst.copy_from_slice(src);
+            }
+        })
+    };
+    [third(0, qe > 1), third(1, false), third(2, false)]
+}
+
+/// The `[b, 3c, h, w]` gradient of [`split_qkv`]'s input from those of its three maps: the
+/// query's through the enhancement (its own adjoint), each written into its third.
+fn join_qkv(dq: &[f32], dk: &[f32], dv: &[f32], [b, c, h, w]: [usize; 4], qe: usize) -> Vec<f32> {
+    let plane = h * w;
+    super::fresh::filled(b * 3 * c * plane, plane, |i, dst| {
+        let (item, part, ch) = (i / (3 * c), (i / c) % 3, i % c);
+        let src = [dq, dk, dv][part];
+        let src = &src[(item * c + ch) * plane..][..plane];
+        if part == 0 && qe > 1 {
+            super::query_box::plane_task(dst, src, qe, h, w);
+        } else {
+            dst.copy_from_slice(src);
+        }
+    })
+}
+
+/// What a tracked [`WindowTrainOps::window_attention_qkv`] keeps for its backward: the three
+/// maps it attended over and the softmax of every window.
+#[derive(Clone)]
+struct KeptQkv {
+    maps: Arc<[Vec<f32>; 3]>,
+    probs: Probs,
+}
+
+impl std::fmt::Debug for KeptQkv {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "KeptQkv(3 maps of {}, {:?})",
+            self.maps[0].len(),
+            self.probs
+        )
+    }
+}
+
+/// The output of [`WindowTrainOps::window_attention_qkv`], and with `keep` what its backward
+/// reads.
+fn qkv_forward(
+    qkv: FlexTensor,
+    bias: FlexTensor,
+    qe: usize,
+    win: usize,
+    kwin: usize,
+    keep: bool,
+) -> (FlexTensor, Option<KeptQkv>) {
+    let (qkv, bias) = (qkv.to_contiguous(), bias.to_contiguous());
+    let [b, c3, h, w] = flex_dims::<4>(&qkv);
+    let c = c3 / 3;
+    let [q, k, v] = split_qkv(flex_slice(&qkv), [b, c, h, w], qe);
+    let spec = spec(Kind::Window, std::slice::from_ref(&bias), win, kwin, 1);
+    let (out, kept) = if keep {
+        let (out, probs) =
+            attend_maps_keeping(&q, &k, &v, [c, h, w], &spec).expect("a supported head width");
+        let kept = KeptQkv {
+            maps: Arc::new([q, k, v]),
+            probs: Probs(Arc::new(probs)),
+        };
+        (out, Some(kept))
+    } else {
+        let out = attend_maps(&q, &k, &v, [c, h, w], &spec).expect("a supported head width");
+        (out, None)
+    };
+    (
+        FlexTensor::from_data(TensorData::new(out, [b, c, h, w])),
+        kept,
+    )
+}
+
+#[derive(Debug)]
+struct QkvBackward {
+    qe: usize,
+    win: usize,
+    kwin: usize,
+}
+
+impl Backward<Flex, 2> for QkvBackward {
+    /// The position logits' node and what the forward kept.
+    type State = (NodeId, KeptQkv);
+
+    fn backward(
+        self,
+        ops: Ops<Self::State, 2>,
+        grads: &mut Gradients,
+        checkpointer: &mut Checkpointer,
+    ) {
+        let dout = grads.consume::<Flex>(&ops.node).to_contiguous();
+        let (bias_id, kept) = ops.state;
+        let bias = checkpointer
+            .retrieve_node_output::<FlexTensor>(bias_id)
+            .to_contiguous();
+        let [b, c, h, w] = flex_dims::<4>(&dout);
+        let spec = spec(
+            Kind::Window,
+            std::slice::from_ref(&bias),
+            self.win,
+            self.kwin,
+            1,
+        );
+        let [q, k, v] = &*kept.maps;
+        let g = attend_backward(
+            q,
+            k,
+            v,
+            flex_slice(&dout),
+            [c, h, w],
+            &spec,
+            Some(kept.probs.0.as_slice()),
+        );
+        let [qkv_parent, bias_parent] = ops.parents;
+        if let Some(node) = qkv_parent {
+            let dqkv = join_qkv(&g.dq, &g.dk, &g.dv, [b, c, h, w], self.qe);
+            let dqkv = FlexTensor::from_data(TensorData::new(dqkv, [b, 3 * c, h, w]));
+            grads.register::<Flex>(node.id, dqkv);
+        }
+        if let Some(node) = bias_parent {
+            let shape = bias.layout().shape().to_vec();
+            grads.register::<Flex>(
+                node.id,
+                FlexTensor::from_data(TensorData::new(g.dbias, shape)),
+            );
+        }
     }
 }
 
@@ -712,6 +895,42 @@ impl<C: CheckpointStrategy> WindowTrainOps for Autodiff<Flex, C> {
         )
     }
 
+    fn window_attention_qkv(
+        qkv: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+        qe: usize,
+        win: usize,
+        kwin: usize,
+    ) -> FloatTensor<Self> {
+        let nodes = [qkv.node(), bias.node()];
+        let backward = QkvBackward { qe, win, kwin };
+        match backward.prepare::<C>(nodes).compute_bound().stateful() {
+            OpsKind::Tracked(mut prep) => {
+                let bias_id = prep.checkpoint(&bias);
+                let (y, kept) = qkv_forward(
+                    qkv.into_primitive(),
+                    bias.into_primitive(),
+                    qe,
+                    win,
+                    kwin,
+                    true,
+                );
+                prep.finish((bias_id, kept.expect("kept when asked")), y)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(
+                qkv_forward(
+                    qkv.into_primitive(),
+                    bias.into_primitive(),
+                    qe,
+                    win,
+                    kwin,
+                    false,
+                )
+                .0,
+            ),
+        }
+    }
+
     fn cross_attention(
         q: FloatTensor<Self>,
         k: FloatTensor<Self>,
@@ -1031,6 +1250,67 @@ mod tests {
                 assert!(a.iter().all(|v| v.is_finite()), "{name} not finite");
             }
             assert!(with.dq.iter().any(|&v| v != 0.0));
+        }
+    }
+
+    #[test]
+    fn the_qkv_node_gives_the_bits_of_slices_enhancement_and_attention() {
+        use burn::tensor::Device;
+        let device = Device::flex().autodiff();
+        let bits = |t: Vec<f32>| t.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        // Two items, masked border keys; with and without the query enhancement.
+        for (c, heads, qe, h, w) in [(16, 2, 3, 12, 8), (8, 1, 0, 8, 12), (16, 4, 5, 8, 8)] {
+            let (b, win, kwin) = (2, 4, 6);
+            let qkv_values = values(b * 3 * c * h * w, 5);
+            let bias_values = values(heads * win * win * kwin * kwin, 6);
+            let wts = Tensor::<4>::from_data(
+                TensorData::new(values(b * c * h * w, 7), [b, c, h, w]),
+                &device,
+            );
+            let run = |fused: bool| {
+                let qkv = Tensor::<4>::from_data(
+                    TensorData::new(qkv_values.clone(), [b, 3 * c, h, w]),
+                    &device,
+                )
+                .require_grad();
+                let bias = Tensor::<3>::from_data(
+                    TensorData::new(bias_values.clone(), [heads, win * win, kwin * kwin]),
+                    &device,
+                )
+                .require_grad();
+                let y = if fused {
+                    attend_qkv_tensor(qkv.clone(), bias.clone(), qe, win, kwin)
+                } else {
+                    let mut parts = qkv.clone().chunk(3, 1);
+                    let v = parts.pop().unwrap();
+                    let k = parts.pop().unwrap();
+                    let q = parts.pop().unwrap();
+                    let q = if qe > 1 {
+                        super::super::query_box::enhance_tensor(q, qe)
+                    } else {
+                        q
+                    };
+                    attend_tensor(q, k, v, bias.clone(), win, kwin)
+                };
+                let g = (y.clone() * wts.clone()).sum().backward();
+                let read = |t: Tensor<4>| t.try_into_vec_as::<f32>().unwrap();
+                [
+                    read(y),
+                    read(qkv.grad(&g).unwrap()),
+                    bias.grad(&g).unwrap().try_into_vec_as::<f32>().unwrap(),
+                ]
+            };
+            let (fused, chained) = (run(true), run(false));
+            for (name, a, r) in ["output", "q/k/v gradient", "position gradient"]
+                .iter()
+                .zip(fused)
+                .zip(chained)
+                .map(|((n, a), r)| (n, a, r))
+            {
+                assert!(a.iter().all(|v| v.is_finite()), "{name} not finite");
+                assert!(a.iter().any(|&v| v != 0.0), "{name} all zero");
+                assert_eq!(bits(a), bits(r), "{name} differs ({c}/{heads}, qe {qe})");
+            }
         }
     }
 }
