@@ -773,6 +773,31 @@ fn restorer_trains_restores_evaluates_and_feeds_splat_training() {
         text.contains("residual base differs") && text.contains("trained to step 1"),
         "{text}"
     );
+    // Fine-tuned networks average into one (here a network with itself: the mean is that
+    // network); one under another bank K is refused naming it, nothing written.
+    let soup = d.join("soup.bin");
+    let err = fails(&[
+        "restorer",
+        "average",
+        s(&tuned),
+        s(&d.join("rebased.bin")),
+        "--out",
+        s(&soup),
+    ]);
+    assert!(
+        err.contains("rebased.bin") && err.contains("config"),
+        "{err}"
+    );
+    assert!(!soup.exists());
+    let text = ok(&[
+        "restorer",
+        "average",
+        s(&tuned),
+        s(&tuned),
+        "--out",
+        s(&soup),
+    ]);
+    assert!(text.contains("the mean of 2 networks"), "{text}");
     ok(&[
         "restore",
         "--psf",

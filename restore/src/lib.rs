@@ -6,6 +6,7 @@
 //! - [`train`]: the training loop, resumable from [`train_state`]; [`weights`]: the weights
 //!   file; [`infer`]: restoring images (tiled, see [`tiles`]).
 
+pub mod average;
 pub mod compute;
 pub mod config;
 pub mod coverage;

@@ -618,3 +618,85 @@ fn an_ensemble_size_other_than_1_2_4_or_8_is_refused() {
     }
     assert_eq!(r().with_ensemble(4).unwrap().ensemble, 4);
 }
+
+/// Every float parameter's values, in visiting order.
+fn parameter_values(net: &RestorerNet) -> Vec<Vec<f32>> {
+    use burn::module::{Module, ModuleVisitor, Param};
+    struct Collect(Vec<Vec<f32>>);
+    impl ModuleVisitor for Collect {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            self.0.push(param.val().try_into_vec_as::<f32>().unwrap());
+        }
+    }
+    let mut c = Collect(Vec::new());
+    net.visit(&mut c);
+    c.0
+}
+
+#[test]
+fn the_average_of_networks_is_their_parameter_mean_and_refuses_unlike_members() {
+    let device = Device::flex();
+    let cfg = RestorerConfig::tiny();
+    let dir = tempfile::tempdir().unwrap();
+    let mut paths = vec![];
+    let mut nets = vec![];
+    for (i, seed) in [3u64, 4, 5].into_iter().enumerate() {
+        device.seed(seed);
+        let net = RestorerNet::new(&cfg, &device);
+        let path = dir.path().join(format!("w{i}.bin"));
+        let mut h = header(&cfg, &psf_a());
+        h.trained_psf_px = Some([85, 140]);
+        h.provenance = serde_json::json!({ "member": i });
+        weights::save(&net, &h, &path).unwrap();
+        paths.push(path);
+        nets.push(net);
+    }
+    let (mean, h) = restore::average::average(&paths, &device).unwrap();
+    let members: Vec<Vec<Vec<f32>>> = nets.iter().map(parameter_values).collect();
+    let got = parameter_values(&mean);
+    assert_eq!(got.len(), members[0].len());
+    for (t, values) in got.iter().enumerate() {
+        for (j, &v) in values.iter().enumerate() {
+            let sum: f64 = members.iter().map(|m| f64::from(m[t][j])).sum();
+            assert_eq!(v, (sum / 3.0) as f32, "parameter {t}, value {j}");
+        }
+    }
+    // Not one of the members: the mean's answers differ from each.
+    let x = Tensor::<4>::random([1, 39, 32, 32], Distribution::Default, &device);
+    for net in &nets {
+        assert_ne!(outputs(net, &x), outputs(&mean, &x));
+    }
+    assert_eq!(h.trained_psf_px, Some([85, 140]));
+    let recorded = h.provenance["average_of"].as_array().unwrap();
+    assert_eq!(recorded.len(), 3);
+    assert_eq!(recorded[2]["provenance"]["member"], 2);
+    // Saved, it loads for the first member's grid and restores as in memory.
+    let out = dir.path().join("mean.bin");
+    weights::save(&mean, &h, &out).unwrap();
+    let (loaded, _) = weights::load(&out, &device, Some(&cfg), Some(&psf_a())).unwrap();
+    assert_eq!(outputs(&loaded, &x), outputs(&mean, &x));
+
+    // Refused, naming the member: another bank K, another scale range, one file alone.
+    let fixed = cfg.clone().with_ablations(None, true, None).unwrap();
+    let other = dir.path().join("fixed.bin");
+    weights::save(&nets[0], &header(&fixed, &psf_a()), &other).unwrap();
+    let e = restore::average::average(&[paths[0].clone(), other.clone()], &device)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("fixed.bin") && e.contains("config"), "{e}");
+    let wide = dir.path().join("wide.bin");
+    let mut h = header(&cfg, &psf_a());
+    h.trained_psf_px = Some([15, 140]);
+    weights::save(&nets[1], &h, &wide).unwrap();
+    let e = restore::average::average(&[paths[0].clone(), wide], &device)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("wide.bin") && e.contains("scales"), "{e}");
+    let e = restore::average::average(&paths[..1], &device)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("two or more"), "{e}");
+}

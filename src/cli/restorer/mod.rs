@@ -1,7 +1,8 @@
-//! `metasplat restorer train|eval` and `metasplat restore`: the aberration-correcting
+//! `metasplat restorer train|eval|average` and `metasplat restore`: the aberration-correcting
 //! transformer.
 
 mod apply;
+mod average;
 mod eval;
 mod train;
 
@@ -19,6 +20,9 @@ pub enum RestorerCommand {
     /// Score a restored clip (a folder of frames) against its clean one: per-frame PSNR and
     /// SSIM, and its flicker (how much more consecutive frames differ than the clean ones do).
     EvalVideo(eval::EvalVideoArgs),
+    /// Average fine-tuned networks parameter by parameter (a "model soup"): one network's
+    /// cost, often better than each member.
+    Average(average::AverageArgs),
 }
 
 pub fn run(c: RestorerCommand) -> Result<()> {
@@ -26,5 +30,6 @@ pub fn run(c: RestorerCommand) -> Result<()> {
         RestorerCommand::Train(a) => train::run_train(a),
         RestorerCommand::Eval(a) => eval::run_eval(a),
         RestorerCommand::EvalVideo(a) => eval::run_eval_video(a),
+        RestorerCommand::Average(a) => average::run_average(a),
     }
 }
