@@ -24,10 +24,10 @@ pub const FAMILY_NAME: &str = "restore/weights/family_tiny_5.bin (shipped)";
 
 /// The general network fine-tuned on the family's widest blur only, PSFs of 85-140 px
 /// (`restore/weights/README.md`): `auto`'s choice there, before [`FAMILY`].
-pub const LARGE: &[u8] = include_bytes!("../weights/large_tiny_8.bin");
+pub const LARGE: &[u8] = include_bytes!("../weights/large_tiny_9.bin");
 
 /// The name the wide-blur weights go by in messages.
-pub const LARGE_NAME: &str = "restore/weights/large_tiny_8.bin (shipped)";
+pub const LARGE_NAME: &str = "restore/weights/large_tiny_9.bin (shipped)";
 
 /// Weights shipped inside the binary.
 #[derive(Clone, Copy, Debug)]

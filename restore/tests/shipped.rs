@@ -308,7 +308,7 @@ fn the_family_increment_serves_the_default_lens_and_a_perturbed_one_at_every_sca
     let other = simulate_grid(&ideal, &|_, _| {}).unwrap().0;
     assert!(header.serves(&other).is_err());
     // The wide-blur network: the same family, its scales 85-140 px.
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("weights/large_tiny_8.bin");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("weights/large_tiny_9.bin");
     let (large, _) = restore::weights::read(&path).unwrap();
     assert_eq!(large.trained_psf_px, Some([85, 140]));
     assert!(large.serves(&perturbed_grid()).is_ok() && large.serves(&other).is_err());

@@ -54,7 +54,7 @@ impl Tiling {
 #[derive(Args, Clone, Debug)]
 pub struct Inference {
     /// Restorer weights; without it, the network shipped in the binary
-    /// (`restore/weights/tiny.bin`, else `large_tiny_8.bin` for 85-140 px PSFs, else the
+    /// (`restore/weights/tiny.bin`, else `large_tiny_9.bin` for 85-140 px PSFs, else the
     /// general `family_tiny_5.bin`), when one serves this PSF grid.
     #[arg(long)]
     pub weights: Option<PathBuf>,
