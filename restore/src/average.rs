@@ -1,7 +1,8 @@
 //! The parameter-wise mean of networks fine-tuned from one starting point (a "model soup",
 //! Wortsman et al., ICML 2022): runs that differ in seed or schedule land near each other,
-//! and their mean often restores better than each, at one network's cost (where a
-//! self-ensemble, [`crate::ensemble`], costs one pass per member).
+//! and their mean can restore better than each, at one network's cost (where a
+//! self-ensemble, [`crate::ensemble`], costs one pass per member). Two seeds of the shipped
+//! wide-blur network's run averaged scored as each (RESULTS.md).
 //!
 //! Only networks of one configuration (the same layout and the same input switches: bank K,
 //! residual base) trained on the same PSF-scale range average; the mean keeps the first

@@ -21,7 +21,7 @@ pub enum RestorerCommand {
     /// SSIM, and its flicker (how much more consecutive frames differ than the clean ones do).
     EvalVideo(eval::EvalVideoArgs),
     /// Average fine-tuned networks parameter by parameter (a "model soup"): one network's
-    /// cost, often better than each member.
+    /// cost, at times better than each member.
     Average(average::AverageArgs),
 }
 
