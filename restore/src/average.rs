@@ -43,21 +43,21 @@ pub fn average(paths: &[PathBuf], device: &Device) -> Result<(RestorerNet, Heade
             paths.len()
         )));
     }
-    let (first, header) = weights::load(&paths[0], device, None, None)?;
+    let (first, header, first_member) = load(&paths[0], device)?;
     let mut sums: Vec<Vec<f64>> = parameters(&first)
         .into_iter()
         .map(|p| p.into_iter().map(f64::from).collect())
         .collect();
-    let mut members = vec![member(&paths[0], &header)?];
+    let mut members = vec![first_member];
     for path in &paths[1..] {
-        let (net, h) = weights::load(path, device, None, None)?;
+        let (net, h, m) = load(path, device)?;
         refuse_unlike(path, &h, &paths[0], &header)?;
         for (sum, values) in sums.iter_mut().zip(parameters(&net)) {
             for (s, v) in sum.iter_mut().zip(values) {
                 *s += f64::from(v);
             }
         }
-        members.push(member(path, &h)?);
+        members.push(m);
     }
     let n = paths.len() as f64;
     struct Replace<'a>(std::slice::Iter<'a, Vec<f64>>, f64);
@@ -78,14 +78,17 @@ pub fn average(paths: &[PathBuf], device: &Device) -> Result<(RestorerNet, Heade
     Ok((net, header))
 }
 
-/// One member's record in the mean's provenance.
-fn member(path: &Path, header: &Header) -> Result<serde_json::Value> {
+/// A member's network and header, and its record in the mean's provenance (file,
+/// fingerprint of the bytes loaded, provenance), from one read of the file.
+fn load(path: &Path, device: &Device) -> Result<(RestorerNet, Header, serde_json::Value)> {
     let bytes = std::fs::read(path).map_err(|e| RestoreError::Io(path.to_path_buf(), e))?;
-    Ok(serde_json::json!({
+    let (net, header) = weights::load_bytes(&bytes, path, device, None, None)?;
+    let member = serde_json::json!({
         "file": path.display().to_string(),
         "fingerprint": weights::fingerprint(&bytes),
         "provenance": header.provenance,
-    }))
+    });
+    Ok((net, header, member))
 }
 
 /// Refuses a member `path` unlike the first file.

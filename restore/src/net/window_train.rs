@@ -904,30 +904,23 @@ impl<C: CheckpointStrategy> WindowTrainOps for Autodiff<Flex, C> {
     ) -> FloatTensor<Self> {
         let nodes = [qkv.node(), bias.node()];
         let backward = QkvBackward { qe, win, kwin };
+        let run = |qkv: FloatTensor<Self>, bias: FloatTensor<Self>, keep| {
+            qkv_forward(
+                qkv.into_primitive(),
+                bias.into_primitive(),
+                qe,
+                win,
+                kwin,
+                keep,
+            )
+        };
         match backward.prepare::<C>(nodes).compute_bound().stateful() {
             OpsKind::Tracked(mut prep) => {
                 let bias_id = prep.checkpoint(&bias);
-                let (y, kept) = qkv_forward(
-                    qkv.into_primitive(),
-                    bias.into_primitive(),
-                    qe,
-                    win,
-                    kwin,
-                    true,
-                );
+                let (y, kept) = run(qkv, bias, true);
                 prep.finish((bias_id, kept.expect("kept when asked")), y)
             }
-            OpsKind::UnTracked(prep) => prep.finish(
-                qkv_forward(
-                    qkv.into_primitive(),
-                    bias.into_primitive(),
-                    qe,
-                    win,
-                    kwin,
-                    false,
-                )
-                .0,
-            ),
+            OpsKind::UnTracked(prep) => prep.finish(run(qkv, bias, false).0),
         }
     }
 
